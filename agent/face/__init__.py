@@ -1,0 +1,1 @@
+"""The ResponsiveFace-style face: flexors, actions, emotions and layered compositing."""
