@@ -1,0 +1,178 @@
+"""The Python client for external dialogue managers: drive one agent and wait for what it does.
+
+    with AgentClient(agent="ada") as ada:
+        ada.set_emotion("happy", intensity=0.8)
+        rid = ada.say(audio_path="hello.wav", text="Hello!")
+        print(ada.wait_for_speech(rid, timeout_s=30))   # SpeechFinished / Interrupted / Failed
+
+Every command is validated before it is sent (a `ProtocolError` names the bad field). A command the
+dialogue service refuses (say, an unknown emotion) comes back as an `Error` on `error.<agent>.error`;
+`expect_state` and `wait_for_speech` raise `CommandRejected` with its reason.
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
+
+import zmq
+
+from protocol.bus import BusTimeout, Publisher, Subscriber
+from protocol.endpoints import BusConfig, load_bus_config
+from protocol.messages import (
+    TERMINAL_SPEECH_EVENTS,
+    Error,
+    Interrupt,
+    Message,
+    MoveHead,
+    Say,
+    SetEmotion,
+    SetEyes,
+    SetGazeTarget,
+    SetRole,
+    SpeechChunk,
+    UserSpeech,
+)
+
+M = TypeVar("M", bound=Message)
+
+
+class CommandRejected(RuntimeError):
+    def __init__(self, error: Error) -> None:
+        super().__init__(error.reason)
+        self.error = error
+
+
+class AgentClient:
+    def __init__(self, config: BusConfig | None = None, agent: str = "ada", source: str | None = None,
+                 ctx: zmq.Context | None = None, timeout_s: float = 5.0) -> None:
+        self.config = config or load_bus_config()
+        self.agent = agent
+        self._own_ctx = ctx is None
+        self.ctx = ctx or zmq.Context()
+        self.pub = Publisher(self.ctx, self.config, source or f"client-{secrets.token_hex(3)}")
+        self.sub = Subscriber(self.ctx, self.config, [f"state.{agent}.", f"event.{agent}.", f"error.{agent}."])
+        self.pub.wait_ready(timeout_s)
+        self._inbox: deque[Message] = deque(m.message for m in self.sub.wait_ready(timeout_s) if m.message)
+        self.state: dict[str, Message] = {}
+        for msg in self._inbox:
+            self._note(msg)
+
+    # --- commands --------------------------------------------------------------------------------
+
+    def send(self, msg: Message) -> Message:
+        return self.pub.publish(msg)
+
+    def set_role(self, role: str, speaker: str = "", request_id: str = "") -> Message:
+        return self.send(SetRole(agent=self.agent, role=role, speaker=speaker, request_id=request_id))  # type: ignore[arg-type]
+
+    def set_emotion(self, name: str, intensity: float = 1.0, transition_s: float = 0.5,
+                    request_id: str = "") -> Message:
+        return self.send(SetEmotion(agent=self.agent, name=name, intensity=intensity, transition_s=transition_s,
+                                    request_id=request_id))
+
+    def move_head(self, turn: float = 0.0, nod: float = 0.0, tilt: float = 0.0, duration_s: float = 0.5,
+                  request_id: str = "") -> Message:
+        return self.send(MoveHead(agent=self.agent, turn=turn, nod=nod, tilt=tilt, duration_s=duration_s,
+                                  request_id=request_id))
+
+    def set_eyes(self, mode: str, request_id: str = "") -> Message:
+        return self.send(SetEyes(agent=self.agent, mode=mode, request_id=request_id))  # type: ignore[arg-type]
+
+    def set_gaze_target(self, yaw_deg: float, pitch_deg: float = 0.0, target: str = "",
+                        request_id: str = "") -> Message:
+        return self.send(SetGazeTarget(agent=self.agent, yaw_deg=yaw_deg, pitch_deg=pitch_deg, target=target,
+                                       request_id=request_id))
+
+    def say(self, audio_path: str | None = None, pcm: bytes | None = None, sample_rate: int = 0,
+            text: str | None = None, request_id: str | None = None) -> str:
+        rid = request_id or f"say-{secrets.token_hex(6)}"
+        self.send(Say(agent=self.agent, request_id=rid, audio_path=audio_path, pcm=pcm, sample_rate=sample_rate,
+                      text=text))
+        return rid
+
+    def say_stream(self, chunks: Iterable[bytes], sample_rate: int, text: str | None = None,
+                   request_id: str | None = None) -> str:
+        """Stream PCM chunks (signed 16-bit mono) as a TTS engine produces them."""
+        rid = request_id or f"say-{secrets.token_hex(6)}"
+        self.send(Say(agent=self.agent, request_id=rid, streamed=True, sample_rate=sample_rate, text=text))
+        previous: bytes | None = None
+        index = 0
+        for chunk in chunks:
+            if previous is not None:
+                self.send(SpeechChunk(agent=self.agent, request_id=rid, index=index, pcm=previous))
+                index += 1
+            previous = chunk
+        self.send(SpeechChunk(agent=self.agent, request_id=rid, index=index, pcm=previous or b"", last=True))
+        return rid
+
+    def interrupt(self, request_id: str = "", reason: str = "command") -> Message:
+        return self.send(Interrupt(agent=self.agent, request_id=request_id, reason=reason))
+
+    def user_speaking(self, speaking: bool = True) -> Message:
+        return self.send(UserSpeech(agent=self.agent, speaking=speaking))
+
+    # --- waiting ---------------------------------------------------------------------------------
+
+    def wait_for(self, predicate: Callable[[Message], bool], timeout_s: float) -> Message:
+        """The first message (already received or arriving) that satisfies `predicate`."""
+        for i, msg in enumerate(self._inbox):
+            if predicate(msg):
+                del self._inbox[i]
+                return msg
+        deadline = time.monotonic() + timeout_s
+        while (left := deadline - time.monotonic()) > 0:
+            got = self.sub.recv(left)
+            if got is None or got.message is None:
+                continue
+            self._note(got.message)
+            if predicate(got.message):
+                return got.message
+            self._inbox.append(got.message)
+            if len(self._inbox) > 10_000:
+                self._inbox.popleft()
+        raise BusTimeout(f"nothing matching arrived within {timeout_s} s")
+
+    def expect_state(self, cls: type[M], check: Callable[[M], bool] = lambda m: True, timeout_s: float = 5.0,
+                     request_id: str = "") -> M:
+        """Wait for a state change of type `cls`; raise CommandRejected on an error for this agent."""
+        def match(m: Message) -> bool:
+            if isinstance(m, Error) and (not request_id or m.request_id == request_id):
+                return True
+            return isinstance(m, cls) and check(m)
+
+        got = self.wait_for(match, timeout_s)
+        if isinstance(got, Error):
+            raise CommandRejected(got)
+        return got  # type: ignore[return-value]
+
+    def wait_for_speech(self, request_id: str, timeout_s: float = 60.0) -> Message:
+        """The terminal lifecycle event of a say request (finished, interrupted or failed)."""
+        def match(m: Message) -> bool:
+            if isinstance(m, Error) and m.request_id == request_id:
+                return True
+            return isinstance(m, TERMINAL_SPEECH_EVENTS) and getattr(m, "request_id", None) == request_id
+
+        got = self.wait_for(match, timeout_s)
+        if isinstance(got, Error):
+            raise CommandRejected(got)
+        return got
+
+    def _note(self, msg: Message) -> None:
+        if msg.CATEGORY == "state":
+            self.state[msg.TYPE] = msg
+
+    def close(self) -> None:
+        self.pub.close()
+        self.sub.close()
+        if self._own_ctx:
+            self.ctx.term()
+
+    def __enter__(self) -> AgentClient:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -1,0 +1,321 @@
+"""Every message on the eca bus: one small typed dataclass per message type.
+
+The envelope fields (protocol version, type, agent id, sequence number, timestamp, source service) are
+common to all; the rest is the body. Field limits live in each field's metadata, so the codec, the
+documentation and the tests read one definition. Units are in the field names (`_s`, `_ns`, `_deg`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+PROTOCOL_VERSION = 1
+
+Role = Literal["talking", "listening", "silence"]
+EyeMode = Literal["static", "noise", "saccade", "saccade+blink"]
+SaccadeKind = Literal["mutual", "away", "head"]
+
+# Pseudo agent id of messages that concern no single agent (heartbeats, broker replies).
+ALL_AGENTS = "*"
+
+
+def bounded(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
+            max_len: int | None = None, doc: str = "") -> Any:
+    """A dataclass field with the limits the codec enforces and the protocol document prints."""
+    meta = {"lo": lo, "hi": hi, "max_len": max_len, "doc": doc}
+    if isinstance(default, list | dict):
+        factory = type(default)
+        return dataclasses.field(default_factory=factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Message:
+    """The envelope every message carries."""
+
+    TYPE: ClassVar[str] = ""
+    CATEGORY: ClassVar[str] = ""  # first part of the topic: cmd, state, event, stream, sys, error
+
+    agent: str = bounded(max_len=32, doc="agent id: letters, digits, '_' and '-'; '*' for all agents")
+    seq: int = bounded(0, lo=0, hi=2**63 - 1, doc="per-publisher sequence number, from 1")
+    t_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="monotonic clock of the publishing host, ns")
+    source: str = bounded("", max_len=64, doc="the publishing service or client")
+
+
+# --- commands: from dialogue managers, the CLI, script replay and key presses --------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetRole(Message):
+    TYPE = "set_role"
+    CATEGORY = "cmd"
+    role: Role = bounded(doc="talking, listening or silence")
+    speaker: str = bounded("", max_len=32, doc="who holds the floor (an agent id, 'user', or empty)")
+    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetEmotion(Message):
+    TYPE = "set_emotion"
+    CATEGORY = "cmd"
+    name: str = bounded(max_len=32, doc="one of the emotions in configs/emotions.toml")
+    intensity: float = bounded(1.0, lo=0.0, hi=1.0, doc="0 = natural, 1 = the full expression")
+    transition_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="blend time from the current expression")
+    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+
+
+@dataclass(frozen=True, kw_only=True)
+class MoveHead(Message):
+    TYPE = "move_head"
+    CATEGORY = "cmd"
+    turn: float = bounded(0.0, lo=-1.0, hi=1.0, doc="yaw target, +1 = the agent's right")
+    nod: float = bounded(0.0, lo=-1.0, hi=1.0, doc="pitch target, +1 = chin up")
+    tilt: float = bounded(0.0, lo=-1.0, hi=1.0, doc="roll target, +1 = toward the right shoulder")
+    duration_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="time to reach the targets")
+    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetEyes(Message):
+    TYPE = "set_eyes"
+    CATEGORY = "cmd"
+    mode: EyeMode = bounded(doc="static, noise, saccade or saccade+blink (the paper's conditions)")
+    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetGazeTarget(Message):
+    TYPE = "set_gaze_target"
+    CATEGORY = "cmd"
+    yaw_deg: float = bounded(0.0, lo=-60.0, hi=60.0, doc="where mutual gaze looks, + = agent's right")
+    pitch_deg: float = bounded(0.0, lo=-45.0, hi=45.0, doc="+ = up")
+    target: str = bounded("", max_len=32, doc="what is there (e.g. 'user' or an agent id)")
+    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Say(Message):
+    TYPE = "say"
+    CATEGORY = "cmd"
+    request_id: str = bounded(max_len=64, doc="unique per request; lifecycle events carry it")
+    audio_path: str | None = bounded(None, max_len=4096, doc="a sound file the audio service can read")
+    pcm: bytes | None = bounded(None, doc="inline mono PCM, signed 16-bit little-endian")
+    sample_rate: int = bounded(0, lo=0, hi=192_000, doc="of pcm or of the streamed chunks; 0 with a file")
+    streamed: bool = bounded(False, doc="true: the audio follows as speech_chunk messages")
+    text: str | None = bounded(None, max_len=10_000, doc="what is said, for logs and captions")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeechChunk(Message):
+    TYPE = "speech_chunk"
+    CATEGORY = "cmd"
+    request_id: str = bounded(max_len=64, doc="the streamed say request this chunk belongs to")
+    index: int = bounded(lo=0, hi=2**31, doc="0, 1, 2, ... in order")
+    pcm: bytes = bounded(doc="mono PCM, signed 16-bit little-endian, at the say request's rate")
+    last: bool = bounded(False, doc="true on the final chunk")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Interrupt(Message):
+    TYPE = "interrupt"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc="the request to stop; empty = all of the agent's")
+    reason: str = bounded("command", max_len=200, doc="why, reported in the interrupted event")
+
+
+@dataclass(frozen=True, kw_only=True)
+class UserSpeech(Message):
+    TYPE = "user_speech"
+    CATEGORY = "cmd"
+    speaking: bool = bounded(doc="true when the user starts speaking (barge-in), false when done")
+
+
+# --- states: the dialogue service's current state per agent (kept by the broker's last-value cache)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RoleState(Message):
+    TYPE = "role"
+    CATEGORY = "state"
+    role: Role = bounded(doc="talking, listening or silence")
+    speaker: str = bounded("", max_len=32, doc="who holds the floor")
+    set_by: Literal["command", "speech"] = bounded("command", doc="a command, or the agent's own speech")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EmotionState(Message):
+    TYPE = "emotion"
+    CATEGORY = "state"
+    name: str = bounded(max_len=32, doc="the emotion")
+    intensity: float = bounded(1.0, lo=0.0, hi=1.0, doc="0..1")
+    transition_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="blend time, from t_ns")
+
+
+@dataclass(frozen=True, kw_only=True)
+class HeadState(Message):
+    TYPE = "head"
+    CATEGORY = "state"
+    turn: float = bounded(0.0, lo=-1.0, hi=1.0, doc="yaw target")
+    nod: float = bounded(0.0, lo=-1.0, hi=1.0, doc="pitch target")
+    tilt: float = bounded(0.0, lo=-1.0, hi=1.0, doc="roll target")
+    duration_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="time to reach the targets, from t_ns")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EyesState(Message):
+    TYPE = "eyes"
+    CATEGORY = "state"
+    mode: EyeMode = bounded(doc="the eye condition in force")
+
+
+@dataclass(frozen=True, kw_only=True)
+class GazeTargetState(Message):
+    TYPE = "gaze_target"
+    CATEGORY = "state"
+    yaw_deg: float = bounded(0.0, lo=-60.0, hi=60.0, doc="where mutual gaze looks")
+    pitch_deg: float = bounded(0.0, lo=-45.0, hi=45.0, doc="+ = up")
+    target: str = bounded("", max_len=32, doc="what is there")
+
+
+# --- events: things that happened -----------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeechStarted(Message):
+    TYPE = "speech_started"
+    CATEGORY = "event"
+    request_id: str = bounded(max_len=64, doc="the say request")
+    dac_time_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="when its first sample reached the DAC")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeechFinished(Message):
+    TYPE = "speech_finished"
+    CATEGORY = "event"
+    request_id: str = bounded(max_len=64, doc="the say request (terminal)")
+    played_s: float = bounded(0.0, lo=0.0, hi=86_400.0, doc="seconds of audio played")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeechInterrupted(Message):
+    TYPE = "speech_interrupted"
+    CATEGORY = "event"
+    request_id: str = bounded(max_len=64, doc="the say request (terminal)")
+    played_s: float = bounded(0.0, lo=0.0, hi=86_400.0, doc="seconds played before the stop")
+    reason: str = bounded("", max_len=200, doc="the interrupt's reason")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeechFailed(Message):
+    TYPE = "speech_failed"
+    CATEGORY = "event"
+    request_id: str = bounded(max_len=64, doc="the say request (terminal)")
+    reason: str = bounded(max_len=500, doc="what went wrong")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Saccade(Message):
+    TYPE = "saccade"
+    CATEGORY = "event"
+    onset_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when the eye starts to move")
+    from_yaw_deg: float = bounded(lo=-90.0, hi=90.0, doc="start direction, + = agent's right")
+    from_pitch_deg: float = bounded(lo=-90.0, hi=90.0, doc="+ = up")
+    to_yaw_deg: float = bounded(lo=-90.0, hi=90.0, doc="landing direction")
+    to_pitch_deg: float = bounded(lo=-90.0, hi=90.0, doc="+ = up")
+    amplitude_deg: float = bounded(lo=0.0, hi=180.0, doc="angular size")
+    direction_deg: float = bounded(lo=0.0, hi=360.0, doc="0 = agent's right, 90 = up")
+    duration_s: float = bounded(lo=0.0, hi=1.0, doc="flight time; the eye lands at onset + duration")
+    kind: SaccadeKind = bounded(doc="mutual (back to the target), away, or head (leading a head turn)")
+    hold_s: float = bounded(0.0, lo=0.0, hi=600.0, doc="planned fixation after landing")
+
+
+# --- streams: continuous data -------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClockAnchor(Message):
+    TYPE = "clock_anchor"
+    CATEGORY = "stream"
+    request_id: str = bounded(max_len=64, doc="the utterance playing")
+    sample_index: int = bounded(lo=0, hi=2**62, doc="sample of that utterance ...")
+    sample_rate: int = bounded(lo=1, hi=192_000, doc="its rate")
+    dac_time_ns: int = bounded(lo=0, hi=2**63 - 1, doc="... at the DAC at this monotonic time")
+
+
+@dataclass(frozen=True, kw_only=True)
+class MouthKeys(Message):
+    TYPE = "mouth"
+    CATEGORY = "stream"
+    request_id: str = bounded(max_len=64, doc="the utterance")
+    sample_rate: int = bounded(lo=1, hi=192_000, doc="rate of the sample positions")
+    sample_index: list[int] = bounded([], lo=0, hi=2**62, max_len=100_000,
+                                      doc="position of each key in the utterance")
+    weights: dict[str, list[float]] = bounded({}, lo=0.0, hi=1.0, max_len=16,
+                                             doc="mouth flexor name -> one weight 0..1 per key")
+    reset: bool = bounded(False, doc="true: close the mouth and drop earlier keys (interruption)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EyeState(Message):
+    TYPE = "eye_state"
+    CATEGORY = "stream"
+    yaw_deg: float = bounded(lo=-90.0, hi=90.0, doc="eye direction in the head, + = agent's right")
+    pitch_deg: float = bounded(lo=-90.0, hi=90.0, doc="+ = up")
+    lid: float = bounded(lo=0.0, hi=1.0, doc="lid closure, 0 open .. 1 closed")
+    mode: EyeMode = bounded(doc="the eye condition in force")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FaceFrame(Message):
+    TYPE = "face_frame"
+    CATEGORY = "stream"
+    frame_ns: int = bounded(lo=0, hi=2**63 - 1, doc="the display time this frame was composed for")
+    flexors: dict[str, float] = bounded({}, lo=-1.0, hi=1.0, max_len=64,
+                                        doc="flexor name -> value in [-1, 1]")
+
+
+# --- system ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class Heartbeat(Message):
+    TYPE = "heartbeat"
+    CATEGORY = "sys"
+    service: str = bounded(max_len=64, doc="the service's name")
+    pid: int = bounded(lo=0, hi=2**31, doc="its process id")
+    started_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when it started (tells a restart)")
+    bad_messages: int = bounded(0, lo=0, hi=2**63 - 1, doc="messages rejected so far")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Hello(Message):
+    """The broker's answer to a subscription to `sys.<nonce>.hello`: proves the subscription is live.
+
+    The subscriber picks a fresh nonce as the agent field, so only it receives the answer."""
+
+    TYPE = "hello"
+    CATEGORY = "sys"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Error(Message):
+    TYPE = "error"
+    CATEGORY = "error"
+    reason: str = bounded(max_len=2000, doc="what was wrong, naming the field")
+    kind: str = bounded("invalid", max_len=64, doc="the class of problem (codec error kind, 'rejected')")
+    topic: str = bounded("", max_len=256, doc="the topic of the offending message")
+    request_id: str = bounded("", max_len=64, doc="its request id, when it had one")
+    service: str = bounded("", max_len=64, doc="the service that rejected it")
+
+
+ALL_MESSAGES: tuple[type[Message], ...] = (
+    SetRole, SetEmotion, MoveHead, SetEyes, SetGazeTarget, Say, SpeechChunk, Interrupt, UserSpeech,
+    RoleState, EmotionState, HeadState, EyesState, GazeTargetState,
+    SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Saccade,
+    ClockAnchor, MouthKeys, EyeState, FaceFrame,
+    Heartbeat, Hello, Error,
+)
+MESSAGE_TYPES: dict[str, type[Message]] = {cls.TYPE: cls for cls in ALL_MESSAGES}
+TERMINAL_SPEECH_EVENTS: tuple[type[Message], ...] = (SpeechFinished, SpeechInterrupted, SpeechFailed)

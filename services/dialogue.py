@@ -1,0 +1,295 @@
+"""The dialogue service: owns each agent's conversational state and the lifecycle of its say requests.
+
+Clients (a dialogue manager, the CLI, script replay, the window's keys) send commands on `cmd.`;
+this service validates them, keeps per-agent state (role, emotion, head, eye mode, gaze target) and
+publishes every change on `state.` (kept by the broker's last-value cache). Say requests it accepts
+go to the audio service on `play.`; the audio service's raw lifecycle (`audio.`) comes back here and
+is re-published on `event.` exactly once per request, so each request ends in one terminal event
+even when the audio service dies (this service then fails what was pending).
+
+Role and speech: when an utterance starts, the role becomes talking (set_by "speech"); when it ends
+the role returns to what it was, unless a command set the role meanwhile: the dialogue manager's
+explicit command always wins. A user who starts speaking (barge-in) interrupts the agent's speech
+and makes it listen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from agent.face.emotions import canonical_emotion_name, load_emotion_table
+from protocol.bus import Received
+from protocol.endpoints import BusConfig
+from protocol.messages import (
+    EmotionState,
+    EyesState,
+    GazeTargetState,
+    HeadState,
+    Heartbeat,
+    Interrupt,
+    Message,
+    MoveHead,
+    RoleState,
+    Say,
+    SetEmotion,
+    SetEyes,
+    SetGazeTarget,
+    SetRole,
+    SpeechChunk,
+    SpeechFailed,
+    SpeechFinished,
+    SpeechInterrupted,
+    SpeechStarted,
+    UserSpeech,
+)
+from services.runtime import Rejected, Service
+
+STATE_TYPES = (RoleState, EmotionState, HeadState, EyesState, GazeTargetState)
+
+
+@dataclass
+class PendingSay:
+    request_id: str
+    agent: str
+    streamed: bool
+    queued_ns: int
+    audio_started_ns: int | None  # started_ns of the audio service instance it was handed to
+    started: bool = False
+    next_chunk: int = 0
+    chunks_done: bool = False
+
+
+@dataclass
+class AgentState:
+    role: RoleState
+    emotion: EmotionState
+    head: HeadState
+    eyes: EyesState
+    gaze_target: GazeTargetState
+    role_before_speech: RoleState | None = None
+    pending: dict[str, PendingSay] = field(default_factory=dict)
+
+    def current(self) -> tuple[Message, ...]:
+        return (self.role, self.emotion, self.head, self.eyes, self.gaze_target)
+
+
+def default_state(agent: str) -> AgentState:
+    return AgentState(
+        role=RoleState(agent=agent, role="listening", speaker="user"),
+        emotion=EmotionState(agent=agent, name="natural", intensity=1.0, transition_s=0.0),
+        head=HeadState(agent=agent, duration_s=0.0),
+        eyes=EyesState(agent=agent, mode="saccade+blink"),
+        gaze_target=GazeTargetState(agent=agent, target="user"),
+    )
+
+
+class DialogueService(Service):
+    name = "dialogue"
+    tick_hz = 20.0
+
+    def __init__(self, config: BusConfig, **kwargs: Any) -> None:
+        super().__init__(config, **kwargs)
+        self.agent_ids: list[str] = list(config.raw.get("agents", {}).get("ids", ["ada"]))
+        dialogue = config.raw.get("dialogue", {})
+        self.say_start_timeout_ns = int(float(dialogue.get("say_start_timeout_s", 3.0)) * 1e9)
+        self.emotions = load_emotion_table()
+        self.agents: dict[str, AgentState] = {}
+        self._adopted: dict[str, dict[str, Message]] = {a: {} for a in self.agent_ids}
+        self.audio_started_ns: int | None = None
+        self.audio_last_beat_ns: int | None = None
+        for cls, handler in (
+            (SetRole, self.on_set_role), (SetEmotion, self.on_set_emotion), (MoveHead, self.on_move_head),
+            (SetEyes, self.on_set_eyes), (SetGazeTarget, self.on_set_gaze_target), (Say, self.on_say),
+            (SpeechChunk, self.on_chunk), (Interrupt, self.on_interrupt), (UserSpeech, self.on_user_speech),
+            (SpeechStarted, self.on_audio_started), (SpeechFinished, self.on_audio_terminal),
+            (SpeechInterrupted, self.on_audio_terminal), (SpeechFailed, self.on_audio_terminal),
+            (Heartbeat, self.on_heartbeat),
+        ):
+            self.handle(cls, handler)
+
+    def subscriptions(self) -> list[str]:
+        subs = ["sys."]
+        for agent in self.agent_ids:
+            subs += [f"cmd.{agent}.", f"audio.{agent}.", f"state.{agent}."]
+        return subs
+
+    # --- start-up: adopt the current state from the last-value cache (a restart keeps it) --------
+
+    def on_early(self, early: list[Received]) -> None:
+        for got in early:
+            msg = got.message
+            if isinstance(msg, STATE_TYPES) and msg.agent in self._adopted:
+                self._adopted[msg.agent][msg.TYPE] = msg
+
+    def setup(self) -> None:
+        assert self.sub is not None
+        for agent in self.agent_ids:
+            state = default_state(agent)
+            adopted = self._adopted[agent]
+            state.role = adopted.get("role", state.role)  # type: ignore[assignment]
+            state.emotion = adopted.get("emotion", state.emotion)  # type: ignore[assignment]
+            state.head = adopted.get("head", state.head)  # type: ignore[assignment]
+            state.eyes = adopted.get("eyes", state.eyes)  # type: ignore[assignment]
+            state.gaze_target = adopted.get("gaze_target", state.gaze_target)  # type: ignore[assignment]
+            self.agents[agent] = state
+            for msg in state.current():
+                if msg.TYPE not in adopted:
+                    self._set_state(agent, msg)
+            if adopted:
+                self.log.info("agent %s: adopted current state (%s) from the cache", agent,
+                              ", ".join(sorted(adopted)))
+        # from now on our own state echoes would come back on state.<agent>.: we know them already
+        for agent in self.agent_ids:
+            self.sub.unsubscribe(f"state.{agent}.")
+
+    def _agent(self, msg: Message) -> AgentState:
+        state = self.agents.get(msg.agent)
+        if state is None:
+            raise Rejected(f"unknown agent '{msg.agent}'; this instance animates {', '.join(self.agent_ids)}")
+        return state
+
+    def _set_state(self, agent: str, msg: Message) -> None:
+        stamped = self.publish(dataclasses.replace(msg, agent=agent, t_ns=0))
+        state = self.agents[agent]
+        setattr(state, {"role": "role", "emotion": "emotion", "head": "head", "eyes": "eyes",
+                        "gaze_target": "gaze_target"}[msg.TYPE], stamped)
+
+    # --- commands --------------------------------------------------------------------------------
+
+    def on_set_role(self, cmd: SetRole) -> None:
+        self._agent(cmd)
+        self._set_state(cmd.agent, RoleState(agent=cmd.agent, role=cmd.role, speaker=cmd.speaker,
+                                             set_by="command"))
+        self.agents[cmd.agent].role_before_speech = None  # the manager's word stands after the speech
+
+    def on_set_emotion(self, cmd: SetEmotion) -> None:
+        self._agent(cmd)
+        name = canonical_emotion_name(cmd.name)
+        if name not in self.emotions.names:
+            raise Rejected(f"unknown emotion '{cmd.name}'; known: {', '.join(self.emotions.names)}",
+                           cmd.request_id)
+        self._set_state(cmd.agent, EmotionState(agent=cmd.agent, name=name, intensity=cmd.intensity,
+                                                transition_s=cmd.transition_s))
+
+    def on_move_head(self, cmd: MoveHead) -> None:
+        self._agent(cmd)
+        self._set_state(cmd.agent, HeadState(agent=cmd.agent, turn=cmd.turn, nod=cmd.nod, tilt=cmd.tilt,
+                                             duration_s=cmd.duration_s))
+
+    def on_set_eyes(self, cmd: SetEyes) -> None:
+        self._agent(cmd)
+        self._set_state(cmd.agent, EyesState(agent=cmd.agent, mode=cmd.mode))
+
+    def on_set_gaze_target(self, cmd: SetGazeTarget) -> None:
+        self._agent(cmd)
+        self._set_state(cmd.agent, GazeTargetState(agent=cmd.agent, yaw_deg=cmd.yaw_deg,
+                                                   pitch_deg=cmd.pitch_deg, target=cmd.target))
+
+    def on_say(self, cmd: Say) -> None:
+        state = self._agent(cmd)
+        if not cmd.request_id:
+            raise Rejected("a say request needs a non-empty request_id")
+        if cmd.request_id in state.pending:
+            raise Rejected(f"request_id '{cmd.request_id}' is already in use", cmd.request_id)
+        sources = [cmd.audio_path is not None, cmd.pcm is not None, cmd.streamed]
+        if sum(sources) != 1:
+            raise Rejected("a say request needs exactly one of audio_path, pcm or streamed=true",
+                           cmd.request_id)
+        if (cmd.pcm is not None or cmd.streamed) and cmd.sample_rate < 8000:
+            raise Rejected(f"sample_rate {cmd.sample_rate} is too low for PCM (8000 or more)", cmd.request_id)
+        if cmd.pcm is not None and len(cmd.pcm) % 2:
+            raise Rejected("pcm must hold whole 16-bit samples (an even number of bytes)", cmd.request_id)
+        state.pending[cmd.request_id] = PendingSay(cmd.request_id, cmd.agent, cmd.streamed,
+                                                   self.clock.now_ns(), self.audio_started_ns)
+        self.publish(dataclasses.replace(cmd, t_ns=0), category="play")
+
+    def on_chunk(self, cmd: SpeechChunk) -> None:
+        state = self._agent(cmd)
+        pending = state.pending.get(cmd.request_id)
+        if pending is None or not pending.streamed:
+            raise Rejected(f"no streamed say request '{cmd.request_id}' is pending", cmd.request_id)
+        if pending.chunks_done:
+            raise Rejected(f"request '{cmd.request_id}' already had its last chunk", cmd.request_id)
+        if cmd.index != pending.next_chunk:
+            raise Rejected(f"chunk {cmd.index} of '{cmd.request_id}' out of order; expected "
+                           f"{pending.next_chunk}", cmd.request_id)
+        if len(cmd.pcm) % 2:
+            raise Rejected("pcm must hold whole 16-bit samples (an even number of bytes)", cmd.request_id)
+        pending.next_chunk += 1
+        pending.chunks_done = cmd.last
+        self.publish(dataclasses.replace(cmd, t_ns=0), category="play")
+
+    def on_interrupt(self, cmd: Interrupt) -> None:
+        state = self._agent(cmd)
+        if cmd.request_id and cmd.request_id not in state.pending:
+            raise Rejected(f"no pending say request '{cmd.request_id}' to interrupt", cmd.request_id)
+        self.publish(dataclasses.replace(cmd, t_ns=0), category="play")
+
+    def on_user_speech(self, cmd: UserSpeech) -> None:
+        state = self._agent(cmd)
+        if not cmd.speaking:
+            return
+        if state.pending:
+            self.publish(Interrupt(agent=cmd.agent, reason="the user started speaking"), category="play")
+        state.role_before_speech = None
+        self._set_state(cmd.agent, RoleState(agent=cmd.agent, role="listening", speaker="user",
+                                             set_by="command"))
+
+    # --- the audio service's lifecycle, re-published once per request ------------------------------
+
+    def on_audio_started(self, ev: SpeechStarted) -> None:
+        state = self._agent(ev)
+        pending = state.pending.get(ev.request_id)
+        if pending is None or pending.started:
+            return  # already failed by us (audio lost), or a duplicate
+        pending.started = True
+        self.publish(dataclasses.replace(ev, t_ns=0))
+        if state.role.role != "talking" or state.role.set_by != "speech":
+            state.role_before_speech = state.role
+            self._set_state(ev.agent, RoleState(agent=ev.agent, role="talking", speaker=ev.agent,
+                                                set_by="speech"))
+
+    def on_audio_terminal(self, ev: SpeechFinished | SpeechInterrupted | SpeechFailed) -> None:
+        state = self._agent(ev)
+        if state.pending.pop(ev.request_id, None) is None:
+            return
+        self.publish(dataclasses.replace(ev, t_ns=0))
+        self._after_speech(state)
+
+    def _after_speech(self, state: AgentState) -> None:
+        if any(p.started for p in state.pending.values()):
+            return
+        if state.role.set_by == "speech" and state.role_before_speech is not None:
+            previous = state.role_before_speech
+            state.role_before_speech = None
+            self._set_state(previous.agent, RoleState(agent=previous.agent, role=previous.role,
+                                                      speaker=previous.speaker, set_by="speech"))
+
+    def on_heartbeat(self, beat: Heartbeat) -> None:
+        if beat.service != "audio":
+            return
+        if self.audio_started_ns is not None and beat.started_ns != self.audio_started_ns:
+            self._fail_pending(lambda p: p.audio_started_ns != beat.started_ns, "the audio service restarted")
+        self.audio_started_ns = beat.started_ns
+        self.audio_last_beat_ns = self.clock.now_ns()
+
+    def on_tick(self, now_ns: int) -> None:
+        timeout_ns = int(self.config.heartbeat_timeout_s * 1e9)
+        if self.audio_last_beat_ns is not None and now_ns - self.audio_last_beat_ns > timeout_ns:
+            self._fail_pending(lambda p: True, "the audio service stopped answering")
+            self.audio_last_beat_ns = None
+            self.audio_started_ns = None
+        if self.audio_last_beat_ns is None:
+            self._fail_pending(lambda p: now_ns - p.queued_ns > self.say_start_timeout_ns,
+                               "no audio service answered")
+
+    def _fail_pending(self, which: Any, reason: str) -> None:
+        for state in self.agents.values():
+            doomed = [p for p in state.pending.values() if which(p)]
+            for p in doomed:
+                del state.pending[p.request_id]
+                self.publish(SpeechFailed(agent=p.agent, request_id=p.request_id, reason=reason))
+            if doomed:
+                self._after_speech(state)

@@ -1,0 +1,46 @@
+"""`python -m services.run NAME`: start one eca service as its own fresh interpreter."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from protocol.endpoints import BusConfigError, load_bus_config
+from services.runtime import setup_logging
+
+# name -> "module:class"; a module is imported only when its service is started.
+SERVICES: dict[str, str] = {
+    "dialogue": "services.dialogue:DialogueService",
+    "gaze": "services.gaze:GazeService",
+    "audio": "services.audio.service:AudioService",
+    "renderer": "services.renderer.service:RendererService",
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m services.run")
+    parser.add_argument("name", choices=["broker", *SERVICES])
+    parser.add_argument("--config", default=None, help="runtime config (default configs/default.toml)")
+    parser.add_argument("--instance", default=None, help="bus instance name")
+    parser.add_argument("--parent-pid", type=int, default=None, help="stop when this process is gone")
+    args, extra = parser.parse_known_args(argv)
+    setup_logging(args.name)
+    try:
+        config = load_bus_config(args.config, args.instance)
+    except BusConfigError as exc:
+        print(f"[{args.name}] ERROR {exc}", file=sys.stderr)
+        return 2
+    if args.name == "broker":
+        from services.broker import run_broker
+
+        return run_broker(config, args.parent_pid)
+    module_name, class_name = SERVICES[args.name].split(":")
+    service_cls = getattr(importlib.import_module(module_name), class_name)
+    service = service_cls.from_args(config, extra, parent_pid=args.parent_pid) if hasattr(
+        service_cls, "from_args") else service_cls(config, parent_pid=args.parent_pid)
+    return service.run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""Test utilities that ship with eca: private bus instances, an in-process broker, real process groups.
+
+Every helper makes a unique instance (its own runtime directory), so tests run in parallel safely.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import zmq
+
+from protocol.endpoints import DEFAULT_CONFIG, BusConfig, load_bus_config
+from services.broker import Broker
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def write_test_config(directory: Path, services: list[str] | None = None, agents: list[str] | None = None,
+                      extra: str = "") -> Path:
+    """A copy of the default config with a private runtime directory under `directory`."""
+    text = DEFAULT_CONFIG.read_text()
+    text = text.replace('runtime_dir = ""', f'runtime_dir = "{directory / "run"}"', 1)
+    if services is not None:
+        text = text.replace('services = ["dialogue"]', f"services = {services!r}".replace("'", '"'), 1)
+    if agents is not None:
+        text = text.replace('ids = ["ada"]', f"ids = {agents!r}".replace("'", '"'), 1)
+    path = directory / "eca.toml"
+    path.write_text(text + "\n" + extra)
+    return path
+
+
+@contextmanager
+def private_bus_config(services: list[str] | None = None, agents: list[str] | None = None,
+                       extra: str = "") -> Iterator[BusConfig]:
+    """A config for a fresh instance in a short private directory (ipc paths must stay short)."""
+    directory = Path(tempfile.mkdtemp(prefix="eca-"))
+    try:
+        path = write_test_config(directory, services, agents, extra)
+        yield load_bus_config(path, instance=f"t{secrets.token_hex(4)}")
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
+
+
+class BrokerThread:
+    """The real broker, run in a thread of the test process (for tests about the models, not processes)."""
+
+    def __init__(self, config: BusConfig) -> None:
+        self.config = config
+        self.ctx = zmq.Context()
+        self.broker = Broker(config, self.ctx)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="broker")
+
+    def _loop(self) -> None:
+        next_beat = 0.0
+        while not self._stop.is_set():
+            if time.monotonic() >= next_beat:
+                self.broker.heartbeat()
+                next_beat = time.monotonic() + self.config.heartbeat_interval_s
+            self.broker.step(20)
+        self.broker.close()
+
+    def __enter__(self) -> BrokerThread:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.ctx.term()
+
+
+class ServiceThread:
+    """A Service subclass run in a thread (its loop, sockets and handlers are the real ones)."""
+
+    def __init__(self, service: object) -> None:
+        self.service = service
+        self._thread = threading.Thread(target=self._run, daemon=True, name=getattr(service, "name", "service"))
+        self.ready = threading.Event()
+        self.error: BaseException | None = None
+
+    def _run(self) -> None:
+        svc = self.service
+        try:
+            svc.connect()  # type: ignore[attr-defined]
+            self.ready.set()
+            while not svc.stopping:  # type: ignore[attr-defined]
+                svc.run_once()  # type: ignore[attr-defined]
+        except BaseException as exc:  # surfaced to the test by __enter__/__exit__
+            self.error = exc
+            self.ready.set()
+        finally:
+            svc.teardown()  # type: ignore[attr-defined]
+            svc.close()  # type: ignore[attr-defined]
+
+    def __enter__(self) -> ServiceThread:
+        self._thread.start()
+        if not self.ready.wait(10) or self.error is not None:
+            raise RuntimeError(f"service did not start: {self.error!r}")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.service.request_stop()  # type: ignore[attr-defined]
+        self._thread.join(timeout=5)
+        if self.error is not None:
+            raise self.error
+
+
+def eca_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "services.cli", *args]
+
+
+def subprocess_env() -> dict[str, str]:
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+class LineReader:
+    """Collects a child's output lines in a thread, so tests can wait for a line with a timeout."""
+
+    def __init__(self, stream: object) -> None:
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._pump, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _pump(self, stream: object) -> None:
+        for raw in iter(stream.readline, b""):  # type: ignore[attr-defined]
+            with self._cond:
+                self.lines.append(raw.decode("utf-8", "replace").rstrip("\n"))
+                self._cond.notify_all()
+
+    def wait_for(self, needle: str, timeout_s: float, start: int = 0) -> int:
+        """Index of the first line from `start` on that contains `needle`; TimeoutError if none comes."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                for i in range(start, len(self.lines)):
+                    if needle in self.lines[i]:
+                        return i
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    tail = "\n".join(self.lines[-30:])
+                    raise TimeoutError(f"no line containing {needle!r} within {timeout_s} s; last lines:\n{tail}")
+                self._cond.wait(left)
+
+
+@contextmanager
+def running(argv: list[str], stop_signal: int = signal.SIGINT, stop_timeout_s: float = 5.0) -> Iterator[
+        tuple[subprocess.Popen[bytes], LineReader]]:
+    """Run a command with merged output captured line by line; stop it (and its group) afterwards."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                            env=subprocess_env(), cwd=REPO_ROOT, start_new_session=True)
+    reader = LineReader(proc.stdout)
+    try:
+        yield proc, reader
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(stop_signal)
+            try:
+                proc.wait(timeout=stop_timeout_s)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=5)
