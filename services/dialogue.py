@@ -110,9 +110,9 @@ class DialogueService(Service):
             self.handle(cls, handler)
 
     def subscriptions(self) -> list[str]:
-        subs = ["sys."]
+        subs = ["sys.", "cmd."]  # every agent's commands: one for an unknown agent gets a clear error
         for agent in self.agent_ids:
-            subs += [f"cmd.{agent}.", f"audio.{agent}.", f"state.{agent}."]
+            subs += [f"audio.{agent}.", f"state.{agent}."]
         return subs
 
     # --- start-up: adopt the current state from the last-value cache (a restart keeps it) --------

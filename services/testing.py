@@ -6,6 +6,7 @@ Every helper makes a unique instance (its own runtime directory), so tests run i
 from __future__ import annotations
 
 import os
+import re
 import secrets
 import shutil
 import signal
@@ -32,7 +33,8 @@ def write_test_config(directory: Path, services: list[str] | None = None, agents
     text = DEFAULT_CONFIG.read_text()
     text = text.replace('runtime_dir = ""', f'runtime_dir = "{directory / "run"}"', 1)
     if services is not None:
-        text = text.replace('services = ["dialogue"]', f"services = {services!r}".replace("'", '"'), 1)
+        text = re.sub(r"^services = \[[^\]]*\]", f"services = {services!r}".replace("'", '"'), text, count=1,
+                      flags=re.MULTILINE)
     if agents is not None:
         text = text.replace('ids = ["ada"]', f"ids = {agents!r}".replace("'", '"'), 1)
     path = directory / "eca.toml"

@@ -1,0 +1,46 @@
+"""The names a script may use: roles, eye modes, element kinds, emotions, and their spellings."""
+
+from __future__ import annotations
+
+from typing import Literal, cast
+
+from agent.script.poses import emotion_table
+
+Role = Literal["talking", "listening", "silence"]
+ROLES: tuple[Role, ...] = ("talking", "listening", "silence")
+# The paper's Table 1 says "Speaking" where the rest of the paper says talking.
+ROLE_ALIASES: dict[str, Role] = {"speaking": "talking"}
+
+EyeMode = Literal["static", "noise", "saccade", "saccade+blink"]
+EYE_MODES: tuple[EyeMode, ...] = ("static", "noise", "saccade", "saccade+blink")
+
+ElementKind = Literal["emotion", "gaze", "head", "status"]
+ELEMENT_KINDS: tuple[ElementKind, ...] = ("emotion", "gaze", "head", "status")
+
+
+def emotion_names() -> tuple[str, ...]:
+    """The emotions in the face's table order (configs/emotions.toml)."""
+    return emotion_table().names
+
+
+def normalise_name(text: str) -> str:
+    """Case-insensitive, with spaces and underscores as hyphens: the paper writes "Half Angry"."""
+    return "-".join(text.strip().lower().replace("_", " ").split())
+
+
+def parse_role(text: str) -> Role | None:
+    """The role `text` names, or None."""
+    name = normalise_name(text)
+    name = ROLE_ALIASES.get(name, name)
+    return cast(Role, name) if name in ROLES else None
+
+
+def parse_emotion(text: str) -> str | None:
+    """The emotion `text` names, or None."""
+    name = normalise_name(text)
+    return name if name in emotion_names() else None
+
+
+def parse_eye_mode(text: str) -> EyeMode | None:
+    name = text.strip().lower()
+    return cast(EyeMode, name) if name in EYE_MODES else None

@@ -1,0 +1,212 @@
+"""The dialogue service on a real broker: validation, state, say lifecycle, speech-driven role."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+
+import pytest
+import zmq
+
+from protocol.bus import Publisher, Subscriber
+from protocol.client import AgentClient, CommandRejected
+from protocol.messages import (
+    ALL_AGENTS,
+    EmotionState,
+    Error,
+    Heartbeat,
+    Interrupt,
+    RoleState,
+    Say,
+    SpeechChunk,
+    SpeechFailed,
+    SpeechFinished,
+    SpeechStarted,
+)
+from services.dialogue import DialogueService
+from services.testing import BrokerThread, ServiceThread, private_bus_config
+
+
+@pytest.fixture
+def bus() -> Iterator[object]:
+    with private_bus_config(extra="") as config, BrokerThread(config):
+        yield config
+
+
+@pytest.fixture
+def dialogue(bus) -> Iterator[DialogueService]:
+    service = DialogueService(bus)
+    with ServiceThread(service):
+        yield service
+
+
+@pytest.fixture
+def client(bus, dialogue) -> Iterator[AgentClient]:
+    with AgentClient(bus, agent="ada") as c:
+        yield c
+
+
+class FakeAudio:
+    """Plays the audio service's part on the bus: sees `play.` requests, reports on `audio.`."""
+
+    def __init__(self, config, started_ns: int = 1) -> None:
+        self.ctx = zmq.Context()
+        self.pub = Publisher(self.ctx, config, "audio")
+        self.sub = Subscriber(self.ctx, config, ["play.ada."])
+        self.pub.wait_ready()
+        self.sub.wait_ready()
+        self.started_ns = started_ns
+
+    def beat(self) -> None:
+        self.pub.publish(Heartbeat(agent=ALL_AGENTS, service="audio", pid=os.getpid(), started_ns=self.started_ns))
+
+    def next_request(self, timeout_s: float = 5.0):
+        got = self.sub.recv(timeout_s)
+        assert got is not None and got.message is not None, "no request reached the audio side"
+        return got.message
+
+    def report(self, msg) -> None:
+        self.pub.publish(msg, category="audio")
+
+    def close(self) -> None:
+        self.pub.close()
+        self.sub.close()
+        self.ctx.term()
+
+
+def test_initial_state_is_published_and_cached(client: AgentClient) -> None:
+    role = client.expect_state(RoleState)
+    assert role.role == "listening" and role.source == "dialogue"
+    assert client.expect_state(EmotionState).name == "natural"
+
+
+def test_emotion_is_validated_and_published(client: AgentClient) -> None:
+    client.set_emotion("Half_Angry", intensity=0.4, transition_s=1.0)
+    state = client.expect_state(EmotionState, lambda m: m.intensity == 0.4)
+    assert state.name == "half-angry" and state.transition_s == 1.0
+
+
+def test_unknown_emotion_is_an_error_listing_the_known_ones_and_changes_nothing(client: AgentClient) -> None:
+    client.set_emotion("happy", 0.3)
+    client.expect_state(EmotionState, lambda m: m.name == "happy")
+    client.set_emotion("grumpy", request_id="r1")
+    with pytest.raises(CommandRejected) as info:
+        client.expect_state(EmotionState, lambda m: m.name == "grumpy", request_id="r1")
+    assert "grumpy" in str(info.value) and "frightened" in str(info.value)
+    client.set_role("talking")
+    client.expect_state(RoleState, lambda m: m.role == "talking")
+    with AgentClient(client.config, agent="ada") as late:  # the cache still says happy
+        assert late.expect_state(EmotionState).name == "happy"
+
+
+def test_unknown_agent_is_rejected(bus, dialogue) -> None:
+    with AgentClient(bus, agent="bob") as bob:
+        bob.set_role("talking")
+        err = bob.wait_for(lambda m: isinstance(m, Error), 5.0)
+        assert "unknown agent 'bob'" in err.reason
+
+
+def test_garbage_on_a_command_topic_is_reported_and_the_service_keeps_working(client: AgentClient) -> None:
+    client.pub.send_raw(b"cmd.ada.set_emotion", b"\xc1\xff not msgpack")
+    err = client.wait_for(lambda m: isinstance(m, Error), 5.0)
+    assert err.kind == "not_msgpack" and err.topic == "cmd.ada.set_emotion"
+    client.set_emotion("surprised")
+    assert client.expect_state(EmotionState, lambda m: m.name == "surprised").name == "surprised"
+
+
+def test_say_lifecycle_is_republished_once_and_role_follows_speech(bus, client: AgentClient) -> None:
+    audio = FakeAudio(bus)
+    try:
+        audio.beat()
+        rid = client.say(audio_path="/nonexistent/whatever.wav", text="hi")
+        request = audio.next_request()
+        assert isinstance(request, Say) and request.request_id == rid and request.source == "dialogue"
+        audio.report(SpeechStarted(agent="ada", request_id=rid))
+        audio.report(SpeechStarted(agent="ada", request_id=rid))  # a duplicate must not be re-published
+        assert client.expect_state(RoleState, lambda m: m.role == "talking").set_by == "speech"
+        audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=1.25))
+        audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=1.25))
+        done = client.wait_for_speech(rid, 5.0)
+        assert isinstance(done, SpeechFinished) and done.played_s == 1.25
+        client.expect_state(RoleState, lambda m: m.role == "listening" and m.set_by == "speech")
+        rid2 = client.say(audio_path="/x.wav")
+        audio.next_request()
+        audio.report(SpeechFailed(agent="ada", request_id=rid2, reason="cannot read"))
+        client.wait_for_speech(rid2, 5.0)
+        terminals = [m for m in client._inbox if isinstance(m, SpeechFinished | SpeechFailed)]
+        assert terminals == []  # the repeated finished event was not re-published
+    finally:
+        audio.close()
+
+
+def test_manager_role_command_wins_over_speech(bus, client: AgentClient) -> None:
+    audio = FakeAudio(bus)
+    try:
+        audio.beat()
+        rid = client.say(audio_path="/a.wav")
+        audio.next_request()
+        audio.report(SpeechStarted(agent="ada", request_id=rid))
+        client.expect_state(RoleState, lambda m: m.role == "talking")
+        client.set_role("silence")
+        client.expect_state(RoleState, lambda m: m.role == "silence")
+        audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=0.5))
+        client.wait_for_speech(rid, 5.0)
+        client.set_emotion("happy")  # a later marker: any role change would come before it
+        client.expect_state(EmotionState, lambda m: m.name == "happy")
+        assert client.state["role"].role == "silence"
+    finally:
+        audio.close()
+
+
+def test_say_without_any_audio_service_fails_once(bus, client: AgentClient) -> None:
+    rid = client.say(audio_path="/a.wav")
+    failed = client.wait_for_speech(rid, 10.0)
+    assert isinstance(failed, SpeechFailed) and "no audio service" in failed.reason
+
+
+def test_pending_requests_fail_when_the_audio_service_restarts(bus, client: AgentClient) -> None:
+    audio = FakeAudio(bus, started_ns=1)
+    try:
+        audio.beat()
+        rid = client.say(audio_path="/a.wav")
+        audio.next_request()
+        audio.report(SpeechStarted(agent="ada", request_id=rid))
+        audio.started_ns = 2  # a new instance of the audio service
+        audio.beat()
+        failed = client.wait_for_speech(rid, 5.0)
+        assert isinstance(failed, SpeechFailed) and "restarted" in failed.reason
+        audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=3.0))  # too late: ignored
+        client.set_emotion("annoyed")
+        client.expect_state(EmotionState, lambda m: m.name == "annoyed")
+        assert not any(isinstance(m, SpeechFinished) for m in client._inbox)
+    finally:
+        audio.close()
+
+
+def test_bad_say_requests_are_rejected(client: AgentClient) -> None:
+    client.send(Say(agent="ada", request_id="both", audio_path="/a.wav", pcm=b"\0\0", sample_rate=16000))
+    err = client.wait_for(lambda m: isinstance(m, Error), 5.0)
+    assert "exactly one of" in err.reason and err.request_id == "both"
+    client.send(Say(agent="ada", request_id="odd", pcm=b"\0\0\0", sample_rate=16000))
+    assert "even number" in client.wait_for(lambda m: isinstance(m, Error), 5.0).reason
+    client.send(SpeechChunk(agent="ada", request_id="nobody", index=0, pcm=b""))
+    assert "no streamed say request" in client.wait_for(lambda m: isinstance(m, Error), 5.0).reason
+    client.send(Interrupt(agent="ada", request_id="nobody"))
+    assert "no pending say request" in client.wait_for(lambda m: isinstance(m, Error), 5.0).reason
+
+
+def test_barge_in_interrupts_and_makes_the_agent_listen(bus, client: AgentClient) -> None:
+    audio = FakeAudio(bus)
+    try:
+        audio.beat()
+        rid = client.say(audio_path="/a.wav")
+        audio.next_request()
+        audio.report(SpeechStarted(agent="ada", request_id=rid))
+        client.expect_state(RoleState, lambda m: m.role == "talking")
+        client.user_speaking(True)
+        stop = audio.next_request()
+        assert isinstance(stop, Interrupt) and "user" in stop.reason
+        role = client.expect_state(RoleState, lambda m: m.role == "listening")
+        assert role.speaker == "user"
+    finally:
+        audio.close()

@@ -1,0 +1,190 @@
+"""The supervisor's timing logic on virtual time with fake processes."""
+
+from __future__ import annotations
+
+import signal
+
+import pytest
+
+from agent.clock import VirtualClock
+from services.supervisor import RestartPolicy, Supervisor
+
+
+class FakeProcess:
+    next_pid = 100
+
+    def __init__(self, name: str) -> None:
+        FakeProcess.next_pid += 1
+        self.pid = FakeProcess.next_pid
+        self.name = name
+        self.code: int | None = None
+        self.signals: list[int] = []
+        self.ignores_term = False
+
+    def poll(self) -> int | None:
+        return self.code
+
+    def send_signal(self, sig: int) -> None:
+        self.signals.append(sig)
+        if sig == signal.SIGTERM and not self.ignores_term:
+            self.code = 0
+
+    def kill(self) -> None:
+        self.signals.append(signal.SIGKILL)
+        self.code = -9
+
+
+class Factory:
+    def __init__(self) -> None:
+        self.started: list[FakeProcess] = []
+
+    def __call__(self, name: str) -> FakeProcess:
+        proc = FakeProcess(name)
+        self.started.append(proc)
+        return proc
+
+    def latest(self, name: str) -> FakeProcess:
+        return [p for p in self.started if p.name == name][-1]
+
+
+POLICY = RestartPolicy(heartbeat_timeout_s=1.5, ready_timeout_s=5.0, backoff_s=(0.1, 0.5, 1.0),
+                       restart_limit=3, restart_window_s=60.0, stop_grace_s=1.0)
+
+
+@pytest.fixture
+def rig() -> tuple[Supervisor, Factory, VirtualClock, list[str]]:
+    clock = VirtualClock()
+    factory = Factory()
+    said: list[str] = []
+    sup = Supervisor(["broker", "dialogue"], factory, clock, POLICY, say=said.append)
+    for name in ("broker", "dialogue"):
+        sup.start(name)
+    return sup, factory, clock, said
+
+
+def beat_all(sup: Supervisor, factory: Factory) -> None:
+    for name in ("broker", "dialogue"):
+        sup.on_heartbeat(name, factory.latest(name).pid)
+
+
+def test_ready_only_after_every_first_heartbeat(rig) -> None:
+    sup, factory, clock, _ = rig
+    assert not sup.all_ready()
+    sup.on_heartbeat("broker", factory.latest("broker").pid)
+    assert not sup.all_ready()
+    sup.on_heartbeat("dialogue", factory.latest("dialogue").pid)
+    assert sup.all_ready()
+
+
+def test_heartbeat_from_an_old_instance_does_not_count(rig) -> None:
+    sup, factory, clock, _ = rig
+    sup.on_heartbeat("dialogue", 99999)
+    assert not sup.by_name["dialogue"].ready
+
+
+def test_exit_restarts_after_backoff(rig) -> None:
+    sup, factory, clock, said = rig
+    beat_all(sup, factory)
+    first = factory.latest("dialogue")
+    first.code = 1
+    sup.check()
+    assert "exited with code 1" in said[-1]
+    assert factory.latest("dialogue") is first  # not yet: backoff
+    clock.advance_s(0.09)
+    sup.check()
+    assert factory.latest("dialogue") is first
+    clock.advance_s(0.02)
+    sup.check()
+    assert factory.latest("dialogue") is not first
+    assert not sup.by_name["dialogue"].ready  # until the new instance beats
+
+
+def test_silent_service_is_killed_and_restarted(rig) -> None:
+    sup, factory, clock, said = rig
+    beat_all(sup, factory)
+    hung = factory.latest("dialogue")
+    clock.advance_s(1.0)
+    sup.on_heartbeat("broker", factory.latest("broker").pid)
+    sup.check()
+    assert hung.signals == []
+    clock.advance_s(0.6)  # 1.6 s since dialogue's last beat
+    sup.on_heartbeat("broker", factory.latest("broker").pid)
+    sup.check()
+    assert hung.signals == [signal.SIGKILL]
+    assert "no heartbeat" in said[-1]
+    clock.advance_s(0.2)
+    sup.check()
+    assert factory.latest("dialogue") is not hung
+
+
+def test_backoff_grows_then_gives_up_with_a_clear_message(rig) -> None:
+    sup, factory, clock, said = rig
+    delays = []
+    for _ in range(3):
+        factory.latest("dialogue").code = 1
+        sup.check()
+        svc = sup.by_name["dialogue"]
+        delays.append((svc.restart_at_ns - clock.now_ns()) / 1e9)
+        clock.advance_ns(svc.restart_at_ns - clock.now_ns())
+        sup.check()
+    assert delays == pytest.approx([0.1, 0.5, 1.0])
+    factory.latest("dialogue").code = 1
+    sup.check()
+    assert sup.by_name["dialogue"].given_up
+    assert "not restarted again" in said[-1]
+    n = len(factory.started)
+    clock.advance_s(10)
+    sup.check()
+    assert len(factory.started) == n
+
+
+def test_restarts_outside_the_window_are_forgotten(rig) -> None:
+    sup, factory, clock, _ = rig
+    for _ in range(3):
+        factory.latest("dialogue").code = 1
+        sup.check()
+        clock.advance_s(61.0)  # each failure far apart
+        sup.check()
+        sup.on_heartbeat("dialogue", factory.latest("dialogue").pid)
+        sup.on_heartbeat("broker", factory.latest("broker").pid)
+    factory.latest("dialogue").code = 1
+    sup.check()
+    assert not sup.by_name["dialogue"].given_up
+
+
+def test_stop_terms_in_reverse_order_and_kills_after_grace(rig) -> None:
+    sup, factory, clock, said = rig
+    beat_all(sup, factory)
+    stubborn = factory.latest("dialogue")
+    stubborn.ignores_term = True
+    order: list[str] = []
+    for proc in factory.started:
+        original = proc.send_signal
+
+        def record(sig: int, proc=proc, original=original) -> None:
+            order.append(proc.name)
+            original(sig)
+
+        proc.send_signal = record  # type: ignore[method-assign]
+    sup.begin_stop()
+    assert order == ["dialogue", "broker"]
+    assert not sup.finish_stop()
+    clock.advance_s(0.5)
+    assert not sup.finish_stop()
+    assert signal.SIGKILL not in stubborn.signals
+    clock.advance_s(0.6)
+    sup.finish_stop()
+    assert stubborn.signals[-1] == signal.SIGKILL
+    assert sup.finish_stop()
+
+
+def test_service_that_never_beats_is_restarted_after_ready_timeout(rig) -> None:
+    sup, factory, clock, said = rig
+    sup.on_heartbeat("broker", factory.latest("broker").pid)
+    mute = factory.latest("dialogue")
+    clock.advance_s(4.9)
+    sup.check()
+    assert mute.signals == []
+    clock.advance_s(0.2)
+    sup.check()
+    assert mute.signals == [signal.SIGKILL]
