@@ -85,11 +85,29 @@ def choose_services(config: BusConfig, only: Sequence[str] = (), without: Sequen
     return [n for n in chosen if n not in without]
 
 
+def instance_running(config: BusConfig, timeout_s: float = 0.3) -> bool:
+    """Whether a broker already answers for this instance (a second one must not start beside it)."""
+    ctx = zmq.Context()
+    probe = Subscriber(ctx, config, [])
+    try:
+        probe.wait_ready(timeout_s)
+        return True
+    except BusTimeout:
+        return False
+    finally:
+        probe.close()
+        ctx.term()
+
+
 def run_up(config: BusConfig, services: Sequence[str], *, view: bool = True, duration_s: float | None = None,
            extra_args: dict[str, list[str]] | None = None) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    if instance_running(config):
+        say(f"instance '{config.instance}' is already running (a broker answers at {config.backend}); "
+            "stop it first or pick another --instance")
+        return 1
     factory = InterpreterFactory(config, extra_args)
     clock = MonotonicClock()
     supervisor = Supervisor(["broker", *services], factory, clock, policy_from(config), say=say)
