@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml .ci/setup
 	touch $(STAMP)
 
 demo: $(STAMP)
-	.venv/bin/eca demo
+	.venv/bin/eca up
 
 up: $(STAMP)
 	.venv/bin/eca up
