@@ -17,8 +17,8 @@ up: $(STAMP)
 	.venv/bin/eca up
 
 test: $(STAMP)
-	$(PY) -m ruff check agent protocol services tests bench
+	$(PY) -m ruff check .
 	$(PY) -m pytest -n 2 -q
 
 lint: $(STAMP)
-	$(PY) -m ruff check agent protocol services tests bench
+	$(PY) -m ruff check .
