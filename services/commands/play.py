@@ -1,0 +1,69 @@
+"""`eca play SCRIPT...`: publish a script's timeline in real time to a running instance."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from agent.script import ScriptError, build_timeline
+from protocol.bus import BusTimeout
+from protocol.client import AgentClient
+from protocol.codec import ProtocolError
+from protocol.endpoints import BusConfigError, load_bus_config
+from services.playback import CueTranslator, VoiceCache, prepare_voices
+from services.tts import SpeechSynthesisError, espeak_available
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("play", help="replay scripts over the bus to a running instance")
+    p.add_argument("scripts", nargs="+", help="dialogue XML and/or parameter files")
+    p.add_argument("--config", default=None)
+    p.add_argument("--instance", default=None)
+    p.add_argument("--agent", default="ada", help="the agent the scripts drive")
+    p.add_argument("--speed", type=float, default=1.0, help="playback speed factor (2 = twice as fast)")
+    p.add_argument("--no-voice", action="store_true", help="do not speak lines that have only text")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 0.05 <= args.speed <= 100:
+        print(f"eca play: --speed {args.speed} must lie in [0.05, 100]", file=sys.stderr)
+        return 2
+    voices = None if args.no_voice or not espeak_available() else VoiceCache()
+    if voices is None and not args.no_voice:
+        print("eca play: espeak-ng not found: lines with only text are not spoken", file=sys.stderr)
+    try:
+        config = load_bus_config(args.config, args.instance)
+        timeline = build_timeline(args.scripts, agent=args.agent,
+                                  text_duration=voices.duration_of_text if voices else None)
+        if voices:
+            prepare_voices(timeline, voices, args.agent)
+    except (ScriptError, BusConfigError, SpeechSynthesisError) as exc:
+        print(f"eca play: {exc}", file=sys.stderr)
+        return 1
+    translator = CueTranslator(args.agent, voices)
+    try:
+        with AgentClient(config, agent=args.agent, source="eca-play") as client:
+            print(f"playing {len(timeline.cues)} cues, {timeline.length_s:.1f} s", flush=True)
+            start = time.monotonic()
+            for cue in timeline.cues:
+                due = start + cue.t_s / args.speed
+                while (left := due - time.monotonic()) > 0:
+                    time.sleep(min(left, 0.05))
+                for msg in translator.commands(cue):
+                    client.send(msg)
+                print(f"{cue.t_s:7.2f} s  {type(cue).__name__[:-3].lower():8s} {_describe(cue)}", flush=True)
+            end = start + timeline.length_s / args.speed
+            while (left := end - time.monotonic()) > 0:
+                time.sleep(min(left, 0.05))
+    except (BusTimeout, ProtocolError) as exc:
+        print(f"eca play: {exc}", file=sys.stderr)
+        return 1
+    print("done", flush=True)
+    return 0
+
+
+def _describe(cue: object) -> str:
+    fields = {k: v for k, v in vars(cue).items() if k not in ("t_s",) and v is not None}
+    return " ".join(f"{k}={v}" for k, v in fields.items())
