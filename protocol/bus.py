@@ -91,7 +91,7 @@ class Subscriber:
         self._probe = ""
         # The last-value cache re-sends a state to every subscriber of its topic when someone new
         # subscribes; an exact repeat (same source and sequence number) carries nothing new.
-        self._last_state: dict[str, tuple[str, int]] = {}
+        self._last_state: dict[str, bytes] = {}
         for p in prefixes:
             self.socket.setsockopt(zmq.SUBSCRIBE, p.encode())
         self.socket.connect(config.backend)
@@ -150,10 +150,10 @@ class Subscriber:
         if isinstance(msg, Hello) and got.topic != self._probe:
             return None  # another subscriber's readiness probe (seen by a catch-all subscription)
         if msg is not None and msg.CATEGORY == "state":
-            key = (msg.source, msg.seq)
-            if self._last_state.get(got.topic) == key:
+            # byte-identical = the same message re-sent (a restarted publisher's seq starts again at 1)
+            if self._last_state.get(got.topic) == frames[1]:
                 return None
-            self._last_state[got.topic] = key
+            self._last_state[got.topic] = frames[1]
         return got
 
     def close(self) -> None:

@@ -12,6 +12,7 @@ import math
 import re
 import types
 import typing
+from collections.abc import Callable
 from functools import cache
 from typing import Any, Literal
 
@@ -58,9 +59,9 @@ def field_specs(cls: type[Message]) -> tuple[FieldSpec, ...]:
 
 def encode(msg: Message, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
     """Validate and pack a message; what we send passes the same checks as what we receive."""
-    body = {"v": PROTOCOL_VERSION, "type": msg.TYPE}
-    for spec in field_specs(type(msg)):
-        body[spec.name] = _check(spec, getattr(msg, spec.name), spec.kind, spec.name)
+    body: dict[str, Any] = {"v": PROTOCOL_VERSION, "type": msg.TYPE}
+    for name, _, check in _compiled(type(msg)):
+        body[name] = _run(check, getattr(msg, name), name)
     _check_agent(body["agent"])
     data = msgpack.packb(body, use_bin_type=True)
     if len(data) > max_bytes:
@@ -74,33 +75,32 @@ def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
     if len(data) > max_bytes:
         raise ProtocolError("oversize", f"message is {len(data)} bytes, over the cap of {max_bytes}")
     try:
-        raw = msgpack.unpackb(bytes(data), raw=False, strict_map_key=True, use_list=True, timestamp=0)
+        raw = msgpack.unpackb(data, raw=False, strict_map_key=True, use_list=True, timestamp=0)
     except Exception as exc:  # msgpack raises many types (ExtraData, FormatError, StackError, ...)
         problem = f"bytes are not one msgpack value ({type(exc).__name__}: {exc})"
         raise ProtocolError("not_msgpack", problem) from None
-    if not isinstance(raw, dict):
+    if type(raw) is not dict:
         raise ProtocolError("wrong_type", f"message must be a map, got {_type_name(raw)}")
     version = raw.get("v")
-    if version != PROTOCOL_VERSION:
+    if type(version) is not int or version != PROTOCOL_VERSION:
         raise ProtocolError("unknown_version", f"unsupported protocol version {version!r}, "
                             f"this side speaks {PROTOCOL_VERSION}", "v")
     type_name = raw.get("type")
-    cls = MESSAGE_TYPES.get(type_name) if isinstance(type_name, str) else None
+    cls = MESSAGE_TYPES.get(type_name) if type(type_name) is str else None
     if cls is None:
         raise ProtocolError("unknown_type", f"unknown message type {type_name!r}; known: "
                             f"{', '.join(sorted(MESSAGE_TYPES))}", "type")
-    specs = field_specs(cls)
-    known = {spec.name for spec in specs}
-    extra = sorted(str(k) for k in raw if k not in known and k not in ENVELOPE_KEYS)
-    if extra:
+    names = _field_names(cls)
+    if not names.issuperset(raw):
+        extra = sorted(str(k) for k in raw if k not in names)
         raise ProtocolError("extra_field", f"not a field of '{cls.TYPE}'", extra[0])
     values: dict[str, Any] = {}
-    for spec in specs:
-        if spec.name not in raw:
-            if spec.required:
-                raise ProtocolError("missing_field", f"required by '{cls.TYPE}' but missing", spec.name)
+    for name, required, check in _compiled(cls):
+        if name not in raw:
+            if required:
+                raise ProtocolError("missing_field", f"required by '{cls.TYPE}' but missing", name)
             continue
-        values[spec.name] = _check(spec, raw[spec.name], spec.kind, spec.name)
+        values[name] = _run(check, raw[name], name)
     _check_agent(values["agent"])
     return cls(**values)
 
@@ -111,87 +111,151 @@ def _check_agent(agent: str) -> None:
                             "agent")
 
 
-def _check(spec: FieldSpec, value: Any, kind: Any, path: str) -> Any:
-    """Check `value` against the annotation `kind` and the field's limits; return it normalised."""
+# --- validators, compiled once per message type (the hot path of every bus message) -------------
+
+Check = Callable[[Any], Any]
+
+
+class _Bad(Exception):
+    """A validation failure below the field level; `sub` is the path inside the field."""
+
+    def __init__(self, kind: str, problem: str, sub: str = "") -> None:
+        super().__init__(problem)
+        self.kind, self.problem, self.sub = kind, problem, sub
+
+
+def _run(check: Check, value: Any, name: str) -> Any:
+    try:
+        return check(value)
+    except _Bad as bad:
+        raise ProtocolError(bad.kind, bad.problem, name + bad.sub) from None
+
+
+@cache
+def _field_names(cls: type[Message]) -> frozenset[str]:
+    return frozenset(spec.name for spec in field_specs(cls)) | frozenset(ENVELOPE_KEYS)
+
+
+@cache
+def _compiled(cls: type[Message]) -> tuple[tuple[str, bool, Check], ...]:
+    return tuple((spec.name, spec.required, _compile(spec, spec.kind)) for spec in field_specs(cls))
+
+
+def _compile(spec: FieldSpec, kind: Any) -> Check:
     origin = typing.get_origin(kind)
     if origin is types.UnionType or origin is typing.Union:
-        if value is None and type(None) in typing.get_args(kind):
-            return None
-        inner = [a for a in typing.get_args(kind) if a is not type(None)]
-        return _check(spec, value, inner[0], path)
+        inner = _compile(spec, next(a for a in typing.get_args(kind) if a is not type(None)))
+        return lambda v: None if v is None else inner(v)
     if origin is Literal:
-        allowed = typing.get_args(kind)
-        if value not in allowed or not isinstance(value, str):
-            raise ProtocolError("out_of_range", f"{value!r} is not one of {', '.join(allowed)}", path)
-        return value
+        return _choice(typing.get_args(kind))
     if origin is list:
-        if not isinstance(value, list):
-            raise ProtocolError("wrong_type", f"expected a list, got {_type_name(value)}", path)
-        _check_len(spec, value, path)
-        (item,) = typing.get_args(kind)
-        return [_check_scalar(spec, v, item, f"{path}[{i}]") for i, v in enumerate(value)]
+        return _sequence(spec, _compile(spec, typing.get_args(kind)[0]))
     if origin is dict:
-        if not isinstance(value, dict):
-            raise ProtocolError("wrong_type", f"expected a map, got {_type_name(value)}", path)
-        _check_len(spec, value, path)
-        _, item = typing.get_args(kind)
-        out = {}
-        for key, v in value.items():
-            if not isinstance(key, str) or not 0 < len(key) <= 64:
-                raise ProtocolError("wrong_type", f"map keys must be strings of 1-64 characters, got {key!r}",
-                                    path)
-            inner_path = f"{path}.{key}"
-            if typing.get_origin(item) is list:
-                if not isinstance(v, list):
-                    raise ProtocolError("wrong_type", f"expected a list, got {_type_name(v)}", inner_path)
-                (leaf,) = typing.get_args(item)
-                out[key] = [_check_scalar(spec, x, leaf, f"{inner_path}[{i}]") for i, x in enumerate(v)]
-            else:
-                out[key] = _check_scalar(spec, v, item, inner_path)
+        return _mapping(spec, _compile(spec, typing.get_args(kind)[1]))
+    return _scalar(spec, kind)
+
+
+def _choice(allowed: tuple[str, ...]) -> Check:
+    choices = frozenset(allowed)
+    listing = ", ".join(allowed)
+
+    def check(v: Any) -> Any:
+        if type(v) is not str:
+            raise _Bad("wrong_type", f"expected a string (one of {listing}), got {_type_name(v)}")
+        if v not in choices:
+            raise _Bad("out_of_range", f"{v!r} is not one of {listing}")
+        return v
+    return check
+
+
+def _sequence(spec: FieldSpec, item: Check) -> Check:
+    max_len = spec.max_len
+
+    def check(v: Any) -> Any:
+        if type(v) is not list:
+            raise _Bad("wrong_type", f"expected a list, got {_type_name(v)}")
+        if max_len is not None and len(v) > max_len:
+            raise _Bad("out_of_range", f"length {len(v)} is over the maximum {max_len}")
+        out = []
+        for i, x in enumerate(v):
+            try:
+                out.append(item(x))
+            except _Bad as bad:
+                raise _Bad(bad.kind, bad.problem, f"[{i}]{bad.sub}") from None
         return out
-    return _check_scalar(spec, value, kind, path)
+    return check
 
 
-def _check_scalar(spec: FieldSpec, value: Any, kind: Any, path: str) -> Any:
+def _mapping(spec: FieldSpec, item: Check) -> Check:
+    max_len = spec.max_len
+
+    def check(v: Any) -> Any:
+        if type(v) is not dict:
+            raise _Bad("wrong_type", f"expected a map, got {_type_name(v)}")
+        if max_len is not None and len(v) > max_len:
+            raise _Bad("out_of_range", f"length {len(v)} is over the maximum {max_len}")
+        out = {}
+        for key, x in v.items():
+            if type(key) is not str or not 0 < len(key) <= 64:
+                raise _Bad("wrong_type", f"map keys must be strings of 1-64 characters, got {key!r}")
+            try:
+                out[key] = item(x)
+            except _Bad as bad:
+                raise _Bad(bad.kind, bad.problem, f".{key}{bad.sub}") from None
+        return out
+    return check
+
+
+def _scalar(spec: FieldSpec, kind: Any) -> Check:
+    lo, hi, max_len = spec.lo, spec.hi, spec.max_len
+
+    def in_range(v: float) -> None:
+        if lo is not None and v < lo:
+            raise _Bad("out_of_range", f"{v} is below the minimum {lo}")
+        if hi is not None and v > hi:
+            raise _Bad("out_of_range", f"{v} is above the maximum {hi}")
+
     if kind is bool:
-        if not isinstance(value, bool):
-            raise ProtocolError("wrong_type", f"expected a boolean, got {_type_name(value)}", path)
-        return value
+        def check_bool(v: Any) -> Any:
+            if type(v) is not bool:
+                raise _Bad("wrong_type", f"expected a boolean, got {_type_name(v)}")
+            return v
+        return check_bool
     if kind is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ProtocolError("wrong_type", f"expected an integer, got {_type_name(value)}", path)
-        _check_range(spec, value, path)
-        return value
+        def check_int(v: Any) -> Any:
+            if type(v) is not int:
+                if isinstance(v, bool) or not isinstance(v, int):
+                    raise _Bad("wrong_type", f"expected an integer, got {_type_name(v)}")
+                v = int(v)
+            in_range(v)
+            return v
+        return check_int
     if kind is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ProtocolError("wrong_type", f"expected a number, got {_type_name(value)}", path)
-        value = float(value)
-        if not math.isfinite(value):
-            raise ProtocolError("not_finite", f"{value} is not a finite number", path)
-        _check_range(spec, value, path)
-        return value
+        def check_float(v: Any) -> Any:
+            if type(v) is not float:
+                if isinstance(v, bool) or not isinstance(v, int | float):
+                    raise _Bad("wrong_type", f"expected a number, got {_type_name(v)}")
+                v = float(v)
+            if not math.isfinite(v):
+                raise _Bad("not_finite", f"{v} is not a finite number")
+            in_range(v)
+            return v
+        return check_float
     if kind is str:
-        if not isinstance(value, str):
-            raise ProtocolError("wrong_type", f"expected a string, got {_type_name(value)}", path)
-        _check_len(spec, value, path)
-        return value
+        def check_str(v: Any) -> Any:
+            if type(v) is not str:
+                raise _Bad("wrong_type", f"expected a string, got {_type_name(v)}")
+            if max_len is not None and len(v) > max_len:
+                raise _Bad("out_of_range", f"length {len(v)} is over the maximum {max_len}")
+            return v
+        return check_str
     if kind is bytes:
-        if not isinstance(value, bytes):
-            raise ProtocolError("wrong_type", f"expected binary data, got {_type_name(value)}", path)
-        return value
-    raise TypeError(f"unsupported annotation {kind!r} at {path}")  # a bug in messages.py, not input
-
-
-def _check_range(spec: FieldSpec, value: float, path: str) -> None:
-    if spec.lo is not None and value < spec.lo:
-        raise ProtocolError("out_of_range", f"{value} is below the minimum {spec.lo}", path)
-    if spec.hi is not None and value > spec.hi:
-        raise ProtocolError("out_of_range", f"{value} is above the maximum {spec.hi}", path)
-
-
-def _check_len(spec: FieldSpec, value: str | list | dict, path: str) -> None:
-    if spec.max_len is not None and len(value) > spec.max_len:
-        raise ProtocolError("out_of_range", f"length {len(value)} is over the maximum {spec.max_len}", path)
+        def check_bytes(v: Any) -> Any:
+            if type(v) is not bytes:
+                raise _Bad("wrong_type", f"expected binary data, got {_type_name(v)}")
+            return v
+        return check_bytes
+    raise TypeError(f"unsupported annotation {kind!r} in {spec.name}")  # a bug in messages.py, not input
 
 
 def _type_name(value: Any) -> str:
