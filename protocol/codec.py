@@ -63,6 +63,7 @@ def encode(msg: Message, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
     for name, _, check in _compiled(type(msg)):
         body[name] = _run(check, getattr(msg, name), name)
     _check_agent(body["agent"])
+    _check_consistency(msg)
     data = msgpack.packb(body, use_bin_type=True)
     if len(data) > max_bytes:
         raise ProtocolError("oversize", f"message is {len(data)} bytes, over the cap of {max_bytes}")
@@ -102,7 +103,15 @@ def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
             continue
         values[name] = _run(check, raw[name], name)
     _check_agent(values["agent"])
-    return cls(**values)
+    msg = cls(**values)
+    _check_consistency(msg)
+    return msg
+
+
+def _check_consistency(msg: Message) -> None:
+    problem = msg.consistency_problem()
+    if problem is not None:
+        raise ProtocolError("inconsistent", problem[1], problem[0])
 
 
 def _check_agent(agent: str) -> None:
@@ -151,7 +160,8 @@ def _compile(spec: FieldSpec, kind: Any) -> Check:
     if origin is list:
         return _sequence(spec, _compile(spec, typing.get_args(kind)[0]))
     if origin is dict:
-        return _mapping(spec, _compile(spec, typing.get_args(kind)[1]))
+        # the field's length limit is on the map; its values are bounded by the message size cap
+        return _mapping(spec, _compile(dataclasses.replace(spec, max_len=None), typing.get_args(kind)[1]))
     return _scalar(spec, kind)
 
 

@@ -43,6 +43,10 @@ class Message:
     t_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="monotonic clock of the publishing host, ns")
     source: str = bounded("", max_len=64, doc="the publishing service or client")
 
+    def consistency_problem(self) -> tuple[str, str] | None:
+        """(field, problem) when fields disagree with each other; checked by the codec both ways."""
+        return None
+
 
 # --- commands: from dialogue managers, the CLI, script replay and key presses --------------------
 
@@ -255,6 +259,13 @@ class MouthKeys(Message):
     weights: dict[str, list[float]] = bounded({}, lo=0.0, hi=1.0, max_len=16,
                                              doc="mouth flexor name -> one weight 0..1 per key")
     reset: bool = bounded(False, doc="true: close the mouth and drop earlier keys (interruption)")
+
+    def consistency_problem(self) -> tuple[str, str] | None:
+        n = len(self.sample_index)
+        for name, values in self.weights.items():
+            if len(values) != n:
+                return f"weights.{name}", f"has {len(values)} values for {n} sample positions"
+        return None
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -43,8 +43,8 @@ from services.testing import BrokerThread, private_bus_config
 ENVELOPE = tuple(f.name for f in dataclasses.fields(Message))
 DOC = Path(__file__).resolve().parent.parent / "docs" / "protocol.md"
 FAST = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-ERROR_KINDS = {"not_msgpack", "wrong_type", "unknown_version", "unknown_type", "extra_field", "missing_field",
-               "not_finite", "out_of_range", "oversize"}
+ERROR_KINDS = {"inconsistent", "not_msgpack", "wrong_type", "unknown_version", "unknown_type", "extra_field",
+               "missing_field", "not_finite", "out_of_range", "oversize"}
 
 # --- strategies derived from the field specs ------------------------------------------------------
 
@@ -105,7 +105,21 @@ def messages(draw: st.DrawFn, cls: type[Message] | None = None) -> Message:
     for spec in field_specs(cls):
         if spec.required or draw(st.booleans()):
             values[spec.name] = draw(value_strategy(spec))
+    if cls is MouthKeys:  # one weight per sample position, or the message is inconsistent
+        n = len(values.get("sample_index", []))
+        values["weights"] = {k: (v * n)[:n] if v else [0.0] * n for k, v in values.get("weights", {}).items()}
     return cls(**values)
+
+
+def test_mouth_keys_whose_lists_disagree_are_inconsistent() -> None:
+    raw = wire(MouthKeys(agent="ada", request_id="r", sample_rate=100, sample_index=[0, 10],
+                         weights={"say_ah": [0.1, 0.2]}))
+    raw["weights"] = {"say_ah": [0.1]}
+    err = rejection(raw)
+    assert (err.kind, err.field) == ("inconsistent", "weights.say_ah")
+    with pytest.raises(ProtocolError, match="1 values for 2 sample positions"):
+        encode(MouthKeys(agent="ada", request_id="r", sample_rate=100, sample_index=[0, 10],
+                         weights={"say_ah": [0.1]}))
 
 
 def wire(msg: Message) -> dict[str, Any]:

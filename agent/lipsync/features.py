@@ -1,0 +1,179 @@
+"""Acoustic features of one 10 ms block: level, zero crossings, band balance and LPC formants.
+
+Formants come from *selective* linear prediction (Makhoul 1975): the autocorrelation is the inverse
+FFT of the power spectrum restricted to 0..`lpc_band_hz`, which is the autocorrelation the signal
+would have if it were low-passed and resampled to 2 x `lpc_band_hz`. So any input rate is analysed
+at the same effective rate without a time-domain resampler, and the LPC order stays small.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+_EPS = 1e-12
+
+
+@dataclass(frozen=True, slots=True)
+class BlockFeatures:
+    level_db: float  # block power in dB re full scale (a full-scale sine is -3 dB)
+    zcr_hz: float  # zero crossings per second in the block
+    high_ratio: float  # share of window power above the fricative cut-off
+    low_ratio: float  # share of window power below the nasal cut-off
+
+
+def levinson(r: np.ndarray, order: int) -> tuple[np.ndarray, float]:
+    """Levinson-Durbin recursion: LPC polynomial a (a[0] = 1) and the final prediction error."""
+    # Plain floats: for order ~10 this is several times faster than per-step numpy calls.
+    rr = [float(v) for v in r[: order + 1]]
+    a = [1.0] + [0.0] * order
+    err = rr[0]
+    if err > 0.0:
+        for i in range(1, order + 1):
+            acc = rr[i]
+            for j in range(1, i):
+                acc += a[j] * rr[i - j]
+            k = -acc / err
+            prev = a[:i]
+            for j in range(1, i):
+                a[j] = prev[j] + k * prev[i - j]
+            a[i] = k
+            err *= 1.0 - k * k
+            if err <= 0.0:
+                break
+    return np.array(a), max(err, 0.0)
+
+
+def formants(a: np.ndarray, rate_hz: float, max_bandwidth_hz: float,
+             companion: np.ndarray | None = None) -> list[float]:
+    """Resonances of the all-pole model 1/A(z): frequencies (Hz, ascending) of roots with narrow bandwidth.
+
+    `companion` may be a preallocated order x order matrix with ones on the subdiagonal (saves time).
+    """
+    order = len(a) - 1
+    if order < 2:
+        return []
+    if companion is None:
+        companion = np.eye(order, k=-1)
+    # Eigenvalues of the companion matrix are the polynomial's roots (what np.roots does, minus checks).
+    np.divide(a[1:], -a[0], out=companion[0])
+    roots = np.linalg.eigvals(companion)
+    roots = roots[roots.imag > 0.0]
+    # A handful of roots: plain floats from here on.
+    to_hz = rate_hz / (2.0 * math.pi)
+    min_radius = math.exp(-math.pi * max_bandwidth_hz / rate_hz)  # bandwidth < max <=> |root| > this
+    found = [math.atan2(z.imag, z.real) * to_hz for z in roots.tolist() if abs(z) > min_radius]
+    return sorted(f for f in found if f > 90.0)
+
+
+def pick_f1_f2(freqs: list[float], f1_range: tuple[float, float], f2_range: tuple[float, float],
+               min_gap_hz: float) -> tuple[float, float]:
+    """F1 = lowest resonance in the F1 range; F2 = the next one at least `min_gap_hz` above it."""
+    f1 = math.nan
+    for f in freqs:
+        if f1_range[0] <= f <= f1_range[1]:
+            f1 = float(f)
+            break
+    floor = f2_range[0] if math.isnan(f1) else max(f2_range[0], f1 + min_gap_hz)
+    f2 = math.nan
+    for f in freqs:
+        if floor <= f <= f2_range[1]:
+            f2 = float(f)
+            break
+    return f1, f2
+
+
+class FeatureExtractor:
+    """Computes `BlockFeatures` for consecutive blocks of one signal; holds the analysis window."""
+
+    def __init__(self, sample_rate: int, *, window_s: float, preemphasis: float, lpc_order: int,
+                 lpc_band_hz: float, high_cut_hz: float, low_cut_hz: float, max_bandwidth_hz: float,
+                 f1_range_hz: tuple[float, float], f2_range_hz: tuple[float, float],
+                 formant_gap_hz: float, lag_window_hz: float) -> None:
+        self.sample_rate = int(sample_rate)
+        self.window_len = max(16, round(window_s * sample_rate))
+        # Only the first lpc_order lags of the band-limited autocorrelation are used, so the FFT need
+        # only be long enough that those lags do not wrap around (circular correlation).
+        decimation = int(np.ceil(sample_rate / (2.0 * min(lpc_band_hz, 0.5 * sample_rate))))
+        self.nfft = 1 << int(np.ceil(np.log2(self.window_len + (lpc_order + 1) * decimation)))
+        self.window = np.hamming(self.window_len)
+        self.preemphasis = float(preemphasis)
+        self.lpc_order = int(lpc_order)
+        self.max_bandwidth_hz = float(max_bandwidth_hz)
+        self.f1_range = f1_range_hz
+        self.f2_range = f2_range_hz
+        self.formant_gap_hz = float(formant_gap_hz)
+        bin_hz = sample_rate / self.nfft
+        nyquist_bin = self.nfft // 2
+        self.lpc_bins = min(nyquist_bin, max(self.lpc_order + 2, int(lpc_band_hz / bin_hz)))
+        self.lpc_rate_hz = 2.0 * self.lpc_bins * bin_hz
+        self.high_bin = min(nyquist_bin, int(np.ceil(high_cut_hz / bin_hz)))
+        self.low_bin = max(1, int(low_cut_hz / bin_hz))
+        # A Gaussian lag window widens every resonance by ~lag_window_hz, so a pitch harmonic that falls
+        # on a formant cannot pull a root onto the unit circle.
+        lags = np.arange(self.lpc_order + 1)
+        lag_window = np.exp(-0.5 * (2.0 * np.pi * lag_window_hz * lags / self.lpc_rate_hz) ** 2)
+        # The few lags needed are a cosine transform of the band's power spectrum: one small matrix
+        # product instead of an inverse FFT (what irfft would compute at those lags, up to a constant).
+        k = np.arange(self.lpc_bins + 1)
+        edge = np.where((k == 0) | (k == self.lpc_bins), 1.0, 2.0)
+        self._lag_basis = (lag_window[:, None] * edge[None, :]
+                           * np.cos(np.pi * lags[:, None] * k[None, :] / self.lpc_bins))
+        self._psd = np.zeros(self.nfft // 2 + 1)
+        # Band balance is judged on the raw spectrum: weights that undo the pre-emphasis filter's gain.
+        w = np.linspace(0.0, np.pi, nyquist_bin + 1)
+        self._deemphasis = 1.0 / np.maximum(1.0 + preemphasis**2 - 2.0 * preemphasis * np.cos(w), 1e-6)
+        self._deemphasis[0] = 0.0
+        # All four band sums of a block as one matrix-vector product: total, high band, raw low, raw total.
+        bins = np.arange(nyquist_bin + 1)
+        self._band_sums = np.stack([
+            (bins >= 1).astype(float),
+            (bins >= self.high_bin).astype(float),
+            np.where(bins <= self.low_bin, self._deemphasis, 0.0),
+            self._deemphasis,
+        ])
+        self._emphasised = np.zeros(self.window_len)
+        self._companion = np.eye(self.lpc_order, k=-1)
+        # Raw history: the last window_len samples (plus one for pre-emphasis) end at the block's end.
+        self._history = np.zeros(self.window_len + 1)
+
+    def reset(self) -> None:
+        self._history[:] = 0.0
+
+    def block(self, samples: np.ndarray) -> BlockFeatures:
+        n = len(samples)
+        hist = self._history
+        if n >= len(hist):
+            hist[:] = samples[-len(hist):]
+        else:
+            hist[:-n] = hist[n:]
+            hist[-n:] = samples
+        power = float(np.dot(samples, samples)) / max(n, 1)
+        level_db = 10.0 * math.log10(power + _EPS)
+        signs = np.signbit(samples)
+        zcr_hz = float(np.count_nonzero(signs[1:] != signs[:-1])) * self.sample_rate / max(n - 1, 1)
+
+        emphasised = self._emphasised
+        np.multiply(hist[:-1], -self.preemphasis, out=emphasised)
+        emphasised += hist[1:]
+        emphasised *= self.window
+        spectrum = np.fft.rfft(emphasised, self.nfft)
+        psd = np.abs(spectrum)
+        psd *= psd
+        total, high, raw_low, raw_total = (self._band_sums @ psd).tolist()
+        self._psd = psd
+        return BlockFeatures(level_db, zcr_hz, high / (total + _EPS), raw_low / (raw_total + _EPS))
+
+    def formants(self) -> tuple[float, float]:
+        """F1 and F2 (Hz, NaN when absent) of the window analysed by the last `block` call.
+
+        Separate from `block` because it costs most of the time and only vowel-like blocks need it.
+        """
+        r = self._lag_basis @ self._psd[: self.lpc_bins + 1]
+        if r[0] <= _EPS:
+            return np.nan, np.nan
+        a, _ = levinson(r, self.lpc_order)
+        peaks = formants(a, self.lpc_rate_hz, self.max_bandwidth_hz, self._companion)
+        return pick_f1_f2(peaks, self.f1_range, self.f2_range, self.formant_gap_hz)

@@ -1,0 +1,33 @@
+"""The audio engine: plays utterances through a sink, is the master clock, emits lifecycle and mouth events.
+
+The service process is a thin wrapper: it maps the plain events of `Player` onto bus messages.
+"""
+
+from services.audio.events import (
+    AudioEvent,
+    ClockAnchor,
+    MouthKeys,
+    MouthReset,
+    SpeechFailed,
+    SpeechFinished,
+    SpeechInterrupted,
+    SpeechStarted,
+)
+from services.audio.player import Player
+from services.audio.sinks import FakeSink, NullSink, Sink, open_sink
+
+__all__ = [
+    "AudioEvent",
+    "ClockAnchor",
+    "FakeSink",
+    "MouthKeys",
+    "MouthReset",
+    "NullSink",
+    "Player",
+    "Sink",
+    "SpeechFailed",
+    "SpeechFinished",
+    "SpeechInterrupted",
+    "SpeechStarted",
+    "open_sink",
+]

@@ -1,0 +1,54 @@
+"""Audio engine settings from configs/audio.toml."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from agent.config import ConfigError, load_toml, require
+
+
+@dataclass(frozen=True)
+class AudioConfig:
+    sample_rate: int = 48_000
+    block_frames: int = 480
+    latency: str | float = "low"
+    device: str | int | None = None
+    anchor_hz: float = 100.0
+    publisher_hz: float = 120.0
+    max_utterance_s: float = 600.0
+    offset_window_s: float = 2.0
+    max_dac_ahead_s: float = 1.0
+
+    @classmethod
+    def load(cls, name: str = "audio") -> AudioConfig:
+        return cls.from_dict(load_toml(name), where=f"configs/{name}.toml")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "audio config") -> AudioConfig:
+        dev = require(data, "device", dict, where)
+        player = require(data, "player", dict, where)
+        clock = require(data, "clock", dict, where)
+        device = dev.get("device", "")
+        if not isinstance(device, str | int) or isinstance(device, bool):
+            raise ConfigError(f"{where} [device]: 'device' must be a name or an index, got {device!r}")
+        latency = dev.get("latency", "low")
+        if isinstance(latency, str) and latency not in ("low", "high"):
+            raise ConfigError(f"{where} [device]: 'latency' must be 'low', 'high' or seconds, got {latency!r}")
+        cfg = cls(
+            sample_rate=require(dev, "sample_rate", int, f"{where} [device]"),
+            block_frames=require(dev, "block_frames", int, f"{where} [device]"),
+            latency=latency,
+            device=None if device == "" else device,
+            anchor_hz=require(player, "anchor_hz", float, f"{where} [player]"),
+            publisher_hz=require(player, "publisher_hz", float, f"{where} [player]"),
+            max_utterance_s=require(player, "max_utterance_s", float, f"{where} [player]"),
+            offset_window_s=require(clock, "offset_window_s", float, f"{where} [clock]"),
+            max_dac_ahead_s=require(clock, "max_dac_ahead_s", float, f"{where} [clock]"),
+        )
+        for name in ("sample_rate", "block_frames", "anchor_hz", "publisher_hz", "max_utterance_s"):
+            if getattr(cfg, name) <= 0:
+                raise ConfigError(f"{where}: '{name}' must be > 0, got {getattr(cfg, name)}")
+        if cfg.anchor_hz < 60.0:
+            raise ConfigError(f"{where} [player]: 'anchor_hz' must be >= 60 (one anchor per video frame)")
+        return cfg

@@ -1,0 +1,113 @@
+"""The audio service on the bus, behind the dialogue service: lifecycle, clock, mouth, barge-in."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from protocol.client import AgentClient
+from protocol.messages import (
+    ClockAnchor,
+    MouthKeys,
+    RoleState,
+    SpeechFailed,
+    SpeechFinished,
+    SpeechInterrupted,
+    SpeechStarted,
+)
+from services.audio.service import AudioService
+from services.audio.sinks import NullSink
+from services.dialogue import DialogueService
+from services.testing import BrokerThread, ServiceThread, private_bus_config
+
+RATE = 16_000
+
+
+def tone(seconds: float, amplitude: float = 0.5) -> bytes:
+    t = np.arange(int(seconds * RATE)) / RATE
+    wave = amplitude * np.sin(2 * np.pi * 220 * t) * (1 + 0.5 * np.sin(2 * np.pi * 3 * t))
+    return (np.clip(wave, -1, 1) * 32767).astype("<i2").tobytes()
+
+
+@pytest.fixture
+def client() -> Iterator[AgentClient]:
+    with private_bus_config() as config, BrokerThread(config):
+        audio = AudioService(config, sink_factory=lambda: NullSink(48_000, 480))
+        with ServiceThread(DialogueService(config)), ServiceThread(audio):
+            with AgentClient(config, agent="ada") as c:
+                c.sub.subscribe("stream.ada.")
+                yield c
+
+
+def collect_until_terminal(client: AgentClient, rid: str, timeout_s: float = 10.0) -> list:
+    seen = []
+    while True:
+        msg = client.wait_for(lambda m: getattr(m, "request_id", None) == rid or isinstance(m, RoleState),
+                              timeout_s)
+        seen.append(msg)
+        if isinstance(msg, SpeechFinished | SpeechInterrupted | SpeechFailed):
+            return seen
+
+
+def test_inline_pcm_plays_with_anchors_mouth_and_one_terminal_event(client: AgentClient) -> None:
+    rid = client.say(pcm=tone(0.6), sample_rate=RATE)
+    seen = collect_until_terminal(client, rid)
+    kinds = [type(m).__name__ for m in seen]
+    assert kinds.count("SpeechStarted") == 1 and kinds[-1] == "SpeechFinished"
+    assert kinds.index("MouthKeys") < kinds.index("SpeechStarted")  # known ahead: keys come first
+    finished = seen[-1]
+    assert finished.played_s == pytest.approx(0.6, abs=0.011)
+    anchors = [m for m in seen if isinstance(m, ClockAnchor)]
+    assert len(anchors) >= 0.6 * 60 * 0.8  # about 60 Hz or more while playing
+    # anchors follow the samples played: sample index and DAC time advance together at the rate
+    a, b = anchors[1], anchors[-1]
+    rate = (b.sample_index - a.sample_index) / ((b.dac_time_ns - a.dac_time_ns) / 1e9)
+    assert rate == pytest.approx(48_000, rel=0.02)
+    keys = [m for m in seen if isinstance(m, MouthKeys)]
+    opened = max(max(m.weights.get("say_ah", [0.0])) for m in keys)
+    assert opened > 0.2  # a loud tone opens the jaw
+    roles = [m.role for m in seen if isinstance(m, RoleState) and m.set_by == "speech"]
+    assert roles[:1] == ["talking"]
+
+
+def test_interruption_stops_the_voice_reports_played_time_and_closes_the_mouth(client: AgentClient) -> None:
+    rid = client.say(pcm=tone(5.0), sample_rate=RATE)
+    client.wait_for(lambda m: isinstance(m, SpeechStarted) and m.request_id == rid, 10.0)
+    client.wait_for(lambda m: isinstance(m, ClockAnchor) and m.sample_index > 48_000 * 0.3, 10.0)
+    client.interrupt(reason="stop now")
+    reset = client.wait_for(lambda m: isinstance(m, MouthKeys) and m.reset, 5.0)
+    assert reset.request_id == rid
+    done = client.wait_for_speech(rid, 5.0)
+    assert isinstance(done, SpeechInterrupted) and done.reason == "stop now"
+    assert 0.3 <= done.played_s < 2.0
+    client.expect_state(RoleState, lambda m: m.role == "listening" and m.set_by == "speech")
+    rid2 = client.say(pcm=tone(0.2), sample_rate=RATE)  # plays normally afterwards
+    assert isinstance(client.wait_for_speech(rid2, 10.0), SpeechFinished)
+
+
+def test_a_missing_file_fails_that_request_only(client: AgentClient) -> None:
+    bad = client.say(audio_path="/no/such/file.wav")
+    good = client.say(pcm=tone(0.2), sample_rate=RATE)
+    failed = client.wait_for_speech(bad, 10.0)
+    assert isinstance(failed, SpeechFailed) and "file.wav" in failed.reason
+    assert isinstance(client.wait_for_speech(good, 10.0), SpeechFinished)
+
+
+def test_streamed_chunks_play_gap_free(client: AgentClient) -> None:
+    pcm = tone(0.5)
+    chunks = [pcm[i:i + 3200] for i in range(0, len(pcm), 3200)]
+    rid = client.say_stream(chunks, sample_rate=RATE)
+    done = client.wait_for_speech(rid, 10.0)
+    assert isinstance(done, SpeechFinished) and done.played_s == pytest.approx(0.5, abs=0.011)
+
+
+def test_barge_in_stops_the_voice_and_makes_the_agent_listen(client: AgentClient) -> None:
+    rid = client.say(pcm=tone(5.0), sample_rate=RATE)
+    client.wait_for(lambda m: isinstance(m, SpeechStarted), 10.0)
+    client.user_speaking(True)
+    done = client.wait_for_speech(rid, 5.0)
+    assert isinstance(done, SpeechInterrupted) and "user" in done.reason
+    role = client.expect_state(RoleState, lambda m: m.role == "listening" and m.speaker == "user")
+    assert role.set_by == "command"
