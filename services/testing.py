@@ -29,7 +29,8 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 
 def write_test_config(directory: Path, services: list[str] | None = None, agents: list[str] | None = None,
                       extra: str = "") -> Path:
-    """A copy of the default config with a private runtime directory under `directory`."""
+    """A copy of the default config with a private runtime directory under `directory`; tables in `extra`
+    replace the default tables of the same name."""
     text = DEFAULT_CONFIG.read_text()
     text = text.replace('runtime_dir = ""', f'runtime_dir = "{directory / "run"}"', 1)
     if services is not None:
@@ -37,6 +38,9 @@ def write_test_config(directory: Path, services: list[str] | None = None, agents
                       flags=re.MULTILINE)
     if agents is not None:
         text = text.replace('ids = ["ada"]', f"ids = {agents!r}".replace("'", '"'), 1)
+    for table in re.findall(r"^\[([\w.-]+)\]", extra, flags=re.MULTILINE):
+        # a table given in `extra` replaces the default one of that name
+        text = re.sub(rf"^\[{re.escape(table)}\]\n.*?(?=^\[|\Z)", "", text, flags=re.MULTILINE | re.DOTALL)
     path = directory / "eca.toml"
     path.write_text(text + "\n" + extra)
     return path

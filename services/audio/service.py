@@ -120,7 +120,9 @@ class AudioService(Service):
                                                for n in names}), "stream"))
             return out
         if isinstance(ev, events.MouthReset):
-            return [(MouthKeys(agent=agent, request_id=ev.utterance_id, sample_rate=1, reset=True), "stream")]
+            # stamped with the moment the voice stops at the DAC: the mouth closes from then on
+            return [(MouthKeys(agent=agent, t_ns=max(0, ev.dac_time_ns), request_id=ev.utterance_id, sample_rate=1,
+                               reset=True), "stream")]
         if isinstance(ev, events.SpeechStarted):
             return [(SpeechStartedMsg(agent=agent, request_id=ev.utterance_id,
                                       dac_time_ns=max(0, ev.dac_time_ns)), "audio")]

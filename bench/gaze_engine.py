@@ -1,0 +1,193 @@
+"""Benchmark: GazeEngine ticks per second for 1 to 1,000,000 agents against a plain per-agent Python model.
+
+The baseline is the same model (Eyes Alive saccades, the statistical blink model, the bell velocity
+profile) written the obvious way: one Python object per agent, `random.Random` per agent, `math.erf`
+per in-flight eye. It is timed on fewer agents and scaled per agent. Both run on virtual time at 60 Hz
+after a warm-up that reaches the steady state, timed in alternating blocks of a tenth of a second so
+that load from other processes hits both alike. Figures are medians.
+
+    python bench/gaze_engine.py [--sizes 1 1000 100000 1000000] [--ticks 60] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import json
+import math
+import random
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from agent.gaze.engine import GazeEngine  # noqa: E402
+from agent.gaze.params import GazeParams  # noqa: E402
+
+NS = 1_000_000_000
+FRAME_NS = NS // 60
+BLOCK_TICKS = 6
+TARGETS_MS = {100_000: 2.0, 1_000_000: 16.7}
+
+
+class PythonAgent:
+    """One agent of the same model, in plain Python: the per-agent baseline."""
+
+    def __init__(self, params: GazeParams, seed: int, role: str) -> None:
+        self.p = params
+        self.rng = random.Random(seed)
+        self.role = params.roles[role]
+        self.cumulative_direction = list(np.cumsum(params.direction_probability))
+        self.tables = {
+            kind: (list(dist.cdf_grid), list(dist.grid_s))
+            for kind, dist in (("mutual", self.role.mutual_interval), ("away", self.role.away_interval))
+        }
+        self.p_min = params.p_ref * math.exp(-self.role.max_magnitude_deg / params.a_scale_deg)
+        self.blink_mean_s = 60.0 / self.role.blink_rate_per_min
+        self.k = math.sqrt(math.pi) / 2.0
+        self.erf_edge = math.erf(3.0 * self.k)
+        self.onset = self.end = 0
+        self.from_ = self.to = (0.0, 0.0)
+        self.next_saccade = 0
+        self.next_blink = self._blink_interval()
+        self.blink_onset = -(10**18)
+
+    def _hold(self, kind: str) -> float:
+        cdf, grid = self.tables[kind]
+        u = self.rng.random()
+        i = min(max(bisect.bisect_right(cdf, u), 1), len(cdf) - 1)
+        span = cdf[i] - cdf[i - 1]
+        return grid[i - 1] + (grid[i] - grid[i - 1]) * ((u - cdf[i - 1]) / span if span > 0 else 0.0)
+
+    def _blink_interval(self) -> int:
+        refractory = self.p.blink.refractory_s
+        return round((refractory - (self.blink_mean_s - refractory) * math.log1p(-self.rng.random())) * NS)
+
+    def _position(self, t: int) -> tuple[float, float]:
+        if t >= self.end:
+            return self.to
+        tau = (t - self.onset) / (self.end - self.onset)
+        progress = (math.erf(self.k * (6.0 * tau - 3.0)) + self.erf_edge) / (2.0 * self.erf_edge)
+        return (
+            self.from_[0] + (self.to[0] - self.from_[0]) * progress,
+            self.from_[1] + (self.to[1] - self.from_[1]) * progress,
+        )
+
+    def _decide(self, t: int) -> None:
+        p = self.p
+        start = self._position(t)
+        mutual = self.rng.random() < self.role.mutual_probability
+        magnitude = -p.a_scale_deg * math.log((p.p_max - self.rng.random() * (p.p_max - self.p_min)) / p.p_ref)
+        direction = math.radians(
+            p.direction_bins_deg[bisect.bisect_right(self.cumulative_direction, self.rng.random())]
+        )
+        if mutual:
+            target = (0.0, 0.0)
+        else:
+            target = (
+                max(-30.0, min(30.0, magnitude * math.cos(direction))),
+                max(-30.0, min(30.0, magnitude * math.sin(direction))),
+            )
+        hold = self._hold("mutual" if mutual else "away")
+        amplitude = math.hypot(target[0] - start[0], target[1] - start[1])
+        self.onset, self.end = t, t + round((p.d0_s + p.d_s_per_deg * amplitude) * NS)
+        self.from_, self.to = start, target
+        self.next_saccade = self.end + round(hold * NS)
+        blink = p.blink
+        chance = min(max((amplitude - blink.evoked_min_deg) / (blink.evoked_full_deg - blink.evoked_min_deg), 0), 1)
+        if (
+            self.rng.random() < chance * blink.evoked_max_probability
+            and self.next_blink - t <= blink.pull_window_s * NS
+        ):
+            self.blink_onset = t
+            self.next_blink += self._blink_interval()
+
+    def tick(self, t: int) -> tuple[float, float, float]:
+        while min(self.next_saccade, self.next_blink) <= t:
+            if self.next_saccade <= self.next_blink:
+                self._decide(self.next_saccade)
+            else:
+                self.blink_onset = self.next_blink
+                self.next_blink += self._blink_interval()
+        yaw, pitch = self._position(t)
+        elapsed = (t - self.blink_onset) * 1e-9
+        curve_s, curve_c = self.p.blink.lid_curve_s, self.p.blink.lid_curve_closure
+        lid = 0.0
+        if 0.0 <= elapsed < curve_s[-1]:
+            i = bisect.bisect_right(curve_s, elapsed)
+            lid = curve_c[i - 1] + (curve_c[i] - curve_c[i - 1]) * (elapsed - curve_s[i - 1]) / (
+                curve_s[i] - curve_s[i - 1]
+            )
+        return yaw, pitch, lid
+
+
+def time_both(params: GazeParams, n: int, python_n: int, ticks: int) -> tuple[float, float]:
+    """Median seconds per 60 Hz tick of the engine (n agents) and of plain Python (python_n agents).
+
+    The two are timed in alternating blocks of ticks, so load from other processes hits both alike.
+    """
+    engine = GazeEngine(n, seed=1, params=params, role="talking")
+    agents = [PythonAgent(params, seed, "talking") for seed in range(python_n)]
+    for second in range(1, 11):  # warm-up to the steady state; onsets are exact whatever the step
+        engine.tick(second * NS)
+        for agent in agents:
+            agent.tick(second * NS)
+    start_ns = 10 * NS
+    engine_samples, python_samples = [], []
+    for block_start in range(1, ticks + 1, BLOCK_TICKS):
+        block = range(block_start, min(block_start + BLOCK_TICKS, ticks + 1))
+        for k in block:
+            began = time.perf_counter()
+            engine.tick(start_ns + k * FRAME_NS)
+            engine_samples.append(time.perf_counter() - began)
+        for k in block:
+            t = start_ns + k * FRAME_NS
+            began = time.perf_counter()
+            for agent in agents:
+                agent.tick(t)
+            python_samples.append(time.perf_counter() - began)
+    return statistics.median(engine_samples), statistics.median(python_samples)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1, 1_000, 100_000, 1_000_000])
+    parser.add_argument("--ticks", type=int, default=60, help="measured 60 Hz ticks per size")
+    parser.add_argument("--python-agents", type=int, default=2_000, help="largest crowd timed in plain Python")
+    parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    args = parser.parse_args(argv)
+    params = GazeParams.load()
+    results = []
+    print(f"{'agents':>10} {'engine ms/tick':>15} {'ticks/s':>10} {'python ms/tick':>15} {'ratio':>8}  target")
+    for n in args.sizes:
+        python_n = min(n, args.python_agents)
+        engine_s, python_s = time_both(params, n, python_n, args.ticks)
+        python_s *= n / python_n
+        target = TARGETS_MS.get(n)
+        row = {
+            "agents": n,
+            "engine_ms_per_tick": engine_s * 1e3,
+            "engine_ticks_per_s": 1.0 / engine_s,
+            "python_ms_per_tick": python_s * 1e3,
+            "python_agents_timed": python_n,
+            "ratio": python_s / engine_s,
+            "target_ms": target,
+        }
+        results.append(row)
+        verdict = "" if target is None else f"<= {target} ms: {'met' if engine_s * 1e3 <= target else 'MISSED'}"
+        print(
+            f"{n:>10,} {engine_s * 1e3:>15.3f} {1.0 / engine_s:>10.0f} {python_s * 1e3:>15.3f}"
+            f" {python_s / engine_s:>7.0f}x  {verdict}",
+            flush=True,
+        )
+    if args.json:
+        print(json.dumps({"bench": "gaze_engine", "statistic": "median", "tick_hz": 60, "results": results}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

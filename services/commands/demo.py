@@ -1,0 +1,81 @@
+"""`eca demo`: the main job. With a display, the demo dialogue plays live in a window; without one,
+it is rendered to a video with its pupil-trajectory plot, and the paths are printed."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from agent.script import ScriptError
+from services.commands.experiment import DEMO_DIALOGUE
+from services.commands.render import load_inputs, render_video, settings_from
+from services.tts import SpeechSynthesisError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="the demo dialogue: live in a window, or rendered to video without a display")
+    p.add_argument("--headless", action="store_true", help="render to video even if a display exists")
+    p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="folder for the headless results")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=run)
+
+
+def display_available() -> bool:
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return False
+    try:
+        import glfw
+
+        ok = bool(glfw.init())
+        glfw.terminate()
+        return ok
+    except Exception:
+        return False
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.headless and display_available():
+        return run_live(args)
+    print("eca demo: no display found: rendering the demo to a video instead", flush=True)
+    return run_headless(args)
+
+
+def run_headless(args: argparse.Namespace) -> int:
+    from services.experiment import plot_trajectory
+
+    render_args = argparse.Namespace(scripts=[str(DEMO_DIALOGUE)], agent="ada", eyes="saccade+blink", view="full",
+                                     seed=args.seed, fps=30.0, size="640x480", no_voice=False)
+    try:
+        settings = settings_from(render_args)
+        timeline, voices = load_inputs(render_args)
+    except (ScriptError, SpeechSynthesisError, ValueError) as exc:
+        print(f"eca demo: {exc}", file=sys.stderr)
+        return 1
+    out: Path = args.output
+    video, csv, plot = out / "demo.mp4", out / "demo_flexors.csv", out / "demo_trajectory.png"
+    result = render_video(timeline, voices, "ada", settings, video, csv, label="demo")
+    plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, "demo: pupil trajectory", plot)
+    print(f"video:      {video}\ntrajectory: {plot}\nflexors:    {csv}")
+    return 0
+
+
+def run_live(args: argparse.Namespace) -> int:
+    """`eca up` with the window, then the demo played into it over the bus."""
+    from services.testing import LineReader, eca_command, subprocess_env
+
+    instance = f"demo{os.getpid()}"
+    up = subprocess.Popen(eca_command("up", "--instance", instance, "--quiet"), stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, env=subprocess_env(), start_new_session=True)
+    reader = LineReader(up.stdout)
+    try:
+        reader.wait_for("[up] ready in", 60.0)
+        return subprocess.call(eca_command("play", str(DEMO_DIALOGUE), "--instance", instance))
+    except TimeoutError as exc:
+        print(f"eca demo: the runtime did not start:\n{exc}", file=sys.stderr)
+        return 1
+    finally:
+        up.send_signal(2)
+        up.wait(timeout=10)

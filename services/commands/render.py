@@ -1,0 +1,118 @@
+"""`eca render SCRIPT... -o out.mp4`: the deterministic offline render, with audio and a flexor CSV."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from agent.script import ScriptError, build_timeline
+from services.playback import VoiceCache, prepare_voices
+from services.tts import SpeechSynthesisError, espeak_available
+
+if TYPE_CHECKING:  # the offline pipeline pulls in GL and FFmpeg: imported only when rendering
+    from services.offline import RenderSettings
+
+EYE_CHOICES = ["static", "noise", "saccade", "saccade+blink", "script"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("render", help="render scripts offline to MP4 (with audio) and a flexor CSV")
+    add_render_arguments(p)
+    p.add_argument("-o", "--output", type=Path, required=True, help="the MP4 to write")
+    p.add_argument("--csv", type=Path, default=None, help="flexor frames CSV (default: beside the MP4)")
+    p.set_defaults(func=run)
+
+
+def add_render_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scripts", nargs="+", help="dialogue XML and/or parameter files")
+    p.add_argument("--agent", default="ada", help="the agent the scripts animate")
+    p.add_argument("--eyes", choices=EYE_CHOICES, default="saccade+blink",
+                   help="eye condition; 'script' follows the scripts' own eye-mode cues")
+    p.add_argument("--view", choices=["full", "upper"], default="full")
+    p.add_argument("--seed", type=int, default=0, help="seed of the eyes and blinks")
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--size", default="640x480", help="WxH, even numbers")
+    p.add_argument("--no-voice", action="store_true", help="do not speak lines that have only text")
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size {text!r} must look like 640x480") from None
+    if not (16 <= w <= 4096 and 16 <= h <= 4096) or w % 2 or h % 2:
+        raise ValueError(f"--size {text!r}: width and height must be even and within 16..4096")
+    return w, h
+
+
+def settings_from(args: argparse.Namespace) -> RenderSettings:
+    from services.offline import RenderSettings
+
+    if not 1 <= args.fps <= 120:
+        raise ValueError(f"--fps {args.fps} must lie in [1, 120]")
+    return RenderSettings(fps=args.fps, size=parse_size(args.size), view=args.view,
+                          eyes=None if args.eyes == "script" else args.eyes, seed=args.seed)
+
+
+def load_inputs(args: argparse.Namespace) -> tuple[Any, VoiceCache | None]:
+    voices = None if args.no_voice or not espeak_available() else VoiceCache()
+    if voices is None and not args.no_voice:
+        print("eca render: espeak-ng not found: lines with only text stay silent", file=sys.stderr)
+    timeline = build_timeline(args.scripts, agent=args.agent,
+                              text_duration=voices.duration_of_text if voices else None)
+    if voices is not None:
+        prepare_voices(timeline, voices, args.agent)
+    return timeline, voices
+
+
+def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings: RenderSettings,
+                 output: Path, csv_path: Path | None, label: str = "render") -> Any:
+    """Render the timeline to `output` (MP4 with audio) and the CSV; returns the RenderedTimeline."""
+    from tqdm import tqdm
+
+    from services.offline import animate, mux_audio, write_flexor_csv
+    from services.renderer.context import create_headless_context, create_offscreen_target, read_rgb
+    from services.renderer.renderer import Renderer
+    from services.renderer.video import VideoWriter
+
+    output.parent.mkdir(parents=True, exist_ok=True)
+    ctx = create_headless_context()
+    renderer = Renderer(ctx, settings.size)
+    target = create_offscreen_target(ctx, settings.size)
+    with tempfile.TemporaryDirectory(prefix="eca-render-") as tmp:
+        silent = Path(tmp) / "video.mp4"
+        writer = VideoWriter(silent, settings.fps, settings.size)
+        bar = tqdm(desc=label, unit="frame", total=int(timeline.length_s * settings.fps) + 1,
+                   disable=not sys.stderr.isatty(), leave=False)
+
+        def draw(k: int, flexors: Any) -> None:
+            renderer.render(flexors, target, view=settings.view)
+            writer.write(read_rgb(target), k)
+            bar.update(1)
+
+        result = animate(timeline, agent, settings, voices, on_frame=draw)
+        writer.close()
+        bar.close()
+        mux_audio(silent, result.audio, output)
+    if csv_path is not None:
+        write_flexor_csv(csv_path, result.t_s, result.flexors)
+    ctx.release()
+    return result
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        settings = settings_from(args)
+        if args.output.suffix.lower() != ".mp4":
+            raise ValueError(f"{args.output}: the output must be an .mp4 file")
+        timeline, voices = load_inputs(args)
+    except (ScriptError, SpeechSynthesisError, ValueError) as exc:
+        print(f"eca render: {exc}", file=sys.stderr)
+        return 1
+    csv_path = args.csv or args.output.with_suffix(".csv")
+    render_video(timeline, voices, args.agent, settings, args.output, csv_path)
+    print(f"wrote {args.output} ({timeline.length_s:.1f} s) and {csv_path}")
+    return 0

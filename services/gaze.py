@@ -1,0 +1,102 @@
+"""The gaze service: the Attention Monitor and saccade engine for this instance's agents, live.
+
+It follows each agent's state (role, emotion, head, eye mode, gaze target) from the dialogue
+service, ticks the engine at a fixed rate (default 60 Hz) and publishes the eye state of every agent
+each tick plus a saccade event at every onset, so a renderer can draw the exact trajectory at its
+own frame times. A role change takes effect in the engine at once, so the next tick shows it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from agent.config import load_toml
+from agent.gaze.engine import GazeEngine
+from agent.gaze.params import KINDS, MODES
+from protocol.endpoints import BusConfig
+from protocol.messages import EmotionState, EyesState, EyeState, GazeTargetState, HeadState, RoleState, Saccade
+from services.runtime import Rejected, Service
+
+
+class GazeService(Service):
+    name = "gaze"
+
+    def __init__(self, config: BusConfig, seed: int | None = None, **kwargs: Any) -> None:
+        super().__init__(config, **kwargs)
+        table = config.raw.get("gaze", {})
+        self.tick_hz = float(table.get("rate_hz", 60.0))
+        self.agent_ids: list[str] = list(config.raw.get("agents", {}).get("ids", ["ada"]))
+        self.index = {a: i for i, a in enumerate(self.agent_ids)}
+        units = load_toml("flexor_units")["head"]
+        self.head_deg = (float(units["turn_deg"]), float(units["nod_deg"]))
+        self.engine = GazeEngine(len(self.agent_ids), int(table.get("seed", 0) if seed is None else seed),
+                                 start_ns=self.clock.now_ns())
+        self.modes = ["saccade+blink"] * len(self.agent_ids)
+        for cls, handler in ((RoleState, self.on_role), (EmotionState, self.on_emotion), (HeadState, self.on_head),
+                             (EyesState, self.on_eyes), (GazeTargetState, self.on_target)):
+            self.handle(cls, handler)
+
+    @classmethod
+    def from_args(cls, config: BusConfig, argv: list[str], **kwargs: Any) -> GazeService:
+        seed = None
+        if "--seed" in argv:
+            seed = int(argv[argv.index("--seed") + 1])
+        return cls(config, seed=seed, **kwargs)
+
+    def subscriptions(self) -> list[str]:
+        return [f"state.{a}." for a in self.agent_ids]
+
+    def _i(self, agent: str) -> int:
+        try:
+            return self.index[agent]
+        except KeyError:
+            raise Rejected(f"unknown agent '{agent}'") from None
+
+    def _now(self) -> int:
+        return max(self.clock.now_ns(), self.engine.now_ns)
+
+    def on_role(self, msg: RoleState) -> None:
+        self.engine.set_role(self._i(msg.agent), msg.role, self._now())
+
+    def on_emotion(self, msg: EmotionState) -> None:
+        try:
+            self.engine.set_emotion(self._i(msg.agent), msg.name, msg.intensity, self._now())
+        except ValueError as exc:
+            raise Rejected(str(exc)) from None
+
+    def on_head(self, msg: HeadState) -> None:
+        # The eyes lead the head: the engine hears the new head direction when the move begins.
+        self.engine.set_head(self._i(msg.agent), msg.turn * self.head_deg[0], msg.nod * self.head_deg[1],
+                             self._now())
+
+    def on_eyes(self, msg: EyesState) -> None:
+        i = self._i(msg.agent)
+        self.engine.set_mode(i, msg.mode, self._now())
+        self.modes[i] = msg.mode
+
+    def on_target(self, msg: GazeTargetState) -> None:
+        self.engine.set_target(self._i(msg.agent), msg.yaw_deg, msg.pitch_deg, self._now())
+
+    def on_tick(self, now_ns: int) -> None:
+        tick = self.engine.tick(max(now_ns, self.engine.now_ns))
+        s = tick.saccades
+        for k in range(len(s)):
+            agent = self.agent_ids[int(s.agent[k])]
+            self.publish(Saccade(
+                agent=agent, onset_ns=int(s.onset_ns[k]),
+                from_yaw_deg=float(s.from_yaw_deg[k]), from_pitch_deg=float(s.from_pitch_deg[k]),
+                to_yaw_deg=float(s.to_yaw_deg[k]), to_pitch_deg=float(s.to_pitch_deg[k]),
+                amplitude_deg=float(s.amplitude_deg[k]), direction_deg=float(s.direction_deg[k]) % 360.0,
+                duration_s=float(s.duration_s[k]), kind=KINDS[int(s.kind[k])],  # type: ignore[arg-type]
+                hold_s=float(min(s.hold_s[k], 600.0))))
+        yaw = np.clip(tick.yaw_deg, -90.0, 90.0)
+        pitch = np.clip(tick.pitch_deg, -90.0, 90.0)
+        lid = np.clip(tick.lid, 0.0, 1.0)
+        for i, agent in enumerate(self.agent_ids):
+            self.publish(EyeState(agent=agent, t_ns=tick.t_ns, yaw_deg=float(yaw[i]), pitch_deg=float(pitch[i]),
+                                  lid=float(lid[i]), mode=self.modes[i]))  # type: ignore[arg-type]
+
+
+assert set(MODES) == {"static", "noise", "saccade", "saccade+blink"}  # the protocol's EyeMode literal

@@ -1,0 +1,841 @@
+"""Procedural geometry of the cartoon face, and how each flexor moves it (pure numpy).
+
+Frame: the head's own frame. x points to the viewer's right in a front view, which is the AGENT's
+LEFT (the face looks at the camera); y is up; z comes out of the face toward the camera. The head is
+about 2.3 units tall, centred near the origin.
+
+Sign conventions follow agent/face/flexors.py: look_x and turn at +1 turn toward the agent's right,
+i.e. toward -x here, the viewer's left. The agent's left-side flexors (blink_l, lids_l, brow_l,
+smile_l, sneer_l) act on the +x side of the face.
+
+The face is split in two vertex sets:
+- static: head, hair, nose, ears, eyeballs and lids. They never change shape; flexors move them with
+  rigid "bones" (jaw, eyes, lids) blended per vertex in the vertex shader, so a frame uploads only a
+  few matrices;
+- dynamic: brows and mouth (lips, cavity, teeth, tongue), whose shapes depend on several flexors at
+  once in non-linear ways. They are small (about 700 vertices), rebuilt in numpy each frame and
+  uploaded to one dynamic buffer. The lower lip, the tongue and the lower edge of the mouth cavity
+  also ride on the jaw bone, so the jaw and the lips can never disagree.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+
+# Vertex layout shared with the shaders: position(3) normal(3) aux(3) info(4) as float32, where
+# info = (material, bone0, bone1, weight of bone1) and aux is a rest-frame direction or position a
+# material uses for its pattern (the iris of an eye, the blush of a cheek).
+VERTEX_FLOATS = 13
+
+BONE_HEAD, BONE_JAW, BONE_EYE_L, BONE_EYE_R = 0, 1, 2, 3
+BONE_ULID_L, BONE_ULID_R, BONE_LLID_L, BONE_LLID_R = 4, 5, 6, 7
+N_BONES = 8
+
+MATERIALS: tuple[str, ...] = (
+    "skin",
+    "hair",
+    "brow",
+    "lip",
+    "mouth",
+    "teeth",
+    "tongue",
+    "eye",
+    "lid",
+    "blush",
+)
+MAT = {name: i for i, name in enumerate(MATERIALS)}
+
+# Head shape: a superellipsoid |x/(a t(y))|^n + |y/b|^n + |z/c|^n = 1 whose width tapers toward the chin.
+HEAD_A, HEAD_B, HEAD_C, HEAD_N = 0.92, 1.1, 0.95, 2.4
+HEAD_TAPER = 0.24
+NECK_PIVOT = np.array([0.0, -0.75, -0.1])  # head turn, nod and tilt rotate about this point
+JAW_PIVOT = np.array([0.0, 0.05, -0.3])
+
+EYE_X, EYE_Y, EYE_RADIUS, EYE_BULGE = 0.33, 0.10, 0.19, 0.14
+IRIS_ANGLE, PUPIL_ANGLE = 0.52, 0.24  # angular radii (rad) of iris and pupil on the eyeball
+
+MOUTH_Y, MOUTH_HALF_WIDTH = -0.5, 0.22
+BROW_INNER, BROW_OUTER, BROW_Y = 0.11, 0.53, 0.43
+
+# Lid rim elevations in degrees (0 = level with the eye centre, + up).
+UPPER_RIM_REST, LOWER_RIM_REST = 24.0, -44.0
+UPPER_RIM_WIDE, UPPER_RIM_NARROW = 56.0, -2.0  # lids = +1 / -1
+LIDS_CLOSED = -14.0  # where the lids meet in a blink
+UPPER_FOLLOWS_PITCH, LOWER_FOLLOWS_PITCH = 0.65, 0.3  # the lids track the eye's pitch this much
+JAW_MAX_DEG = 17.0
+
+
+def _superellipsoid_f(p: np.ndarray) -> np.ndarray:
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    taper = 1.0 - HEAD_TAPER * np.clip(-y / HEAD_B, 0.0, 1.0) ** 2
+    return np.abs(x / (HEAD_A * taper)) ** HEAD_N + np.abs(y / HEAD_B) ** HEAD_N + np.abs(z / HEAD_C) ** HEAD_N
+
+
+def head_surface_z(x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+    """The z of the front of the head at (x, y); 0 where (x, y) lies outside the head's outline."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    taper = 1.0 - HEAD_TAPER * np.clip(-y / HEAD_B, 0.0, 1.0) ** 2
+    rest = 1.0 - np.abs(x / (HEAD_A * taper)) ** HEAD_N - np.abs(y / HEAD_B) ** HEAD_N
+    return HEAD_C * np.clip(rest, 0.0, None) ** (1.0 / HEAD_N)
+
+
+def head_normal(p: np.ndarray) -> np.ndarray:
+    """Outward unit normals of the head surface at points p (..., 3): the implicit function's gradient."""
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    n = HEAD_N
+    u = np.clip(-y / HEAD_B, 0.0, 1.0)
+    taper = 1.0 - HEAD_TAPER * u * u
+    ax = np.abs(x / (HEAD_A * taper))
+    gx = ax ** (n - 1) * np.sign(x) / (HEAD_A * taper)
+    # d/dy of |x/(a t)|^n through the taper t(y): dt/dy = 2 k u / b where the taper acts.
+    dt_dy = np.where((u > 0) & (u < 1), 2.0 * HEAD_TAPER * u / HEAD_B, 0.0)
+    gy = np.abs(y / HEAD_B) ** (n - 1) * np.sign(y) / HEAD_B - ax**n / taper * dt_dy
+    gz = np.abs(z / HEAD_C) ** (n - 1) * np.sign(z) / HEAD_C
+    return _normalize(np.stack([gx, gy, gz], -1))
+
+
+def _normalize(v: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(length, 1e-12)
+
+
+def _head_radius(directions: np.ndarray) -> np.ndarray:
+    """Distance from the origin to the head surface along unit directions (bisection on the implicit form)."""
+    lo = np.zeros(directions.shape[:-1])
+    hi = np.full(directions.shape[:-1], 2.0)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        inside = _superellipsoid_f(directions * mid[..., None]) < 1.0
+        lo = np.where(inside, mid, lo)
+        hi = np.where(inside, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def rot_x(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
+
+
+def rot_y(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, 0, s, 0], [0, 1.0, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1]])
+
+
+def rot_z(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1]])
+
+
+def translate(v: np.ndarray | tuple[float, float, float]) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = v
+    return m
+
+
+def about(pivot: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """`rotation` (4x4, no translation) about `pivot` instead of the origin."""
+    m = rotation.copy()
+    m[:3, 3] = pivot - rotation[:3, :3] @ pivot
+    return m
+
+
+@dataclass
+class Part:
+    """One piece of geometry: vertices (V, 13) and triangles (T, 3) indexing them."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+
+def _pack(
+    pos: np.ndarray,
+    normal: np.ndarray,
+    material: str,
+    bone0: int = BONE_HEAD,
+    bone1: int = BONE_HEAD,
+    weight: np.ndarray | float = 0.0,
+    aux: np.ndarray | None = None,
+) -> np.ndarray:
+    n = pos.shape[0]
+    out = np.empty((n, VERTEX_FLOATS), dtype=np.float32)
+    out[:, 0:3] = pos
+    out[:, 3:6] = normal
+    out[:, 6:9] = (-1.0, 0.0, 0.0) if aux is None else aux  # aux.x < 0: no hair pattern
+    out[:, 9] = MAT[material]
+    out[:, 10] = bone0
+    out[:, 11] = bone1
+    out[:, 12] = weight
+    return out
+
+
+def grid_triangles(nu: int, nv: int, wrap_u: bool, wrap_v: bool) -> np.ndarray:
+    """Two triangles per quad of an nu x nv vertex grid (row-major), optionally closed in u and/or v."""
+    iu = np.arange(nu if wrap_u else nu - 1)
+    iv = np.arange(nv if wrap_v else nv - 1)
+    i, j = np.meshgrid(iu, iv, indexing="ij")
+    a = i * nv + j
+    b = ((i + 1) % nu) * nv + j
+    c = ((i + 1) % nu) * nv + (j + 1) % nv
+    d = i * nv + (j + 1) % nv
+    tris = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)], axis=0)
+    return tris.reshape(-1, 3).astype(np.int64)
+
+
+def orient_triangles(positions: np.ndarray, normals: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Reorder each triangle so it winds counter-clockwise seen from its vertices' normal side.
+
+    Back-face culling and the inverted-hull outlines rely on this; doing it here lets every builder
+    ignore winding.
+    """
+    p0, p1, p2 = positions[tris[:, 0]], positions[tris[:, 1]], positions[tris[:, 2]]
+    face = np.cross(p1 - p0, p2 - p0)
+    avg = normals[tris[:, 0]] + normals[tris[:, 1]] + normals[tris[:, 2]]
+    flip = np.einsum("ij,ij->i", face, avg) < 0
+    out = tris.copy()
+    out[flip, 1], out[flip, 2] = tris[flip, 2], tris[flip, 1]
+    return out
+
+
+def _sphere_grid(n_lon: int, n_lat: int) -> np.ndarray:
+    """Unit directions on a lat/lon grid with its poles on the +-y axis: shape (n_lon, n_lat, 3)."""
+    lon = np.linspace(0.0, 2 * np.pi, n_lon, endpoint=False)
+    lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat)
+    lo, la = np.meshgrid(lon, lat, indexing="ij")
+    return np.stack([np.cos(la) * np.sin(lo), np.sin(la), np.cos(la) * np.cos(lo)], axis=-1)
+
+
+def _ellipsoid(centre: np.ndarray, semi: np.ndarray, material: str, n_lon: int, n_lat: int) -> Part:
+    d = _sphere_grid(n_lon, n_lat).reshape(-1, 3)
+    pos = centre + d * semi
+    normal = _normalize(d / semi)
+    tris = grid_triangles(n_lon, n_lat, wrap_u=True, wrap_v=False)
+    return Part(_pack(pos, normal, material), orient_triangles(pos, normal, tris))
+
+
+def hairline(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Height of the hairline above rest point (x, z) of the head; the face shader uses the same formula."""
+    front = np.clip((z / HEAD_C - 0.1) / 0.7, 0.0, 1.0)
+    fringe = 0.8 - 0.08 * x + 0.035 * np.cos(15.0 * x) - 0.3 * np.abs(x)
+    return -0.55 + (fringe + 0.55) * front
+
+
+def _hairline_latitude(lon: np.ndarray) -> np.ndarray:
+    """Per longitude, the latitude (rad) at which the head surface crosses the hairline (bisection)."""
+    lo = np.full(lon.shape, -np.pi / 2 + 1e-3)
+    hi = np.full(lon.shape, np.pi / 2 - 1e-3)
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        d = np.stack([np.cos(mid) * np.sin(lon), np.sin(mid), np.cos(mid) * np.cos(lon)], -1)
+        p = d * _head_radius(d)[:, None]
+        above = p[:, 1] > hairline(p[:, 0], p[:, 2])
+        hi = np.where(above, mid, hi)
+        lo = np.where(above, lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def build_head(n_lon: int = 24, n_lat: int = 15) -> Part:
+    """The head shell with its hair, bulging a little where the hair is; its chin rides on the jaw bone.
+
+    One row of the lat/lon grid runs exactly along the hairline, so hair and skin are separate
+    triangles with flat colours: a crisp hairline that costs nothing per pixel.
+    """
+    lon = np.linspace(0.0, 2 * np.pi, n_lon, endpoint=False)
+    row_h = max(2, round(0.62 * (n_lat - 1)))  # rows below the hairline get the face's detail
+    lat_h = _hairline_latitude(lon)
+    below = np.linspace(0.0, 1.0, row_h + 1)[:, None]
+    above = np.linspace(0.0, 1.0, n_lat - row_h)[1:, None]
+    lat = np.concatenate([-np.pi / 2 + below * (lat_h + np.pi / 2), lat_h + above * (np.pi / 2 - lat_h)])
+    lo = np.broadcast_to(lon, lat.shape)
+    d = np.stack([np.cos(lat) * np.sin(lo), np.sin(lat), np.cos(lat) * np.cos(lo)], -1).transpose(1, 0, 2)
+    d = d.reshape(-1, 3)  # (n_lon * n_lat, 3), row-major by longitude like _sphere_grid
+    pos = d * _head_radius(d)[:, None]
+    normal = head_normal(pos)
+    row = np.tile(np.arange(n_lat), n_lon)
+    hair = row > row_h
+    pos = pos * (1.0 + 0.035 * hair)[:, None]  # the hair stands a little proud of the skin
+    # The chin follows the jaw; the blend starts just below the mouth corners so the cheeks stay put.
+    jaw_w = _smooth01((MOUTH_Y + 0.1 - pos[:, 1]) / 0.3) * np.clip((pos[:, 2] + 0.2) / 0.4, 0.0, 1.0)
+    tris = orient_triangles(pos, normal, grid_triangles(n_lon, n_lat, wrap_u=True, wrap_v=False))
+    # Flat colours come from each triangle's last (provoking) vertex: make it one off the hairline row,
+    # rotating the triangle's indices (which keeps its winding).
+    on_row = row[tris] == row_h
+    for _ in range(2):
+        shift = on_row[:, 2]
+        tris[shift] = np.roll(tris[shift], 1, axis=1)
+        on_row[shift] = np.roll(on_row[shift], 1, axis=1)
+    verts = _pack(pos, normal, "skin", BONE_HEAD, BONE_JAW, jaw_w)
+    verts[hair, 9] = MAT["hair"]
+    return Part(verts, tris)
+
+
+def build_blush(side: int, n: int = 14) -> Part:
+    """A flat oval of blush lying on one cheek (a cartoon decal, drawn without outline)."""
+    ang = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    x = np.concatenate([[0.0], 0.12 * np.cos(ang)]) + side * 0.5
+    y = np.concatenate([[0.0], 0.075 * np.sin(ang)]) - 0.27
+    p = np.stack([x, y, head_surface_z(x, y)], -1)
+    nrm = head_normal(p)
+    p = p + nrm * 0.006
+    tris = np.stack([np.zeros(n, dtype=np.int64), 1 + np.arange(n), 1 + (np.arange(n) + 1) % n], -1)
+    return Part(_pack(p, nrm, "blush"), orient_triangles(p, nrm, tris))
+
+
+def eye_centre(side: int) -> np.ndarray:
+    """Rest centre of the agent's left (side=+1, at +x) or right (side=-1, at -x) eye."""
+    x = side * EYE_X
+    return np.array([x, EYE_Y, float(head_surface_z(x, EYE_Y)) + EYE_BULGE - EYE_RADIUS])
+
+
+def build_eye(side: int, n_lon: int = 18, n_lat: int = 8) -> Part:
+    """The front cap of an eyeball, pole forward (+z); aux carries the rest direction for iris and pupil.
+
+    The back of the ball is always inside the head, so the cap stops at 115 degrees from the pole.
+    """
+    lon = np.linspace(0.0, 2 * np.pi, n_lon, endpoint=False)
+    polar = np.linspace(0.0, np.radians(115.0), n_lat)
+    lo, po = np.meshgrid(lon, polar, indexing="ij")
+    d = np.stack([np.sin(po) * np.cos(lo), np.sin(po) * np.sin(lo), np.cos(po)], -1).reshape(-1, 3)
+    pos = eye_centre(side) + d * EYE_RADIUS
+    tris = grid_triangles(n_lon, n_lat, wrap_u=True, wrap_v=False)
+    bone = BONE_EYE_L if side > 0 else BONE_EYE_R
+    return Part(_pack(pos, d, "eye", bone, bone, 0.0, aux=d), orient_triangles(pos, d, tris))
+
+
+def build_lid(side: int, upper: bool, n_az: int = 11) -> Part:
+    """A thick lune-shaped lid around the eye, pinned at the eye corners, with its rim level at rest.
+
+    Its rim is a great circle through the eye's horizontal axis, so turning the lid's bone about that
+    axis opens and closes it like a real eyelid. Upper lids sit just outside lower ones, so a closed
+    eye shows the upper lid over the lower.
+    """
+    r_in, r_out = (1.09, 1.2) if upper else (1.02, 1.08)
+    r_in, r_out = r_in * EYE_RADIUS, r_out * EYE_RADIUS
+    r_mid, half = 0.5 * (r_in + r_out), 0.5 * (r_out - r_in)
+    back = 115.0  # degrees; further back the lid is inside the head anyway
+    # Cross-section loop in (theta, r, normal-in-(theta, r)-plane) around the lid's thickness. Only the
+    # rim and the outer sheet are ever seen, so the inner sheet gets just its two ends.
+    loop_t: list[float] = []
+    loop_r: list[float] = []
+    loop_kind: list[tuple[float, float]] = []  # (radial, tangential) normal components
+    for th in np.radians([0.0, 28.0, 62.0, back]):
+        loop_t.append(th)
+        loop_r.append(r_out)
+        loop_kind.append((1.0, 0.0))
+    for th in np.radians([back, 30.0]):
+        loop_t.append(th)
+        loop_r.append(r_in)
+        loop_kind.append((-1.0, 0.0))
+    for beta in (0.0, np.pi / 3, 2 * np.pi / 3):
+        # rounded rim from the inner sheet (b = pi) back to the outer sheet (b = 0)
+        b = np.pi - beta
+        loop_t.append(-half * math.sin(b) / r_mid * 1.4)
+        loop_r.append(r_mid + half * math.cos(b))
+        loop_kind.append((math.cos(b), -math.sin(b)))
+    # The back edge (hidden in the head) faces backward, so its quad has a well-defined side.
+    loop_kind[3] = loop_kind[4] = (0.0, 1.0)
+    th = np.array(loop_t)
+    rr = np.array(loop_r)
+    kind = np.array(loop_kind)
+    az = np.linspace(-np.pi / 2, np.pi / 2, n_az)
+    a, k = np.meshgrid(az, np.arange(th.size), indexing="ij")
+    s, c = np.sin(a), np.cos(a)
+    t = th[k]
+    base = np.stack([s, c * np.sin(t), c * np.cos(t)], -1)  # unit direction on the eye sphere
+    tangent = np.stack([np.zeros_like(s), np.cos(t), -np.sin(t)], -1)  # toward increasing theta
+    pos = base * rr[k][..., None]
+    normal = _normalize(kind[k][..., 0:1] * base + kind[k][..., 1:2] * tangent)
+    # At the eye corners every ring collapses onto the horizontal axis; there the normal points outward.
+    if not upper:
+        pos[..., 1] *= -1
+        normal[..., 1] *= -1
+    centre = eye_centre(side)
+    pos = pos.reshape(-1, 3) + centre
+    normal = normal.reshape(-1, 3)
+    tris = grid_triangles(n_az, th.size, wrap_u=False, wrap_v=True)
+    if upper:
+        bone = BONE_ULID_L if side > 0 else BONE_ULID_R
+    else:
+        bone = BONE_LLID_L if side > 0 else BONE_LLID_R
+    verts = _pack(pos, normal, "lid", bone, bone, 0.0)
+    return Part(verts, orient_triangles(pos, normal, tris))
+
+
+def _merge(parts: list[Part]) -> tuple[np.ndarray, np.ndarray]:
+    verts, tris, offset = [], [], 0
+    for part in parts:
+        verts.append(part.vertices)
+        tris.append(part.triangles + offset)
+        offset += part.vertices.shape[0]
+    return np.concatenate(verts), np.concatenate(tris)
+
+
+@dataclass
+class StaticMesh:
+    """Vertices never change; `ranges` names index ranges (first index, count) for drawing subsets."""
+
+    vertices: np.ndarray  # (V, 13) float32
+    indices: np.ndarray  # (I,) uint32, triangles in draw order
+    ranges: dict[str, tuple[int, int]]
+    head_first: int = 0  # index of the head's first triangle (the end of the face range)
+    head_nz: np.ndarray = field(default_factory=lambda: np.zeros(0))  # rest normal z per head triangle
+
+
+def build_static_mesh(detail: float = 1.0) -> StaticMesh:
+    """The static vertices and triangles; `detail` scales the tessellation (1 = the real-time mesh).
+
+    Software GL pays per triangle and per pixel of triangle edge, so the live mesh is low-poly; stills
+    (eca snapshot) can afford a smoother one.
+    """
+    if not 0.5 <= detail <= 4.0:
+        raise ValueError(f"mesh detail must lie in [0.5, 4], got {detail}")
+
+    def n(base: int) -> int:
+        return max(4, round(base * detail))
+
+    head = build_head(n(24), n(15))
+    nose_y = -0.17
+    nose = _ellipsoid(
+        np.array([0.0, nose_y, float(head_surface_z(0.0, nose_y)) + 0.0]),
+        np.array([0.095, 0.08, 0.1]),
+        "skin",
+        n(10),
+        n(6),
+    )
+    ears = [
+        _ellipsoid(np.array([s * 0.86, 0.0, -0.08]), np.array([0.11, 0.2, 0.13]), "skin", n(8), n(5)) for s in (1, -1)
+    ]
+    eyes = [build_eye(1, n(14), n(6)), build_eye(-1, n(14), n(6))]
+    lids = [build_lid(s, up, n(9)) for s in (1, -1) for up in (True, False)]
+    blush = [build_blush(1), build_blush(-1)]
+    # Head triangles last, ordered by how much they face forward (rest normal z, descending): the outline
+    # pass then draws only a prefix of the face range when the head is near frontal (hull_prefix()).
+    tri_nz = head.vertices[head.triangles, 5].mean(1)
+    order = np.argsort(-tri_nz, kind="stable")
+    head = Part(head.vertices, head.triangles[order])
+    groups = {"decals": blush, "face": [nose, *ears, head], "eyes": eyes, "lids": lids}
+    verts_all, idx_all, ranges = [], [], {}
+    offset_v, offset_i = 0, 0
+    for name, parts in groups.items():
+        v, t = _merge(parts)
+        verts_all.append(v)
+        flat = (t + offset_v).reshape(-1)
+        idx_all.append(flat)
+        ranges[name] = (offset_i, flat.size)
+        offset_v += v.shape[0]
+        offset_i += flat.size
+    head_first = ranges["face"][0] + 3 * (nose.triangles.shape[0] + sum(e.triangles.shape[0] for e in ears))
+    return StaticMesh(
+        np.concatenate(verts_all),
+        np.concatenate(idx_all).astype(np.uint32),
+        ranges,
+        head_first=head_first,
+        head_nz=tri_nz[order],
+    )
+
+
+# Head triangles turned further from the camera than this cannot reach the silhouette: margins for the
+# perspective (about 8 deg), the jaw (up to 17 deg) and the outline's width.
+HULL_MARGIN = math.sin(math.radians(32.0))
+
+
+def hull_prefix(mesh: StaticMesh, model: np.ndarray) -> int:
+    """How many indices of the face range the outline pass needs for a head posed by `model`.
+
+    A triangle with rest normal n is near the silhouette only if n . v > -HULL_MARGIN, v the direction
+    to the camera in the head frame. With v at angle a from +z, n . v <= n_z cos a + sin a, so every
+    triangle with n_z below (-HULL_MARGIN - sin a) / cos a is hidden behind the face and skipped.
+    """
+    cos_a = float(model[2, 2])  # z of the head's forward axis in the world = cos of the angle to the camera
+    if cos_a <= 0.2:
+        return mesh.ranges["face"][1]
+    sin_a = math.sqrt(max(0.0, 1.0 - cos_a * cos_a))
+    threshold = (-HULL_MARGIN - sin_a) / cos_a
+    keep = int(np.count_nonzero(mesh.head_nz > threshold))  # head_nz is sorted descending
+    return mesh.head_first - mesh.ranges["face"][0] + 3 * keep
+
+
+# ---------------------------------------------------------------------------------------------------
+# Dynamic parts: brows and mouth, rebuilt each frame from the flexors in one vectorised pass (numpy's
+# per-call overhead, not arithmetic, is what costs here, so every part goes through the same calls).
+
+SEGMENTS, RING = 13, 5  # points along each brow or lip, and around its section
+TUBES: tuple[str, ...] = ("brow_l", "brow_r", "lip_u", "lip_l")
+STRIPS: tuple[str, ...] = ("cavity", "teeth", "tongue")
+_STRIP_MATERIAL = {"cavity": "mouth", "teeth": "teeth", "tongue": "tongue"}
+_TUBE_MATERIAL = {"brow_l": "brow", "brow_r": "brow", "lip_u": "lip", "lip_l": "lip"}
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.sqrt((v * v).sum(-1, keepdims=True)), 1e-12)
+
+
+_RING_COS = np.cos(np.linspace(0.0, 2 * np.pi, RING, endpoint=False))[:, None]
+_RING_SIN = np.sin(np.linspace(0.0, 2 * np.pi, RING, endpoint=False))[:, None]
+
+
+def _tubes(
+    centre: np.ndarray, out: np.ndarray, half_h: np.ndarray, half_d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tubes of elliptic section along curves (T, S, 3) lying on a surface with unit normals `out`.
+
+    half_h is the in-surface half-height, half_d the outward half-depth, both (T, S); they taper to 0
+    at the ends to close each tube. The section lies in the plane of the surface normal and the
+    in-surface perpendicular of the curve (the curves lie on the surface, so that plane is close to
+    perpendicular to them). Returns positions and normals shaped (T, S, RING, 3).
+    """
+    tangent = np.empty_like(centre)
+    tangent[:, 1:-1] = centre[:, 2:] - centre[:, :-2]
+    tangent[:, 0] = centre[:, 1] - centre[:, 0]
+    tangent[:, -1] = centre[:, -1] - centre[:, -2]
+    side = _unit(_cross(out, tangent))[:, :, None, :]
+    up = out[:, :, None, :]
+    pos = (
+        centre[:, :, None, :]
+        + (_RING_COS * half_h[..., None, None]) * side
+        + (_RING_SIN * half_d[..., None, None]) * up
+    )
+    # The normal of an ellipse with the tube's mean aspect ratio survives the taper to zero at the ends.
+    aspect = (half_d.sum(1) / np.maximum(half_h.sum(1), 1e-9))[:, None, None, None]
+    normal = _unit((_RING_COS * aspect) * side + _RING_SIN * up)
+    return pos, normal
+
+
+def _on_face(x: np.ndarray, y: np.ndarray, lift: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the front of the head at (x, y), moved `lift` along the surface normal, and that normal.
+
+    head_surface_z and head_normal fused, with three powers instead of a dozen: this runs every frame.
+    """
+    n = HEAD_N
+    u = np.clip(-y / HEAD_B, 0.0, 1.0)
+    taper = 1.0 - HEAD_TAPER * u * u
+    wx = HEAD_A * taper
+    ax = np.abs(x) / wx
+    ay = np.abs(y) / HEAD_B
+    axn = ax**n
+    ayn = ay**n
+    rest = np.maximum(1.0 - axn - ayn, 1e-9)
+    zc = rest ** (1.0 / n)  # z / c
+    out = np.empty(x.shape + (3,))
+    gx = np.sign(x) * axn / np.maximum(ax, 1e-12) / wx
+    dt_dy = np.where((u > 0) & (u < 1), 2.0 * HEAD_TAPER * u / HEAD_B, 0.0)
+    gy = np.sign(y) * ayn / np.maximum(ay, 1e-12) / HEAD_B - axn / taper * dt_dy
+    gz = rest / zc / HEAD_C
+    inv = 1.0 / np.sqrt(gx * gx + gy * gy + gz * gz)
+    out[..., 0] = gx * inv
+    out[..., 1] = gy * inv
+    out[..., 2] = gz * inv
+    p = np.empty_like(out)
+    p[..., 0] = x
+    p[..., 1] = y
+    p[..., 2] = HEAD_C * zc
+    p += out * np.asarray(lift)[..., None]
+    return p, out
+
+
+def _smooth01(t: np.ndarray) -> np.ndarray:
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+class DynamicLayout:
+    """Fixed topology of the per-frame geometry: vertex order, index buffer, named index ranges."""
+
+    def __init__(self) -> None:
+        n_tube, n_strip = SEGMENTS * RING, 2 * SEGMENTS
+        self.slices: dict[str, slice] = {}
+        start = 0
+        for name in TUBES:
+            self.slices[name] = slice(start, start + n_tube)
+            start += n_tube
+        self.tube_block = slice(0, start)
+        for name in STRIPS:
+            self.slices[name] = slice(start, start + n_strip)
+            start += n_strip
+        self.strip_block = slice(self.tube_block.stop, start)
+        self.n_vertices = start
+        self.groups = {"brows": ("brow_l", "brow_r"), "lips": ("lip_u", "lip_l"), "inner": STRIPS}
+
+    def template(self) -> np.ndarray:
+        """Vertices with the per-frame columns zeroed and material and bones filled in."""
+        zeros = np.zeros((self.n_vertices, 3))
+        out = _pack(zeros, zeros, "lip", BONE_HEAD, BONE_JAW, 0.0)
+        for name in TUBES:
+            out[self.slices[name], 9] = MAT[_TUBE_MATERIAL[name]]
+        for name in STRIPS:
+            out[self.slices[name], 9] = MAT[_STRIP_MATERIAL[name]]
+        out[self.strip_block, 3:6] = (0.0, 0.0, 1.0)  # the mouth's inside faces the camera
+        return out
+
+    def indices(self, vertices: np.ndarray) -> tuple[np.ndarray, dict[str, tuple[int, int]]]:
+        """Index buffer oriented against a sample pose, with (first, count) ranges per group."""
+        tube = grid_triangles(SEGMENTS, RING, wrap_u=False, wrap_v=True)
+        strip = grid_triangles(2, SEGMENTS, wrap_u=False, wrap_v=False)
+        idx, ranges, offset = [], {}, 0
+        for group, names in self.groups.items():
+            flat = []
+            for name in names:
+                t = (tube if name in TUBES else strip) + self.slices[name].start
+                flat.append(orient_triangles(vertices[:, 0:3], vertices[:, 3:6], t).reshape(-1))
+            joined = np.concatenate(flat)
+            idx.append(joined)
+            ranges[group] = (offset, joined.size)
+            offset += joined.size
+        return np.concatenate(idx).astype(np.uint32), ranges
+
+
+def _f(flexors: np.ndarray, name: str) -> float:
+    return float(flexors[FLEXOR_INDEX[name]])
+
+
+def clean_flexors(flexors: np.ndarray) -> np.ndarray:
+    """A float64 copy with NaN ("do not care") as relaxed 0 and every value clipped into [-1, 1]."""
+    values = np.asarray(getattr(flexors, "values", flexors), dtype=np.float64)
+    if values.shape != (N_FLEXORS,):
+        raise ValueError(f"a flexor vector needs shape ({N_FLEXORS},), got {values.shape}")
+    return np.clip(np.nan_to_num(values, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+
+
+_T = np.linspace(0.0, 1.0, SEGMENTS)  # along a brow: 0 = inner end, 1 = outer end
+_S = np.linspace(-1.0, 1.0, SEGMENTS)  # across the mouth: -1 = viewer's left corner
+_BROW_TAPER = np.sin(np.pi * np.clip(0.02 + 0.96 * _T, 0, 1)) ** 0.45
+_LIP_TAPER = np.sqrt(np.clip(1.0 - _S**2, 0.0, 1.0)) * 0.85 + 0.15 * (1 - np.abs(_S))
+
+
+def brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centre lines (x, y) of the agent's left (+x, row 0) and right (row 1) brows, each (2, SEGMENTS).
+
+    brow raises (+) or lowers (-) a whole brow. knit (+) draws the inner ends toward the nose; with
+    the brows down it also pulls the inner ends down (the anger V), with the brows up it lifts the inner
+    end more than the outer (the oblique brow of worry, sadness and fear). knit (-) arches them apart.
+    """
+    brow = np.array([[brow_l], [brow_r]])
+    side = np.array([[1.0], [-1.0]])
+    up, down = np.clip(brow, 0.0, None), np.clip(-brow, 0.0, None)
+    k, arch_k = max(knit, 0.0), max(-knit, 0.0)
+    worry = np.minimum(up / 0.3, 1.0)
+    inner_dy = 0.15 * up - 0.08 * down + 0.1 * k * worry - 0.17 * k * (1 - worry)
+    outer_dy = 0.15 * up * (1 - 0.6 * k * worry) - 0.05 * down + 0.06 * k * (1 - worry)
+    arch = 0.045 + 0.05 * arch_k + 0.02 * up
+    inner_x = BROW_INNER - 0.05 * k + 0.03 * arch_k
+    x = side * (inner_x + (BROW_OUTER - inner_x) * _T)
+    y = BROW_Y + arch * np.sin(np.pi * (0.15 + 0.85 * _T)) + inner_dy + (outer_dy - inner_dy) * _T - 0.06 * _T**2
+    return x, y
+
+
+@dataclass
+class MouthShape:
+    """The mouth's lip-edge curves before the jaw moves them, with the jaw angle that then will."""
+
+    x: np.ndarray  # across the mouth, viewer's left to right
+    upper: np.ndarray  # y of the upper lip's lower edge
+    lower: np.ndarray  # y of the lower lip's upper edge (jaw closed)
+    jaw_weight: np.ndarray  # how much of the jaw's rotation each point of the lower lip takes
+    protrude: np.ndarray  # forward push of the lips (rounding, pout)
+    thick_u: float
+    thick_l: float
+    jaw_deg: float
+
+
+def mouth_shape(f: np.ndarray) -> MouthShape:
+    ah, oo, ee, mm, ff = (max(_f(f, n), 0.0) for n in ("say_ah", "say_oo", "say_ee", "say_mm", "say_ff"))
+    right = _S >= 0  # +x: the agent's left side
+    sm = np.where(right, _f(f, "smile_l"), _f(f, "smile_r"))
+    sn = np.where(right, max(_f(f, "sneer_l"), 0.0), max(_f(f, "sneer_r"), 0.0))
+    a = np.abs(_S)
+    # Corner half-width: spread widens, rounding narrows a lot, a smile pulls the corners out.
+    half = MOUTH_HALF_WIDTH * (
+        1.0 + 0.35 * ee + 0.22 * np.clip(sm, 0, None) - 0.5 * oo - 0.12 * ff + 0.04 * mm - 0.05 * np.clip(-sm, 0, None)
+    )
+    # Corners up for a smile, down for a frown; flatter in the middle, like a real mouth.
+    centre_line = MOUTH_Y + 0.13 * sm * a**1.8
+    press = 1.0 - 0.9 * mm
+    opening = press * (0.05 * oo + 0.022 * ee + 0.018 * ff + 0.012 * ah)
+    profile = (1.0 - a**2) ** (1.0 - 0.5 * min(oo, 1.0))
+    bump = np.exp(-(((a - 0.45) / 0.28) ** 2))
+    upper = centre_line + 0.45 * opening * profile + 0.09 * sn * bump * press + 0.02 * sn * a
+    lower = np.minimum(centre_line - 0.55 * opening * profile + 0.035 * ff * profile, upper)
+    thin = 1.0 - 0.45 * mm + 0.2 * oo - 0.2 * ee
+    return MouthShape(
+        x=_S * half,
+        upper=upper,
+        lower=lower,
+        jaw_weight=profile**1.2,
+        protrude=(0.03 + 0.09 * oo - 0.01 * mm) * profile + 0.012,
+        thick_u=0.03 * thin,
+        thick_l=0.037 * thin * (1.0 - 0.3 * ff),
+        jaw_deg=JAW_MAX_DEG * press * (ah + 0.22 * oo + 0.06 * ee),
+    )
+
+
+_TEETH_H = 0.05 * (1 - _S**2) + 0.005
+_TONGUE_H = 0.03 * np.sqrt(1 - _S**2)
+_BROW_HALF_H = 0.048 * _BROW_TAPER * (1.0 - 0.35 * _T)
+_BROW_HALF_D = 0.022 * _BROW_TAPER
+
+
+def build_dynamic(f: np.ndarray, shape: MouthShape, layout: DynamicLayout, out: np.ndarray) -> None:
+    """Write brows, lips, cavity, teeth and tongue for flexors `f` into `out` (layout.template() rows)."""
+    bx, by = brow_curves(_f(f, "brow_l"), _f(f, "brow_r"), _f(f, "brows_knit"))
+    lip_h_u = shape.thick_u * _LIP_TAPER
+    lip_h_l = shape.thick_l * _LIP_TAPER
+    inset = shape.protrude * 0.5
+    top = shape.upper + 0.01 * _LIP_TAPER
+    bottom = shape.lower - 0.01 * _LIP_TAPER
+    # Rows: brow l, brow r, upper lip, lower lip, then the two edges of cavity, teeth and tongue.
+    x = np.empty((10, SEGMENTS))
+    y = np.empty((10, SEGMENTS))
+    lift = np.empty((10, SEGMENTS))
+    x[0:2] = bx
+    x[2:] = shape.x
+    y[0:2] = by
+    y[2] = shape.upper + 0.85 * lip_h_u
+    y[3] = shape.lower - 0.85 * lip_h_l
+    y[4], y[5] = top, bottom  # cavity
+    y[6], y[7] = top, shape.upper - _TEETH_H  # teeth
+    y[8], y[9] = shape.lower + _TONGUE_H, bottom  # tongue
+    lift[0:2] = 0.006
+    lift[2] = shape.protrude + 0.3 * lip_h_u
+    lift[3] = shape.protrude + 0.3 * lip_h_l
+    # the cavity lies behind the teeth and tongue, both behind the lips
+    lift[4:6] = inset - 0.004
+    lift[6:8] = inset + 0.002
+    lift[8:10] = inset + 0.001
+    p, n = _on_face(x, y, lift)
+    half_h = np.empty((4, SEGMENTS))
+    half_d = np.empty((4, SEGMENTS))
+    half_h[0:2] = _BROW_HALF_H
+    half_d[0:2] = _BROW_HALF_D
+    half_h[2], half_h[3] = lip_h_u, lip_h_l
+    half_d[2], half_d[3] = 0.6 * lip_h_u + 0.004, 0.6 * lip_h_l + 0.004
+    pos, nrm = _tubes(p[:4], n[:4], half_h, half_d)
+    tb, sb = layout.tube_block, layout.strip_block
+    out[tb, 0:3] = pos.reshape(-1, 3)
+    out[tb, 3:6] = nrm.reshape(-1, 3)
+    out[sb, 0:3] = p[4:].reshape(-1, 3)
+    # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
+    w = shape.jaw_weight
+    out[layout.slices["lip_l"], 12] = np.repeat(w, RING)
+    cavity = layout.slices["cavity"]
+    out[cavity.start + SEGMENTS : cavity.stop, 12] = w
+    tongue = layout.slices["tongue"]
+    out[tongue.start : tongue.start + SEGMENTS, 12] = 0.85 * w
+    out[tongue.start + SEGMENTS : tongue.stop, 12] = w
+
+
+@dataclass
+class Pose:
+    """Everything a frame needs from the flexors: bone matrices, the head's model matrix, dynamic vertices."""
+
+    bones: np.ndarray  # (N_BONES, 4, 4) float64, head frame
+    model: np.ndarray  # (4, 4) head frame -> world
+    dynamic: np.ndarray  # (layout.n_vertices, 13) float32
+    pupils: np.ndarray  # (2, 3) world positions of the agent's left (+x) and right pupil centres
+
+
+@dataclass(frozen=True)
+class Units:
+    """Degrees per flexor unit (configs/flexor_units.toml)."""
+
+    look_x: float = 30.0
+    look_y: float = 30.0
+    turn: float = 40.0
+    nod: float = 25.0
+    tilt: float = 20.0
+
+
+def head_model(f: np.ndarray, units: Units) -> np.ndarray:
+    # turn +1 = toward the agent's right (-x): a negative yaw about +y; nod +1 = chin up: a negative
+    # rotation about +x; tilt +1 = toward the agent's right shoulder: the top of the head moves to -x.
+    rot = rot_y(-_f(f, "turn") * units.turn) @ rot_x(-_f(f, "nod") * units.nod) @ rot_z(_f(f, "tilt") * units.tilt)
+    return about(NECK_PIVOT, rot)
+
+
+def eye_rotation(look_x: float, look_y: float, units: Units) -> np.ndarray:
+    return rot_y(-look_x * units.look_x) @ rot_x(-look_y * units.look_y)
+
+
+def lid_elevations(blink: float, lids: float, pitch_deg: float) -> tuple[float, float]:
+    """Upper and lower rim elevations (degrees) for one eye."""
+    blink = min(max(blink, 0.0), 1.0)
+    upper = UPPER_RIM_REST + (
+        lids * (UPPER_RIM_WIDE - UPPER_RIM_REST) if lids > 0 else -lids * (UPPER_RIM_NARROW - UPPER_RIM_REST)
+    )
+    upper += UPPER_FOLLOWS_PITCH * pitch_deg
+    lower = LOWER_RIM_REST + LOWER_FOLLOWS_PITCH * pitch_deg + 22.0 * max(-lids, 0.0)
+    upper = upper + (LIDS_CLOSED - upper) * blink
+    lower = lower + (LIDS_CLOSED - 3.0 - lower) * blink
+    upper = max(upper, lower + 1.0)
+    return upper, lower
+
+
+class FacePoser:
+    """Turns a flexor vector into a Pose; holds the reusable buffers for the dynamic vertices."""
+
+    def __init__(self, units: Units | None = None) -> None:
+        self.units = units or Units()
+        self.layout = DynamicLayout()
+        self._dynamic = self.layout.template()
+        self._centres = {1: eye_centre(1), -1: eye_centre(-1)}
+
+    def pose(self, flexors: np.ndarray) -> Pose:
+        f = clean_flexors(flexors)
+        u = self.units
+        bones = np.empty((N_BONES, 4, 4))
+        bones[BONE_HEAD] = np.eye(4)
+        shape = mouth_shape(f)
+        # Rotating about +x by a positive angle swings the chin down and back.
+        bones[BONE_JAW] = about(JAW_PIVOT, rot_x(shape.jaw_deg))
+        lx, ly = _f(f, "look_x"), _f(f, "look_y")
+        eye_rot = eye_rotation(lx, ly, u)
+        pupils = np.empty((2, 3))
+        model = head_model(f, u)
+        for k, (side, suffix) in enumerate(((1, "l"), (-1, "r"))):
+            c = self._centres[side]
+            eye_bone = about(c, eye_rot)
+            bones[BONE_EYE_L if side > 0 else BONE_EYE_R] = eye_bone
+            up, low = lid_elevations(_f(f, "blink_" + suffix), _f(f, "lids_" + suffix), ly * u.look_y)
+            bones[BONE_ULID_L if side > 0 else BONE_ULID_R] = about(c, rot_x(-up))
+            bones[BONE_LLID_L if side > 0 else BONE_LLID_R] = about(c, rot_x(-low))
+            pupil = eye_bone @ np.array([c[0], c[1], c[2] + EYE_RADIUS, 1.0])
+            pupils[k] = (model @ pupil)[:3]
+        build_dynamic(f, shape, self.layout, self._dynamic)
+        return Pose(bones=bones, model=model, dynamic=self._dynamic, pupils=pupils)
+
+    def gaze_points(self, gaze: np.ndarray, model: np.ndarray) -> np.ndarray:
+        """World positions of both pupil centres for each (look_x, look_y) row: shape (2, N, 3)."""
+        gaze = np.asarray(gaze, dtype=np.float64).reshape(-1, 2)
+        yaw = np.radians(-np.clip(gaze[:, 0], -1, 1) * self.units.look_x)
+        pitch = np.radians(np.clip(gaze[:, 1], -1, 1) * self.units.look_y)
+        # Ry(yaw) @ Rx(-pitch) applied to +z
+        d = np.stack([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)], -1)
+        out = np.empty((2, gaze.shape[0], 3))
+        for k, side in enumerate((1, -1)):
+            p = self._centres[side] + d * EYE_RADIUS
+            out[k] = p @ model[:3, :3].T + model[:3, 3]
+        return out
+
+
+def skin(vertices: np.ndarray, bones: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """World positions of vertices under a pose: the same blend the vertex shader does, for tests."""
+    pos = np.concatenate([vertices[:, 0:3].astype(np.float64), np.ones((vertices.shape[0], 1))], axis=1)
+    b0 = vertices[:, 10].astype(int)
+    b1 = vertices[:, 11].astype(int)
+    w = vertices[:, 12:13].astype(np.float64)
+    p0 = np.einsum("nij,nj->ni", bones[b0], pos)
+    p1 = np.einsum("nij,nj->ni", bones[b1], pos)
+    blended = p0 * (1 - w) + p1 * w
+    return (blended @ model.T)[:, :3]

@@ -1,0 +1,291 @@
+"""GazeEngine: the Attention Monitor's behaviour, the statistics it produces, and its reproducibility."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from agent.gaze.engine import GazeEngine, SaccadeOnsets
+from agent.gaze.params import KINDS, GazeParams
+from agent.gaze.synth import eye_position_at
+from agent.noise import perlin_blink
+
+S = 1_000_000_000
+MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))
+
+
+@pytest.fixture(scope="module")
+def params() -> GazeParams:
+    return GazeParams.load()
+
+
+def _run(engine: GazeEngine, until_ns: int, step_ns: int, start_ns: int = 0) -> list[SaccadeOnsets]:
+    ticks = [engine.tick(t) for t in range(start_ns + step_ns, until_ns + 1, step_ns)]
+    return [t.saccades for t in ticks]
+
+
+def _concat(onsets: list[SaccadeOnsets]) -> dict[str, np.ndarray]:
+    fields = SaccadeOnsets.__dataclass_fields__
+    return {name: np.concatenate([getattr(o, name) for o in onsets]) for name in fields}
+
+
+@pytest.fixture(scope="module")
+def talking_crowd(params: GazeParams) -> dict[str, np.ndarray]:
+    engine = GazeEngine(20_000, seed=11, params=params)
+    engine.set_role(np.arange(20_000), "talking", 0)
+    onsets = _concat(_run(engine, 12 * S, S))
+    later = onsets["onset_ns"] > 0  # drop the start-up decision, made in the default role (silence)
+    return {name: column[later] for name, column in onsets.items()}
+
+
+def test_mutual_fraction_and_holds_while_talking(params: GazeParams, talking_crowd: dict[str, np.ndarray]) -> None:
+    kind = talking_crowd["kind"]
+    assert kind.size >= 100_000
+    assert abs(100.0 * np.mean(kind == MUTUAL) - 41.0) < 1.0
+    talking = params.roles["talking"]
+    for code, distribution in ((MUTUAL, talking.mutual_interval), (AWAY, talking.away_interval)):
+        holds = talking_crowd["hold_s"][kind == code]
+        assert stats.kstest(holds, distribution.cdf_s).pvalue > 0.01
+
+
+def test_away_saccades_use_the_drawn_magnitude_and_direction(
+    params: GazeParams, talking_crowd: dict[str, np.ndarray]
+) -> None:
+    away = talking_crowd["kind"] == AWAY
+    magnitude = talking_crowd["magnitude_deg"][away]
+    from agent.gaze.generator import magnitude_cdf
+
+    assert stats.kstest(magnitude, lambda a: magnitude_cdf(a, params, 27.5)).pvalue > 0.01
+    offset = np.hypot(talking_crowd["to_yaw_deg"][away], talking_crowd["to_pitch_deg"][away])
+    inside = (np.abs(talking_crowd["to_yaw_deg"][away]) < 30) & (np.abs(talking_crowd["to_pitch_deg"][away]) < 30)
+    np.testing.assert_allclose(offset[inside], magnitude[inside], atol=1e-9)
+    duration = talking_crowd["duration_s"]
+    np.testing.assert_allclose(duration, 0.025 + 0.0024 * talking_crowd["amplitude_deg"], atol=1e-9)
+
+
+def test_listening_mutual_fraction(params: GazeParams) -> None:
+    engine = GazeEngine(25_000, seed=12, params=params)
+    engine.set_role(np.arange(25_000), "listening", 0)
+    onsets = _concat(_run(engine, 40 * S, 4 * S))
+    onsets = {name: column[onsets["onset_ns"] > 0] for name, column in onsets.items()}
+    assert onsets["kind"].size >= 100_000
+    assert abs(100.0 * np.mean(onsets["kind"] == MUTUAL) - 75.0) < 1.0
+
+
+def test_role_switch_decides_at_once_in_the_new_regime(params: GazeParams) -> None:
+    n = 20_000
+    engine = GazeEngine(n, seed=13, params=params)
+    engine.set_role(np.arange(n), "listening", 0)
+    engine.tick(5 * S)
+    switch_ns = 5 * S + 123_457
+    engine.set_role(np.arange(n), "talking", switch_ns)
+    onsets = engine.tick(5 * S + S // 60).saccades
+    at_switch = onsets.onset_ns == switch_ns
+    assert at_switch.sum() == n  # every agent, at the event's own time
+    assert abs(100.0 * np.mean(onsets.kind[at_switch] == MUTUAL) - 41.0) < 1.5  # talking's, not 75%
+    assert engine.role_of(0) == "talking"
+
+
+def test_head_turn_above_threshold_leads_with_a_saccade(params: GazeParams) -> None:
+    assert params.head_turn_threshold_deg == 10.0
+    engine = GazeEngine(1, seed=14, params=params)
+    engine.tick(S)
+    engine.set_head(0, 6.0, 0.0, S + 1000)  # below the threshold: nothing
+    assert not np.any(engine.tick(S + 2000).saccades.kind == HEAD)
+    engine.set_head(0, 6.0 + 15.0, 0.0, 2 * S)  # 21 deg right from the reference (0, 0)
+    onsets = engine.tick(2 * S + 1).saccades
+    head = onsets.kind == HEAD
+    assert head.sum() == 1 and onsets.onset_ns[head][0] == 2 * S
+    assert onsets.to_yaw_deg[head][0] == pytest.approx(21.0) and onsets.to_pitch_deg[head][0] == 0.0
+    engine.set_head(0, 21.0, -14.0, 3 * S)  # now a turn downward
+    onsets = engine.tick(3 * S + 1).saccades
+    assert onsets.to_pitch_deg[onsets.kind == HEAD][0] == pytest.approx(-14.0)
+
+
+def test_same_seed_and_events_give_the_identical_trajectory(params: GazeParams) -> None:
+    def trajectory(seed: int) -> np.ndarray:
+        engine = GazeEngine(50, seed=seed, params=params)
+        rows = []
+        for frame in range(1, 600):
+            t = frame * S // 60
+            if frame == 100:
+                engine.set_role(np.arange(0, 50, 2), "talking", t - 5)
+            if frame == 250:
+                engine.set_emotion(3, "disappointed", 0.8, t)
+                engine.set_head(4, 30.0, 0.0, t)
+            tick = engine.tick(t)
+            rows.append(np.concatenate([tick.yaw_deg, tick.pitch_deg, tick.lid]))
+        return np.array(rows)
+
+    first = trajectory(21)
+    np.testing.assert_array_equal(first, trajectory(21))
+    assert not np.array_equal(first, trajectory(22))
+
+
+def test_engine_saccades_land_exactly_on_target(params: GazeParams) -> None:
+    engine = GazeEngine(200, seed=15, params=params)
+    engine.set_role(np.arange(200), "talking", 0)
+    onsets = engine.tick(S).saccades
+    for k in range(0, len(onsets), 37):
+        end_ns = int(onsets.onset_ns[k] + round(onsets.duration_s[k] * S))
+        landed = eye_position_at(
+            end_ns,
+            onsets.onset_ns[k],
+            (onsets.from_yaw_deg[k], onsets.from_pitch_deg[k]),
+            (onsets.to_yaw_deg[k], onsets.to_pitch_deg[k]),
+            onsets.duration_s[k],
+        )
+        assert tuple(landed) == (onsets.to_yaw_deg[k], onsets.to_pitch_deg[k])
+
+
+@pytest.mark.parametrize(("role", "rate"), [("talking", 26.0), ("listening", 26.0), ("silence", 17.0)])
+def test_blink_rates_by_role(params: GazeParams, role: str, rate: float) -> None:
+    n, minutes = 4_000, 2.0
+    engine = GazeEngine(n, seed=16, params=params)
+    engine.set_role(np.arange(n), role, 0)
+    blinks = sum(len(engine.tick(t).blinks) for t in range(S, int(minutes * 60) * S + 1, S))
+    assert blinks / (n * minutes) == pytest.approx(rate, rel=0.02)
+
+
+def test_large_saccades_carry_more_blinks(params: GazeParams) -> None:
+    engine = GazeEngine(5_000, seed=17, params=params)
+    engine.set_role(np.arange(5_000), "talking", 0)
+    onset_pairs, blink_pairs = [], []
+    for t in range(S, 30 * S + 1, S):
+        tick = engine.tick(t)
+        onset_pairs.append(np.stack([tick.saccades.agent, tick.saccades.onset_ns, tick.saccades.amplitude_deg]))
+        blink_pairs.append(np.stack([tick.blinks.agent, tick.blinks.onset_ns]))
+    saccades = np.concatenate(onset_pairs, axis=1)
+    saccades = saccades[:, saccades[1] > 0]  # two decisions share t = 0 (start-up, then the role)
+    blinks = {(int(a), int(t)) for a, t in np.concatenate(blink_pairs, axis=1).T}
+    with_blink = np.array([(int(a), int(t)) in blinks for a, t, _ in saccades.T])
+    large, small = saccades[2] > 20.0, saccades[2] < 5.0
+    assert with_blink[large].mean() > 0.2 and with_blink[small].mean() == 0.0
+
+
+def test_adding_an_agent_leaves_the_others_unchanged(params: GazeParams) -> None:
+    def run(n: int, late_joiner: bool) -> np.ndarray:
+        engine = GazeEngine(n, seed=18, params=params)
+        engine.set_role(np.arange(3), "talking", 0)
+        rows = []
+        for frame in range(1, 400):
+            if late_joiner and frame == 120:
+                assert list(engine.add_agents(2, frame * S // 30)) == [n, n + 1]
+            tick = engine.tick(frame * S // 30)
+            rows.append(np.concatenate([tick.yaw_deg[:3], tick.pitch_deg[:3], tick.lid[:3]]))
+        return np.array(rows)
+
+    alone = run(3, False)
+    np.testing.assert_array_equal(alone, run(4, False))
+    np.testing.assert_array_equal(alone, run(3, True))
+
+
+def test_tick_rate_does_not_change_the_trajectory(params: GazeParams) -> None:
+    def run(tick_times: list[int]) -> tuple[dict[str, np.ndarray], dict[int, np.ndarray]]:
+        engine = GazeEngine(30, seed=19, params=params)
+        events = {2 * S + 777: ("talking",), 6 * S + 3: ("listening",)}
+        onsets, states = [], {}
+        for t in tick_times:
+            for when in sorted(events):
+                if engine.now_ns < when <= t:
+                    engine.set_role(np.arange(30), events[when][0], when)
+            tick = engine.tick(t)
+            onsets.append(tick.saccades)
+            states[t] = np.concatenate([tick.yaw_deg, tick.pitch_deg, tick.lid])
+        return _concat(onsets), states
+
+    common = list(range(S // 2, 10 * S + 1, S // 2))
+    fine = sorted(set(range(S // 90, 10 * S + 1, S // 90)) | set(common))
+    coarse_irregular = sorted(set(common) | {S // 7, 3 * S + 1, 7 * S + 999_999})
+    onsets_fine, states_fine = run(fine)
+    onsets_coarse, states_coarse = run(coarse_irregular)
+    for name in onsets_fine:
+        np.testing.assert_array_equal(onsets_fine[name], onsets_coarse[name], err_msg=name)
+    for t in common:
+        np.testing.assert_array_equal(states_fine[t], states_coarse[t])
+
+
+def test_eye_modes(params: GazeParams) -> None:
+    engine = GazeEngine(4, seed=20, params=params)
+    assert engine.mode_of(0) == "saccade+blink"
+    engine.set_mode(0, "static", 0)
+    engine.set_mode(1, "noise", 0)
+    engine.set_mode(2, "saccade", 0)
+    engine.set_target(0, 5.0, -2.0, 0)
+    ticks = [engine.tick(t) for t in range(S // 30, 20 * S, S // 30)]
+    yaw = np.array([t.yaw_deg for t in ticks])
+    lid = np.array([t.lid for t in ticks])
+    agents_with_onsets = set(np.concatenate([t.saccades.agent[t.saccades.onset_ns > 0] for t in ticks]).tolist())
+    assert agents_with_onsets == {2, 3}
+    assert np.all(yaw[:, 0] == 5.0) and np.all(lid[:, 0] == 0.0)
+    assert np.ptp(yaw[:, 1]) > 2.0 and len(np.unique(np.round(yaw[:, 1], 6))) > 500
+    times_s = np.arange(S // 30, 20 * S, S // 30) * 1e-9
+    expected_lid = np.array([perlin_blink(t, engine._seed_perlin_blink, np.uint64([2]))[0] for t in times_s])
+    np.testing.assert_array_equal(lid[:, 2], expected_lid)
+    blink_agents = set(np.concatenate([t.blinks.agent for t in ticks]).tolist())
+    assert blink_agents == {3} and lid[:, 3].max() > 0.9
+    # Switching at run time: static -> saccade+blink decides a saccade at the switch time.
+    engine.set_mode(0, "saccade+blink", 20 * S + 5)
+    onsets = engine.tick(20 * S + 10).saccades
+    assert 0 in onsets.agent[onsets.onset_ns == 20 * S + 5]
+
+
+def test_target_defines_mutual_gaze(params: GazeParams) -> None:
+    engine = GazeEngine(300, seed=21, params=params)
+    engine.set_target(np.arange(300), 12.0, 4.0, 0)
+    onsets = _concat(_run(engine, 20 * S, S))
+    onsets = {name: column[onsets["onset_ns"] > 0] for name, column in onsets.items()}
+    mutual = onsets["kind"] == MUTUAL
+    assert np.all(onsets["to_yaw_deg"][mutual] == 12.0) and np.all(onsets["to_pitch_deg"][mutual] == 4.0)
+    away = onsets["kind"] == AWAY
+    offsets = np.hypot(onsets["to_yaw_deg"][away] - 12.0, onsets["to_pitch_deg"][away] - 4.0)
+    assert np.median(np.abs(offsets - onsets["magnitude_deg"][away])) < 1e-9
+
+
+def test_emotion_shifts_mutual_gaze_with_intensity(params: GazeParams) -> None:
+    n = 20_000
+    fractions = []
+    for intensity in (0.0, 0.5, 1.0):
+        engine = GazeEngine(n, seed=22, params=params)
+        engine.set_emotion(np.arange(n), "angry", intensity, 0)
+        engine.set_role(np.arange(n), "talking", 0)
+        onsets = _concat(_run(engine, 6 * S, 3 * S))
+        kinds = onsets["kind"][onsets["onset_ns"] > 0]
+        fractions.append(100.0 * np.mean(kinds == MUTUAL))
+    assert fractions == pytest.approx([41.0, 53.5, 66.0], abs=1.0)
+    assert params.emotion("half-angry").mutual_shift == pytest.approx(0.5 * params.emotion("angry").mutual_shift)
+
+
+def test_invalid_names_list_the_valid_ones(params: GazeParams) -> None:
+    engine = GazeEngine(2, seed=0, params=params)
+    with pytest.raises(ValueError, match="talking, listening, silence"):
+        engine.set_role(0, "shouting", 0)
+    with pytest.raises(ValueError, match="static, noise, saccade, saccade\\+blink"):
+        engine.set_mode(0, "blinky", 0)
+    with pytest.raises(ValueError, match="natural, happy"):
+        engine.set_emotion(0, "bored", 1.0, 0)
+    with pytest.raises(ValueError, match="intensity"):
+        engine.set_emotion(0, "happy", 1.5, 0)
+    with pytest.raises(ValueError, match="out of range"):
+        engine.set_role(2, "talking", 0)
+    with pytest.raises(ValueError, match="finite"):
+        engine.set_target(0, float("nan"), 0.0, 0)
+    engine.tick(S)
+    with pytest.raises(ValueError, match="before the previous tick"):
+        engine.tick(S - 1)
+
+
+def test_disappointed_gaze_drops(params: GazeParams) -> None:
+    def share_down(emotion: str) -> float:
+        n = 10_000
+        engine = GazeEngine(n, seed=23, params=params, role="talking")
+        engine.set_emotion(np.arange(n), emotion, 1.0, 0)
+        onsets = _concat(_run(engine, 20 * S, 5 * S))
+        away = (onsets["kind"] == AWAY) & (onsets["onset_ns"] > 0)
+        angle = np.mod(np.rad2deg(np.arctan2(onsets["to_pitch_deg"][away], onsets["to_yaw_deg"][away])), 360.0)
+        return float(np.mean(np.abs(angle - 270.0) < 1e-6))
+
+    natural, disappointed = share_down("natural"), share_down("disappointed")
+    assert abs(natural - 0.2038) < 0.01  # the table's 20.38% downward
+    assert disappointed > natural + 0.15

@@ -1,0 +1,86 @@
+"""Gaze configs: the shipped values, and clear errors naming the file and key for bad ones."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.config import CONFIG_DIR, ConfigError
+from agent.counter_rng import uniform01
+from agent.gaze.engine import GazeEngine, derive_seed
+from agent.gaze.params import GazeParams
+
+EMOTIONS = ("natural", "happy", "surprised", "arrogant", "angry", "half-angry", "disappointed", "annoyed", "frightened")
+
+
+def _write_variant(tmp_path: Path, edit: str, old: str, new: str) -> Path:
+    source = (CONFIG_DIR / f"{edit}.toml").read_text()
+    assert old in source
+    path = tmp_path / f"{edit}.toml"
+    path.write_text(source.replace(old, new, 1))
+    return path
+
+
+def test_shipped_constants() -> None:
+    params = GazeParams.load()
+    assert (params.p_max, params.p_ref, params.a_scale_deg) == (15.0, 15.7, 6.9)
+    assert (params.d0_s, params.d_s_per_deg) == (0.025, 0.0024)
+    assert params.roles["talking"].mutual_probability == 0.41
+    assert params.roles["listening"].mutual_probability == 0.75
+    assert params.default_mode == "saccade+blink"
+    assert tuple(params.emotions) == EMOTIONS
+    assert params.emotion("natural", 1.0) == params.emotion("angry", 0.0)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "mutual_probability = 0.41",
+            "mutual_probability = 1.41",
+            r"\[talking\]: 'mutual_probability' must be in \[0, 1\]",
+        ),
+        ("d0_s = 0.025", 'd0_s = "fast"', r"\[duration\]: 'd0_s' must be float"),
+        ('like = "listening"', 'like = "shouting"', r"\[silence\]: 'like' must be one of talking, listening"),
+        ('default = "saccade+blink"', 'default = "blinky"', r"\[modes\]: 'default' must be one of"),
+        (
+            "mutual_poly = [32.2815,",
+            "mutual_poly = [-32.2815,",
+            r"\[talking\]: mutual interval: the polynomial is not positive",
+        ),
+        ("percent = [15.54,", "percent = [15.54, 1.0,", r"\[direction\]: 'percent' must hold 8 numbers"),
+    ],
+)
+def test_bad_gaze_config_names_file_and_key(tmp_path: Path, old: str, new: str, message: str) -> None:
+    path = _write_variant(tmp_path, "gaze", old, new)
+    with pytest.raises(ConfigError, match=message) as caught:
+        GazeParams.load(gaze=str(path))
+    assert str(path) in str(caught.value)
+
+
+def test_bad_emotion_table(tmp_path: Path) -> None:
+    path = _write_variant(tmp_path, "gaze_emotions", 'same_as = "angry"', 'same_as = "furious"')
+    with pytest.raises(ConfigError, match=r"\[half-angry\]: 'same_as' names 'furious'"):
+        GazeParams.load(emotions=str(path))
+    path = _write_variant(tmp_path, "gaze_emotions", "[happy]\ninterval_scale = 0.9", "[happy]\ninterval_scale = -1")
+    with pytest.raises(ConfigError, match=r"\[happy\]: 'interval_scale' must be > 0"):
+        GazeParams.load(emotions=str(path))
+
+
+def test_missing_config_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="not found"):
+        GazeParams.load(gaze=str(tmp_path / "absent.toml"))
+
+
+def test_engine_draws_are_the_counter_rng_streams() -> None:
+    engine = GazeEngine(5, seed=99, role="talking")
+    agents = np.array([1, 3, 4])
+    before = engine._s.counter_saccade[agents].copy()
+    drawn = engine._draw(agents, 0, 3)
+    expected = uniform01(
+        derive_seed(99, 1), agents[:, None].astype(np.uint64), before[:, None] + np.arange(3, dtype=np.uint64)
+    )
+    np.testing.assert_array_equal(drawn, expected)
+    assert np.all(engine._s.counter_saccade[agents] == before + 3)

@@ -1,0 +1,287 @@
+"""Driver-independent properties of rendered images (headless EGL): where things are, what changes."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from services.renderer import (
+    HeadlessContextError,
+    Renderer,
+    RenderToggles,
+    create_headless_context,
+    create_offscreen_target,
+    load_render_config,
+    read_rgb,
+)
+from services.renderer.mesh import EYE_RADIUS, eye_centre
+
+pytestmark = pytest.mark.gl
+
+SIZE = (320, 240)
+GREEN = (0.0, 1.0, 0.0)
+MAGENTA = (1.0, 0.0, 1.0)
+
+
+def flexors(**values: float) -> np.ndarray:
+    f = np.zeros(N_FLEXORS)
+    for name, value in values.items():
+        f[FLEXOR_INDEX[name]] = value
+    return f
+
+
+@pytest.fixture(scope="module")
+def ctx() -> Iterator[object]:
+    try:
+        context = create_headless_context()
+    except HeadlessContextError as exc:
+        pytest.skip(f"no headless OpenGL context: {exc}")
+    yield context
+    context.release()
+
+
+@pytest.fixture(scope="module")
+def renderer(ctx) -> Renderer:
+    """A renderer whose pupils are pure green and mouth cavity magenta, so they are easy to find."""
+    config = load_render_config()
+    colors = dict(config.colors, pupil=GREEN, mouth=MAGENTA)
+    return Renderer(ctx, SIZE, dataclasses.replace(config, colors=colors))
+
+
+def image(renderer: Renderer, f: np.ndarray, **kw: object) -> np.ndarray:
+    renderer.render(f, **kw)
+    return read_rgb(renderer.fbo).astype(np.int32)
+
+
+def mask_of(img: np.ndarray, color: tuple[float, float, float], tol: int = 60) -> np.ndarray:
+    """Pixels of a colour in any of the cel bands (which scale it by 0.7-1.0)."""
+    target = np.array(color) * 255
+    lit = np.array([level * target for level in (0.72, 0.88, 1.0)])
+    return (np.abs(img[None] - lit[:, None, None, :]).max(-1) < tol).any(0)
+
+
+def centroid(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    assert xs.size > 5, "colour not found in the image"
+    return np.array([xs.mean(), ys.mean()])
+
+
+def test_read_rgb_is_top_row_first(renderer: Renderer) -> None:
+    img = image(renderer, flexors())
+    assert img.shape == (SIZE[1], SIZE[0], 3)
+    hair = np.array(renderer.config.colors["hair"]) * 255
+    top, bottom = img[: SIZE[1] // 4], img[3 * SIZE[1] // 4 :]
+    near = lambda part: (np.abs(part - hair).max(-1) < 60).mean()  # noqa: E731
+    assert near(top) > 5 * near(bottom)  # the hair is at the top of the picture
+
+
+def test_pupils_move_to_the_viewers_left_for_the_agents_right_and_up_for_up(renderer: Renderer) -> None:
+    rest = centroid(mask_of(image(renderer, flexors()), GREEN))
+    right = centroid(mask_of(image(renderer, flexors(look_x=0.6)), GREEN))
+    left = centroid(mask_of(image(renderer, flexors(look_x=-0.6)), GREEN))
+    up = centroid(mask_of(image(renderer, flexors(look_y=0.5)), GREEN))
+    down = centroid(mask_of(image(renderer, flexors(look_y=-0.5)), GREEN))
+    assert right[0] < rest[0] - 3 < left[0] - 6
+    assert up[1] < rest[1] - 2  # image y grows downward
+    assert down[1] > rest[1] + 2
+    assert abs(right[1] - rest[1]) < 3 and abs(up[0] - rest[0]) < 3
+
+
+def test_pupil_centroid_matches_the_projected_pupil_centres(renderer: Renderer) -> None:
+    f = flexors(look_x=-0.3, look_y=0.2)
+    img = image(renderer, f)
+    expected = renderer.to_pixels(renderer.last_pose.pupils).mean(0)
+    assert np.abs(centroid(mask_of(img, GREEN)) - expected).max() < 3.0
+
+
+def eyeball_discs(renderer: Renderer) -> np.ndarray:
+    """A mask of the two eyeballs' projected discs in the relaxed pose."""
+    renderer.render(flexors())
+    centres = np.array([eye_centre(1), eye_centre(-1)])
+    px = renderer.to_pixels(centres)
+    radius = np.abs(renderer.to_pixels(centres + [0.0, EYE_RADIUS, 0.0])[:, 1] - px[:, 1])
+    ys, xs = np.mgrid[0 : SIZE[1], 0 : SIZE[0]]
+    mask = np.zeros((SIZE[1], SIZE[0]), dtype=bool)
+    for (cx, cy), r in zip(px, radius, strict=True):
+        mask |= (xs - cx) ** 2 + (ys - cy) ** 2 < (0.85 * r) ** 2
+    return mask
+
+
+def test_eye_region_darkens_as_the_lids_close(ctx, renderer: Renderer) -> None:
+    disc = eyeball_discs(renderer)
+    plain = Renderer(ctx, SIZE)  # the real colours: a dark pupil, as the face is meant to look
+    shots = [image(plain, flexors(blink_l=b, blink_r=b)) for b in (0.0, 0.5, 1.0)]
+    white = [(img[disc].min(-1) > 235).sum() for img in shots]  # the sclera
+    assert white[0] > 1.5 * white[1] > 0 and white[2] < 0.1 * white[0]
+    brightness = [img[disc].mean() for img in shots]
+    assert brightness[0] > max(brightness[1], brightness[2]) + 3
+    assert not mask_of(image(renderer, flexors(blink_l=1.0, blink_r=1.0)), GREEN).any()  # pupil hidden
+
+
+def test_one_sided_blink_closes_the_agents_left_eye_on_the_viewers_right(renderer: Renderer) -> None:
+    img = image(renderer, flexors(blink_l=1.0))
+    xs = np.nonzero(mask_of(img, GREEN))[1]
+    assert xs.size > 5 and xs.max() < SIZE[0] / 2  # only the viewer's-left pupil remains
+
+
+def test_mouth_opens_for_say_ah(renderer: Renderer) -> None:
+    closed = image(renderer, flexors())
+    opened = image(renderer, flexors(say_ah=1.0))
+    assert mask_of(closed, MAGENTA).sum() < 20
+    cavity = mask_of(opened, MAGENTA)
+    assert cavity.sum() > 300
+    assert centroid(cavity)[1] > SIZE[1] * 0.6  # in the lower face
+    assert np.abs(closed - opened).max(-1).astype(bool)[: SIZE[1] // 2].mean() < 0.01
+
+
+def test_upper_view_shows_no_mouth(renderer: Renderer) -> None:
+    rest = image(renderer, flexors(), view="upper")
+    for mouth in ("say_ah", "say_oo", "say_ee", "smile_l"):
+        other = image(renderer, flexors(**{mouth: 1.0}), view="upper")
+        assert not mask_of(other, MAGENTA).any()
+        assert (np.abs(other - rest).max(-1) > 0).mean() < 0.002, mouth
+    # and it frames the eyes larger than the full view does
+    full = mask_of(image(renderer, flexors()), GREEN).sum()
+    upper = mask_of(rest, GREEN).sum()
+    assert upper > 3 * full
+
+
+def test_toggles_change_what_is_drawn(renderer: Renderer) -> None:
+    f = flexors(brow_l=0.5, brow_r=0.5)
+    base = image(renderer, f)
+
+    def changed(**toggle: bool) -> float:
+        return float((np.abs(image(renderer, f, toggles=RenderToggles(**toggle)) - base).max(-1) > 30).mean())
+
+    assert changed(eyebrows=False) > 0.002
+    assert changed(eye_cover=False) > 0.002
+    assert changed(wireframe=True) > 0.02
+    assert changed(surface_3d=True) > 0.05
+    marked = image(renderer, f, toggles=RenderToggles(eye_centre=True))
+    red = np.array(renderer.config.colors["eye_centre"]) * 255
+    assert (np.abs(marked - red).max(-1) < 10).sum() > 20
+
+
+def test_trajectory_overlay_draws_the_gaze_path(renderer: Renderer) -> None:
+    f = flexors()
+    path = np.stack([np.linspace(-0.8, 0.8, 40), 0.3 * np.sin(np.linspace(0, 6, 40))], 1)
+    drawn = image(renderer, f, overlay_points=path)
+    hidden = image(renderer, f, overlay_points=path, toggles=RenderToggles(trajectory=False))
+    green = np.array(renderer.config.colors["trajectory"]) * 255
+    line = np.abs(drawn - green).max(-1) < 10
+    assert line.sum() > 60
+    assert not (np.abs(hidden - green).max(-1) < 10).any()
+    xs = np.nonzero(line[:, : SIZE[0] // 2])[1]  # the viewer's-left eye's path spans the gaze range
+    assert xs.max() - xs.min() > 8
+    with pytest.raises(ValueError, match="overlay_points"):
+        renderer.render(f, overlay_points=np.zeros((4, 3)))
+
+
+def test_nan_flexors_render_as_relaxed(renderer: Renderer) -> None:
+    relaxed = image(renderer, flexors())
+    nan = np.full(N_FLEXORS, np.nan)
+    assert np.array_equal(image(renderer, nan), relaxed)
+
+
+def test_renders_into_any_target_with_its_own_aspect(ctx, renderer: Renderer) -> None:
+    target = create_offscreen_target(ctx, (200, 300))
+    try:
+        renderer.render(flexors(look_x=0.4), target=target)
+        img = read_rgb(target)
+        assert img.shape == (300, 200, 3)
+        pupils = renderer.to_pixels(renderer.last_pose.pupils, size=(200, 300))
+        assert np.abs(centroid(mask_of(img.astype(np.int32), GREEN)) - pupils.mean(0)).max() < 3
+    finally:
+        target.release()
+    with pytest.raises(ValueError, match="view"):
+        renderer.render(flexors(), view="side")
+
+
+class CountingContext:
+    """Wraps a moderngl context and counts every GL object it is asked to create."""
+
+    FACTORIES = (
+        "buffer",
+        "program",
+        "vertex_array",
+        "simple_vertex_array",
+        "texture",
+        "texture_array",
+        "texture3d",
+        "framebuffer",
+        "renderbuffer",
+        "depth_renderbuffer",
+        "depth_texture",
+        "sampler",
+        "query",
+        "scope",
+    )
+
+    def __init__(self, ctx: object) -> None:
+        object.__setattr__(self, "_ctx", ctx)
+        object.__setattr__(self, "created", 0)
+
+    def __getattr__(self, name: str) -> object:
+        attr = getattr(self._ctx, name)
+        if name in self.FACTORIES:
+
+            def counted(*args: object, **kwargs: object) -> object:
+                object.__setattr__(self, "created", self.created + 1)
+                return attr(*args, **kwargs)
+
+            return counted
+        return attr
+
+    def __setattr__(self, name: str, value: object) -> None:
+        setattr(self._ctx, name, value)
+
+
+def test_gl_objects_are_made_once_not_per_frame(ctx) -> None:
+    counting = CountingContext(ctx)
+    r = Renderer(counting, (64, 48))  # type: ignore[arg-type]
+    after_init = counting.created
+    assert after_init > 0
+    rng = np.random.default_rng(3)
+    for i in range(8):
+        toggles = RenderToggles(wireframe=i % 2 == 0, surface_3d=i % 3 == 0, eye_centre=True)
+        r.render(
+            rng.uniform(-1, 1, N_FLEXORS),
+            view=("full", "upper")[i % 2],
+            toggles=toggles,
+            overlay_points=rng.uniform(-1, 1, (50, 2)),
+        )
+    assert counting.created == after_init
+
+
+def test_outline_culling_of_hidden_head_triangles_changes_no_pixel(renderer: Renderer, monkeypatch) -> None:
+    import services.renderer.renderer as module
+
+    poses = [flexors(), flexors(say_ah=1.0, nod=-0.5), flexors(turn=0.3, nod=0.4, tilt=-0.5), flexors(turn=-1.0)]
+    culled = [image(renderer, f) for f in poses]
+    monkeypatch.setattr(module, "hull_prefix", lambda mesh, model: mesh.ranges["face"][1])
+    for f, expected in zip(poses, culled, strict=True):
+        assert np.array_equal(image(renderer, f), expected)
+
+
+def test_upper_view_keeps_the_eyes_in_frame_when_the_head_moves(renderer: Renderer) -> None:
+    for pose in (flexors(nod=-1.0), flexors(nod=1.0), flexors(turn=0.8, tilt=-1.0)):
+        img = image(renderer, pose, view="upper")
+        xs, ys = np.nonzero(mask_of(img, GREEN))[::-1]
+        assert xs.size > 20
+        assert SIZE[1] * 0.3 < ys.mean() < SIZE[1] * 0.9, pose  # the camera followed the eyes
+    fixed = image(renderer, flexors(nod=-1.0))  # the full view does not follow: the eyes go down
+    assert centroid(mask_of(fixed, GREEN))[1] > centroid(mask_of(image(renderer, flexors()), GREEN))[1] + 5
+
+
+def test_release_frees_the_renderers_objects(ctx) -> None:
+    r = Renderer(ctx, (32, 24))
+    r.render(flexors())
+    r.release()
+    other = Renderer(ctx, (32, 24))  # the context is still usable
+    other.render(flexors(look_x=0.5))
+    assert read_rgb(other.fbo).shape == (24, 32, 3)
+    other.release()

@@ -1,0 +1,216 @@
+"""The face geometry and how flexors move it: pure numpy, no OpenGL."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from services.renderer.config import load_render_config
+from services.renderer.mesh import (
+    BONE_ULID_L,
+    EYE_RADIUS,
+    RING,
+    FacePoser,
+    build_static_mesh,
+    clean_flexors,
+    eye_centre,
+    hull_prefix,
+    lid_elevations,
+    mouth_shape,
+    skin,
+)
+
+
+def flexors(**values: float) -> np.ndarray:
+    f = np.zeros(N_FLEXORS)
+    for name, value in values.items():
+        f[FLEXOR_INDEX[name]] = value
+    return f
+
+
+@pytest.fixture(scope="module")
+def poser() -> FacePoser:
+    return FacePoser(load_render_config().units)
+
+
+@pytest.fixture(scope="module")
+def static():
+    return build_static_mesh()
+
+
+def test_static_mesh_is_well_formed(static) -> None:
+    n = static.vertices.shape[0]
+    assert static.vertices.dtype == np.float32 and static.vertices.shape[1] == 13
+    assert static.indices.max() < n and static.indices.size % 3 == 0
+    assert np.isfinite(static.vertices).all()
+    covered = sum(count for _, count in static.ranges.values())
+    assert covered == static.indices.size
+    assert set(static.ranges) == {"decals", "face", "eyes", "lids"}
+
+
+def test_triangles_wind_counter_clockwise_around_their_normals(static) -> None:
+    tris = static.indices.reshape(-1, 3)
+    p = static.vertices[:, 0:3].astype(np.float64)
+    nrm = static.vertices[:, 3:6].astype(np.float64)
+    face = np.cross(p[tris[:, 1]] - p[tris[:, 0]], p[tris[:, 2]] - p[tris[:, 0]])
+    big = np.linalg.norm(face, axis=1) > 1e-9  # pole triangles have no area and no winding
+    agree = np.einsum("ij,ij->i", face, nrm[tris].sum(1))[big]
+    assert (agree > 0).all()
+
+
+def test_dynamic_geometry_is_finite_and_stable_in_size(poser: FacePoser) -> None:
+    sizes = set()
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        pose = poser.pose(rng.uniform(-1, 1, N_FLEXORS))
+        assert np.isfinite(pose.dynamic).all()
+        sizes.add(pose.dynamic.shape)
+    assert sizes == {(poser.layout.n_vertices, 13)}
+
+
+def test_nan_is_relaxed_and_values_are_clipped() -> None:
+    f = np.full(N_FLEXORS, np.nan)
+    f[0] = 3.0
+    cleaned = clean_flexors(f)
+    assert cleaned[0] == 1.0 and (cleaned[1:] == 0).all()
+    with pytest.raises(ValueError, match="shape"):
+        clean_flexors(np.zeros(5))
+
+
+def test_gaze_to_the_agents_right_moves_the_pupils_to_the_viewers_left(poser: FacePoser) -> None:
+    rest = poser.pose(flexors()).pupils
+    right = poser.pose(flexors(look_x=0.5)).pupils
+    up = poser.pose(flexors(look_y=0.5)).pupils
+    assert (right[:, 0] < rest[:, 0] - 0.03).all()  # -x is the viewer's left
+    assert (up[:, 1] > rest[:, 1] + 0.03).all()
+    # 30 degrees per unit: half a unit turns the pupil by 15 degrees around the eye centre
+    c = eye_centre(1)
+    d = right[0] - c
+    assert np.degrees(np.arctan2(-d[0], d[2])) == pytest.approx(15.0, abs=1e-6)
+    assert np.linalg.norm(d) == pytest.approx(EYE_RADIUS)
+
+
+def test_head_turn_nod_and_tilt_follow_the_agents_frame(poser: FacePoser) -> None:
+    nose = np.array([[0.0, -0.1, 1.0]])
+
+    def moved(**kw: float) -> np.ndarray:
+        m = poser.pose(flexors(**kw)).model
+        return nose @ m[:3, :3].T + m[:3, 3]
+
+    assert moved(turn=0.5)[0, 0] < -0.2  # toward the agent's right = viewer's left
+    assert moved(nod=0.5)[0, 1] > moved()[0, 1] + 0.2  # chin up: the nose rises
+    top = np.array([[0.0, 1.0, 0.0]])
+    m = poser.pose(flexors(tilt=0.5)).model
+    assert (top @ m[:3, :3].T + m[:3, 3])[0, 0] < -0.1  # top of the head toward the right shoulder
+
+
+def test_lids_close_with_blink_open_with_lids_and_follow_gaze_pitch() -> None:
+    uppers = [lid_elevations(b, 0.0, 0.0)[0] for b in np.linspace(0, 1, 6)]
+    lowers = [lid_elevations(b, 0.0, 0.0)[1] for b in np.linspace(0, 1, 6)]
+    assert all(a > b for a, b in zip(uppers, uppers[1:], strict=False))
+    assert all(a < b for a, b in zip(lowers, lowers[1:], strict=False))
+    up_closed, low_closed = lid_elevations(1.0, 0.0, 0.0)
+    assert up_closed - low_closed <= 3.5  # the rims meet
+    assert lid_elevations(0.0, 1.0, 0.0)[0] > lid_elevations(0.0, 0.0, 0.0)[0] > lid_elevations(0.0, -1.0, 0.0)[0]
+    assert lid_elevations(0.0, 0.0, -20.0)[0] < lid_elevations(0.0, 0.0, 0.0)[0] - 8.0  # looking down
+    for blink in (0.0, 1.0):
+        for lids in (-1.0, 1.0):
+            for pitch in (-30.0, 30.0):
+                up, low = lid_elevations(blink, lids, pitch)
+                assert up > low
+
+
+def test_blink_turns_the_upper_lid_bone_down(poser: FacePoser) -> None:
+    point = np.array([0.0, 0.0, 1.0, 0.0])  # direction, so the bone's translation drops out
+    open_dir = poser.pose(flexors()).bones[BONE_ULID_L] @ point
+    closed_dir = poser.pose(flexors(blink_l=1.0)).bones[BONE_ULID_L] @ point
+    assert closed_dir[1] < open_dir[1] - 0.4
+
+
+def test_mouth_opens_rounds_spreads_presses_and_smiles() -> None:
+    rest = mouth_shape(flexors())
+    ah = mouth_shape(flexors(say_ah=1.0))
+    oo = mouth_shape(flexors(say_oo=1.0))
+    ee = mouth_shape(flexors(say_ee=1.0))
+    ah_mm = mouth_shape(flexors(say_ah=1.0, say_mm=1.0))
+    smile = mouth_shape(flexors(smile_l=1.0))
+    assert rest.jaw_deg == 0 and ah.jaw_deg > 10
+    assert ah_mm.jaw_deg < 0.2 * ah.jaw_deg  # pressed lips win over an open jaw
+    width = lambda s: s.x[-1] - s.x[0]  # noqa: E731
+    assert width(oo) < 0.7 * width(rest) < width(rest) < width(ee)
+    assert oo.protrude.max() > rest.protrude.max() + 0.05
+    # smile_l lifts the +x corner (the agent's left) only
+    assert smile.upper[-1] > rest.upper[-1] + 0.08 and smile.upper[0] == pytest.approx(rest.upper[0])
+    sneer = mouth_shape(flexors(sneer_r=1.0))
+    middle = len(sneer.x) // 2
+    assert sneer.upper[: middle - 1].max() > rest.upper.max() + 0.04  # the agent's right is -x
+    assert (sneer.upper >= sneer.lower).all()
+
+
+def test_jaw_moves_the_chin_and_lower_lip_but_not_the_upper_lip(poser: FacePoser, static) -> None:
+    closed = poser.pose(flexors())
+    opened = poser.pose(flexors(say_ah=1.0))
+    chin_before = skin(static.vertices, closed.bones, closed.model)[:, 1].min()
+    chin_after = skin(static.vertices, opened.bones, opened.model)[:, 1].min()
+    assert chin_after < chin_before - 0.06
+    lay = poser.layout
+    lower = skin(opened.dynamic[lay.slices["lip_l"]], opened.bones, opened.model)
+    lower0 = skin(closed.dynamic[lay.slices["lip_l"]], closed.bones, closed.model)
+    upper = skin(opened.dynamic[lay.slices["lip_u"]], opened.bones, opened.model)
+    upper0 = skin(closed.dynamic[lay.slices["lip_u"]], closed.bones, closed.model)
+    assert lower[:, 1].mean() < lower0[:, 1].mean() - 0.1
+    assert abs(upper[:, 1].mean() - upper0[:, 1].mean()) < 0.02
+
+
+def test_brows_raise_lower_and_knit(poser: FacePoser) -> None:
+    lay = poser.layout
+
+    def brow(**kw: float) -> np.ndarray:
+        pose = poser.pose(flexors(**kw))
+        return pose.dynamic[lay.slices["brow_l"], 0:3].reshape(-1, RING, 3).mean(1)  # centre line, inner first
+
+    rest = brow()
+    assert brow(brow_l=1.0)[:, 1].mean() > rest[:, 1].mean() + 0.1
+    assert brow(brow_l=-1.0)[:, 1].mean() < rest[:, 1].mean() - 0.05
+    assert brow(brow_r=1.0)[:, 1].mean() == pytest.approx(rest[:, 1].mean())  # other side only
+    angry = brow(brow_l=-0.8, brows_knit=0.9)
+    assert angry[0, 1] - angry[-1, 1] < rest[0, 1] - rest[-1, 1] - 0.1  # inner end down: the V
+    worried = brow(brow_l=0.8, brows_knit=0.8)
+    assert worried[0, 1] - worried[-1, 1] > rest[0, 1] - rest[-1, 1] + 0.05  # inner end up: oblique
+    assert worried[0, 0] < rest[0, 0]  # drawn toward the nose
+
+
+def test_gaze_points_match_the_pupils_of_the_pose(poser: FacePoser) -> None:
+    pose = poser.pose(flexors(look_x=0.3, look_y=-0.4, turn=0.2, nod=0.1))
+    points = poser.gaze_points(np.array([[0.3, -0.4]]), pose.model)
+    np.testing.assert_allclose(points[:, 0, :], pose.pupils, atol=1e-9)
+
+
+def test_outline_pass_skips_the_back_of_the_head_only_when_it_is_near_frontal(poser: FacePoser, static) -> None:
+    full = static.ranges["face"][1]
+    frontal = hull_prefix(static, poser.pose(flexors()).model)
+    head = full - (static.head_first - static.ranges["face"][0])
+    assert frontal % 3 == 0 and frontal < full - 0.1 * head  # the back cap: few triangles, much screen area
+    assert hull_prefix(static, poser.pose(flexors(turn=1.0)).model) == full
+    assert frontal < hull_prefix(static, poser.pose(flexors(nod=0.6)).model) <= full
+
+
+def test_render_config_errors_name_the_file_and_key(tmp_path) -> None:
+    from agent.config import ConfigError
+
+    good = (Path(__file__).resolve().parent.parent / "configs" / "render.toml").read_text()
+    cases = {
+        "skin = [0.98, 0.80, 0.66]": ("skin = [0.98, 0.80]", "'skin' must be a list of 3 numbers"),
+        "band_edges = [0.05, 0.5]": ("band_edges = [0.5, 0.05]", "'band_edges' must increase"),
+        "width_px = 2.2": ("width_px = -1", "'width_px' must lie in"),
+    }
+    for old, (new, message) in cases.items():
+        assert old in good
+        bad = tmp_path / "render_bad.toml"
+        bad.write_text(good.replace(old, new, 1))
+        with pytest.raises(ConfigError, match=message) as err:
+            load_render_config(bad)
+        assert "render_bad.toml" in str(err.value)
