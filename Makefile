@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml .ci/setup
 	touch $(STAMP)
 
 demo: $(STAMP)
-	.venv/bin/eca up
+	.venv/bin/eca demo
 
 up: $(STAMP)
 	.venv/bin/eca up
