@@ -167,6 +167,7 @@ def mux_audio(video_path: Path, audio: np.ndarray, out_path: Path) -> None:
         v_in = src.streams.video[0]
         v_out = dst.add_stream_from_template(v_in)
         a_out = dst.add_stream("aac", rate=AUDIO_RATE, layout="mono")
+        a_out.bit_rate = 48_000  # speech: plenty at 22 kHz mono, a third of the default
         for packet in src.demux(v_in):
             if packet.dts is None:
                 continue

@@ -25,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", default="480x360")
     p.add_argument("--seconds", type=float, default=None, help="render only the first N seconds")
     p.add_argument("--no-voice", action="store_true")
+    p.add_argument("--no-csv", action="store_true", help="do not write the flexor CSV of each condition")
     p.set_defaults(func=run, eyes="saccade+blink")
 
 
@@ -47,8 +48,8 @@ def run(args: argparse.Namespace) -> int:
         settings = replace(base, eyes=cond.key)
         video = f"{slug(cond.key)}.mp4"
         plot = f"{slug(cond.key)}_trajectory.png"
-        result = render_video(timeline, voices, args.agent, settings, out / video, out / f"{slug(cond.key)}.csv",
-                              label=cond.key)
+        csv_path = None if args.no_csv else out / f"{slug(cond.key)}.csv"
+        result = render_video(timeline, voices, args.agent, settings, out / video, csv_path, label=cond.key)
         plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, cond.label, out / plot)
         rows.append((cond, video, plot))
         print(f"{cond.label}: {out / video}", flush=True)
