@@ -123,12 +123,15 @@ class Service:
         self.log.info("stopped")
         return 0
 
-    def run_once(self) -> None:
-        assert self.sub is not None
-        now = self.clock.now_ns()
+    def beat_if_due(self, now: int) -> None:
         if now >= self._next_beat_ns:
             self.beat()
             self._next_beat_ns = now + int(self.config.heartbeat_interval_s * 1e9)
+
+    def run_once(self) -> None:
+        assert self.sub is not None
+        now = self.clock.now_ns()
+        self.beat_if_due(now)
         if self.tick_hz and now >= self._next_tick_ns:
             self.on_tick(now)
             period = int(1e9 / self.tick_hz)

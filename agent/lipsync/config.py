@@ -20,6 +20,7 @@ class LipSyncConfig:
     lpc_band_hz: float
     lag_window_hz: float
     max_bandwidth_hz: float
+    contour_bandwidth_hz: float
     f1_range_hz: tuple[float, float]
     f2_range_hz: tuple[float, float]
     formant_gap_hz: float

@@ -78,8 +78,12 @@ class LipSyncEstimator:
             sample_rate, window_s=cfg.window_s, preemphasis=cfg.preemphasis, lpc_order=cfg.lpc_order,
             lpc_band_hz=min(cfg.lpc_band_hz, 0.5 * sample_rate), high_cut_hz=cfg.high_cut_hz,
             low_cut_hz=cfg.low_cut_hz, max_bandwidth_hz=cfg.max_bandwidth_hz, f1_range_hz=cfg.f1_range_hz,
-            f2_range_hz=cfg.f2_range_hz, formant_gap_hz=cfg.formant_gap_hz, lag_window_hz=cfg.lag_window_hz)
+            f2_range_hz=cfg.f2_range_hz, formant_gap_hz=cfg.formant_gap_hz, lag_window_hz=cfg.lag_window_hz,
+            contour_bandwidth_hz=cfg.contour_bandwidth_hz)
         self._table = cfg.viseme_table  # visemes x flexors
+        # The table's non-zero entries per flexor: the per-block mix touches only those.
+        self._mix = tuple(tuple((v, row[i]) for v, row in enumerate(cfg.viseme_table) if row[i] != 0.0)
+                          for i in range(len(MOUTH_FLEXORS)))
         dt = cfg.block_s
         self._a_jaw = (1.0 - math.exp(-dt / cfg.jaw_attack_s), 1.0 - math.exp(-dt / cfg.jaw_release_s))
         self._a_shape = (1.0 - math.exp(-dt / cfg.shape_attack_s), 1.0 - math.exp(-dt / cfg.shape_release_s))
@@ -149,15 +153,12 @@ class LipSyncEstimator:
         shape = self._shape
         for v, target in enumerate(targets):
             shape[v] += (attack if target > shape[v] else release) * (target - shape[v])
-        weights = [0.0] * len(MOUTH_FLEXORS)
-        for v, membership in enumerate(shape):
-            for i, w in enumerate(self._table[v]):
-                weights[i] += membership * w
-        weights[0] = self._jaw * min(1.0, weights[0])
+        weights = [min(1.0, sum([shape[v] * w for v, w in entries])) for entries in self._mix]
+        weights[0] *= self._jaw
         total = sum(shape)
         viseme = VISEMES[shape.index(max(shape))] if total >= self.config.rest_threshold else "rest"
-        return MouthKey(start, {k: min(1.0, max(0.0, w)) for k, w in zip(MOUTH_FLEXORS, weights, strict=True)},
-                        viseme)
+        # Memberships and table entries are >= 0, so each weight already lies in [0, 1].
+        return MouthKey(start, dict(zip(MOUTH_FLEXORS, weights, strict=True)), viseme)
 
     def _targets(self, f: BlockFeatures) -> tuple[list[float], float]:
         cfg = self.config

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+
 import moderngl
 import numpy as np
 
@@ -45,5 +47,21 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
 def read_rgb(fbo: moderngl.Framebuffer) -> np.ndarray:
     """The framebuffer's colour as an (H, W, 3) uint8 array, top row first (GL reads bottom row first)."""
     x, y, width, height = fbo.viewport
-    data = fbo.read(viewport=(x, y, width, height), components=3, alignment=1)
-    return np.frombuffer(data, dtype=np.uint8).reshape(height, width, 3)[::-1].copy()
+    # Reading into a reused buffer skips allocating (and page-faulting) a fresh bytes object per frame,
+    # which costs about as much as the read itself at 640x480; the flip then makes the caller's copy.
+    scratch = _scratch(width * height * 3)
+    fbo.read_into(scratch, viewport=(x, y, width, height), components=3, alignment=1)
+    rows = np.frombuffer(scratch, dtype=np.uint8, count=width * height * 3).reshape(height, width, 3)
+    return rows[::-1].copy()
+
+
+_buffers = threading.local()
+
+
+def _scratch(nbytes: int) -> bytearray:
+    """A per-thread read-back buffer of at least nbytes (each thread may drive its own GL context)."""
+    buf: bytearray | None = getattr(_buffers, "rgb", None)
+    if buf is None or len(buf) < nbytes:
+        buf = bytearray(nbytes)
+        _buffers.rgb = buf
+    return buf

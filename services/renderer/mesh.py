@@ -21,7 +21,7 @@ The face is split in two vertex sets:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -382,8 +382,6 @@ class StaticMesh:
     vertices: np.ndarray  # (V, 13) float32
     indices: np.ndarray  # (I,) uint32, triangles in draw order
     ranges: dict[str, tuple[int, int]]
-    head_first: int = 0  # index of the head's first triangle (the end of the face range)
-    head_nz: np.ndarray = field(default_factory=lambda: np.zeros(0))  # rest normal z per head triangle
 
 
 def build_static_mesh(detail: float = 1.0) -> StaticMesh:
@@ -413,8 +411,8 @@ def build_static_mesh(detail: float = 1.0) -> StaticMesh:
     eyes = [build_eye(1, n(14), n(6)), build_eye(-1, n(14), n(6))]
     lids = [build_lid(s, up, n(9)) for s in (1, -1) for up in (True, False)]
     blush = [build_blush(1), build_blush(-1)]
-    # Head triangles last, ordered by how much they face forward (rest normal z, descending): the outline
-    # pass then draws only a prefix of the face range when the head is near frontal (hull_prefix()).
+    # Head triangles ordered by how much they face forward (rest normal z, descending): a near-frontal
+    # head then fills the depth buffer roughly front to back.
     tri_nz = head.vertices[head.triangles, 5].mean(1)
     order = np.argsort(-tri_nz, kind="stable")
     head = Part(head.vertices, head.triangles[order])
@@ -429,35 +427,66 @@ def build_static_mesh(detail: float = 1.0) -> StaticMesh:
         ranges[name] = (offset_i, flat.size)
         offset_v += v.shape[0]
         offset_i += flat.size
-    head_first = ranges["face"][0] + 3 * (nose.triangles.shape[0] + sum(e.triangles.shape[0] for e in ears))
-    return StaticMesh(
-        np.concatenate(verts_all),
-        np.concatenate(idx_all).astype(np.uint32),
-        ranges,
-        head_first=head_first,
-        head_nz=tri_nz[order],
-    )
+    return StaticMesh(np.concatenate(verts_all), np.concatenate(idx_all).astype(np.uint32), ranges)
 
 
-# Head triangles turned further from the camera than this cannot reach the silhouette: margins for the
-# perspective (about 8 deg), the jaw (up to 17 deg) and the outline's width.
-HULL_MARGIN = math.sin(math.radians(32.0))
+def skin_positions(rest: np.ndarray, info: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """Head-frame positions (V, 3) of rest positions under `bones`: the vertex shader's blend, in numpy.
 
-
-def hull_prefix(mesh: StaticMesh, model: np.ndarray) -> int:
-    """How many indices of the face range the outline pass needs for a head posed by `model`.
-
-    A triangle with rest normal n is near the silhouette only if n . v > -HULL_MARGIN, v the direction
-    to the camera in the head frame. With v at angle a from +z, n . v <= n_z cos a + sin a, so every
-    triangle with n_z below (-HULL_MARGIN - sin a) / cos a is hidden behind the face and skipped.
+    info holds each vertex's (bone0, bone1, weight of bone1), the last three vertex columns.
     """
-    cos_a = float(model[2, 2])  # z of the head's forward axis in the world = cos of the angle to the camera
-    if cos_a <= 0.2:
-        return mesh.ranges["face"][1]
-    sin_a = math.sqrt(max(0.0, 1.0 - cos_a * cos_a))
-    threshold = (-HULL_MARGIN - sin_a) / cos_a
-    keep = int(np.count_nonzero(mesh.head_nz > threshold))  # head_nz is sorted descending
-    return mesh.head_first - mesh.ranges["face"][0] + 3 * keep
+    b0 = info[:, 0].astype(np.intp)
+    b1 = info[:, 1].astype(np.intp)
+    w = info[:, 2:3].astype(np.float64)
+    m = bones[b0, :3, :] * (1.0 - w[:, :, None]) + bones[b1, :3, :] * w[:, :, None]
+    return np.einsum("vij,vj->vi", m[:, :, :3], rest) + m[:, :, 3]
+
+
+# A triangle at less than this cosine from edge-on counts as both facing and not facing the camera, so
+# float32 rounding on the GPU can never make it disagree with the selection made here.
+FACING_EPS = 1e-3
+
+
+class TriangleSelector:
+    """Per frame, the triangles of one mesh that can put pixels on screen, chosen on the CPU.
+
+    Software GL pays for every triangle it is sent (vertex shading, set-up, culling), and about half
+    of a closed mesh faces away from the camera. So the surface pass gets only triangles that face the
+    camera, and the inverted-hull outline pass only the band of triangles around the silhouette (those
+    within two rings of a vertex shared by front and back faces): every other back face, extruded by a
+    few pixels, still lies behind the surface in front of it and cannot show. The GPU still culls by
+    facing after the outline's extrusion, so the images are the same as drawing every triangle.
+    """
+
+    def __init__(self, triangles: np.ndarray, n_vertices: int) -> None:
+        self.triangles = np.ascontiguousarray(triangles, dtype=np.intp)
+        self.n_vertices = n_vertices
+        self._flat = self.triangles.reshape(-1)
+        self._mark = np.zeros(n_vertices, dtype=bool)
+        self._mark2 = np.zeros(n_vertices, dtype=bool)
+
+    def select(self, positions: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(surface, outline) boolean masks over the triangles for head-frame `positions` (V, 3) seen
+        from `camera` (the eye's position in the head frame)."""
+        tri = self.triangles
+        p0 = positions[tri[:, 0]]
+        normal = _cross(positions[tri[:, 1]] - p0, positions[tri[:, 2]] - p0)
+        to_eye = camera - p0
+        dot = np.einsum("ij,ij->i", normal, to_eye)
+        slack = FACING_EPS * np.sqrt(np.einsum("ij,ij->i", normal, normal) * np.einsum("ij,ij->i", to_eye, to_eye))
+        front = dot > -slack  # counter-clockwise on screen: what back-face culling keeps
+        back = dot < slack
+        # Vertices shared by a front and a back face lie on the silhouette; keep two rings around them.
+        front_v, back_v = self._mark, self._mark2
+        front_v[:] = False
+        back_v[:] = False
+        front_v[tri[front]] = True
+        back_v[tri[back]] = True
+        front_v &= back_v
+        ring = front_v[tri].any(1)
+        back_v[:] = False
+        back_v[tri[ring]] = True
+        return front, back_v[tri].any(1)
 
 
 # ---------------------------------------------------------------------------------------------------

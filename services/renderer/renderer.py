@@ -24,9 +24,10 @@ from services.renderer.mesh import (
     PUPIL_ANGLE,
     FacePoser,
     Pose,
+    TriangleSelector,
     build_static_mesh,
     eye_centre,
-    hull_prefix,
+    skin_positions,
 )
 from services.renderer.shaders import (
     EYE_FRAGMENT,
@@ -43,6 +44,7 @@ MAX_TRAJECTORY_POINTS = 600  # a longer overlay_points keeps its most recent poi
 REFERENCE_HEIGHT = 480.0  # outline and overlay widths are given in pixels at this image height
 _OVERLAY_FLOATS = 5  # x, y, r, g, b
 _FRAME_BLOCK = 0  # uniform-block binding point of the per-frame matrices
+SURFACE, OUTLINE = "surface", "outline"  # the two triangle sets of a FrameIndices
 
 
 @dataclass
@@ -112,18 +114,20 @@ class Renderer:
 
         static = build_static_mesh(self.config.mesh_detail)
         self.static = static
-        self.static_ranges = static.ranges
+        self._static_rest = static.vertices[:, 0:3].astype(np.float64)
+        self._static_info = static.vertices[:, 10:13]
         self.static_vbo = ctx.buffer(static.vertices.tobytes())
-        self.static_ibo = ctx.buffer(static.indices.tobytes())
         sample = self.poser.pose(np.zeros(N_FLEXORS))
-        dyn_indices, self.dynamic_ranges = self.poser.layout.indices(sample.dynamic)
+        dyn_indices, dyn_ranges = self.poser.layout.indices(sample.dynamic)
         self.dynamic_vbo = ctx.buffer(reserve=sample.dynamic.nbytes, dynamic=True)
-        self.dynamic_ibo = ctx.buffer(dyn_indices.tobytes())
+        # Index buffers are rewritten each frame with only the triangles that can show (see select()).
+        self.meshes = {
+            "static": FrameIndices(ctx, static.indices, static.ranges, static.vertices.shape[0]),
+            "dynamic": FrameIndices(ctx, dyn_indices, dyn_ranges, sample.dynamic.shape[0]),
+        }
         self._vaos: dict[tuple[str, str], moderngl.VertexArray] = {}
-        for mesh_name, vbo, ibo in (
-            ("static", self.static_vbo, self.static_ibo),
-            ("dynamic", self.dynamic_vbo, self.dynamic_ibo),
-        ):
+        for mesh_name, vbo in (("static", self.static_vbo), ("dynamic", self.dynamic_vbo)):
+            ibo = self.meshes[mesh_name].ibo
             for prog_name, prog in self.programs.items():
                 if mesh_name == "dynamic" and prog_name.startswith("eye"):
                     continue
@@ -185,9 +189,8 @@ class Renderer:
             self.overlay_prog,
             self.frame_ubo,
             self.static_vbo,
-            self.static_ibo,
             self.dynamic_vbo,
-            self.dynamic_ibo,
+            *(mesh.ibo for mesh in self.meshes.values()),
             self.overlay_vbo,
         ):
             obj.release()
@@ -261,13 +264,19 @@ class Renderer:
         bg = self.config.colors["background"]
         fbo.clear(bg[0], bg[1], bg[2], 1.0, depth=1.0)
 
+        modelview = view_m @ pose.model
         frame = np.empty((N_BONES + 2, 4, 4), dtype=np.float32)
         frame[:N_BONES] = pose.bones
-        frame[N_BONES] = view_m @ pose.model
+        frame[N_BONES] = modelview
         frame[N_BONES + 1] = proj
         self.frame_ubo.write(_gl(frame))
         self.frame_ubo.bind_to_uniform_block(_FRAME_BLOCK)
         self.dynamic_vbo.write(pose.dynamic)
+        # The eye in the head frame (modelview is a rigid motion): where every facing test looks from.
+        eye = -modelview[:3, :3].T @ modelview[:3, 3]
+        self.meshes["static"].update(skin_positions(self._static_rest, self._static_info, pose.bones), eye)
+        dyn = pose.dynamic
+        self.meshes["dynamic"].update(skin_positions(dyn[:, 0:3].astype(np.float64), dyn[:, 10:13], pose.bones), eye)
         suffix = "_3d" if toggles.surface_3d else ""
         self.flat_prog["u_viewport"].value = (float(width), float(height))
 
@@ -290,12 +299,8 @@ class Renderer:
             flat["u_outline"].value = outline_px
             flat["u_flat"].value = self.config.colors["outline"]
             # Closed lids hide the eyeballs' silhouettes: outline the eyes only when the lids are off.
-            face_first, _ = self.static_ranges["face"]
-            self._vaos["static", "flat"].render(
-                moderngl.TRIANGLES, vertices=hull_prefix(self.static, pose.model), first=face_first
-            )
-            self._draw("static", "flat", (["lids"] if toggles.eye_cover else ["eyes"]))
-            self._draw("dynamic", "flat", outlined_dynamic)
+            self._draw("static", "flat", ["face"] + (["lids"] if toggles.eye_cover else ["eyes"]), OUTLINE)
+            self._draw("dynamic", "flat", outlined_dynamic, OUTLINE)
             flat["u_outline"].value = 0.0
             ctx.cull_face = "back"
 
@@ -316,11 +321,12 @@ class Renderer:
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         return fbo
 
-    def _draw(self, mesh_name: str, prog_name: str, groups: list[str]) -> None:
+    def _draw(self, mesh_name: str, prog_name: str, groups: list[str], kind: str = SURFACE) -> None:
         vao = self._vaos[mesh_name, prog_name]
-        ranges = self.static_ranges if mesh_name == "static" else self.dynamic_ranges
-        for first, count in _merge_ranges([ranges[g] for g in groups]):
-            vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        ranges = self.meshes[mesh_name].ranges
+        for first, count in _merge_ranges([ranges[kind, g] for g in groups]):
+            if count:
+                vao.render(moderngl.TRIANGLES, vertices=count, first=first)
 
     def _overlay(
         self,
@@ -359,6 +365,35 @@ class Renderer:
         if not pieces:
             return None
         return np.ascontiguousarray(np.concatenate(pieces).astype(np.float32))
+
+
+class FrameIndices:
+    """One mesh's index buffer, rewritten each frame: the triangles facing the camera, then the band
+    around the silhouette that the outline pass needs (mesh.TriangleSelector), each by named group."""
+
+    def __init__(
+        self, ctx: moderngl.Context, indices: np.ndarray, ranges: dict[str, tuple[int, int]], n_vertices: int
+    ) -> None:
+        self.triangles = np.ascontiguousarray(indices, dtype=np.uint32).reshape(-1, 3)
+        self.selector = TriangleSelector(self.triangles, n_vertices)
+        # Group bounds in triangles, in index order; a group's triangles stay in their original order.
+        self.groups = sorted((first // 3, (first + count) // 3, name) for name, (first, count) in ranges.items())
+        self.ibo = ctx.buffer(reserve=2 * self.triangles.nbytes, dynamic=True)
+        self.ranges: dict[tuple[str, str], tuple[int, int]] = {}
+        self.update_masks(np.ones(len(self.triangles), dtype=bool), np.ones(len(self.triangles), dtype=bool))
+
+    def update(self, positions: np.ndarray, eye: np.ndarray) -> None:
+        """Select and upload the triangles for head-frame vertex `positions` seen from `eye`."""
+        self.update_masks(*self.selector.select(positions, eye))
+
+    def update_masks(self, surface: np.ndarray, outline: np.ndarray) -> None:
+        offset = 0
+        for kind, mask in ((SURFACE, surface), (OUTLINE, outline)):
+            before = np.concatenate([[0], np.cumsum(mask)])  # selected triangles before each one
+            for start, stop, name in self.groups:
+                self.ranges[kind, name] = (3 * (offset + int(before[start])), 3 * int(before[stop] - before[start]))
+            offset += int(before[-1])
+        self.ibo.write(np.concatenate([self.triangles[surface], self.triangles[outline]]))
 
 
 def _merge_ranges(ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:

@@ -390,9 +390,7 @@ class RendererService(Service):
     def run_once(self) -> None:
         assert self.sub is not None
         now = self.clock.now_ns()
-        if now >= self._next_beat_ns:
-            self.beat()
-            self._next_beat_ns = now + int(self.config.heartbeat_interval_s * 1e9)
+        self.beat_if_due(now)
         if self.window is not None:
             self.window.poll()
             if self.window.should_close:

@@ -23,19 +23,10 @@ import glfw
 import moderngl
 import numpy as np
 
+from agent.face.emotions import PAPER_EMOTIONS
 from protocol.messages import Message, MoveHead, SetEmotion, SetEyes, SetRole
 
-EMOTION_KEYS: tuple[str, ...] = (
-    "natural",
-    "happy",
-    "surprised",
-    "arrogant",
-    "angry",
-    "half-angry",
-    "disappointed",
-    "annoyed",
-    "frightened",
-)
+EMOTION_KEYS: tuple[str, ...] = PAPER_EMOTIONS  # keys 1-9, in the paper's order
 EYE_MODE_CYCLE: tuple[str, ...] = ("static", "noise", "saccade", "saccade+blink")
 TOGGLE_KEYS: dict[str, str] = {
     "b": "eyebrows",
