@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import sys
 import types
 import typing
 from collections.abc import Callable
@@ -59,11 +60,17 @@ def field_specs(cls: type[Message]) -> tuple[FieldSpec, ...]:
 
 def encode(msg: Message, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
     """Validate and pack a message; what we send passes the same checks as what we receive."""
+    plan = _plan(type(msg))
+    values = msg.__dict__
     body: dict[str, Any] = {"v": PROTOCOL_VERSION, "type": msg.TYPE}
-    for name, _, check in _compiled(type(msg)):
-        body[name] = _run(check, getattr(msg, name), name)
-    _check_agent(body["agent"])
-    _check_consistency(msg)
+    name = ""
+    try:
+        for name, _, check in plan.checks:
+            body[name] = check(values[name])
+    except _Bad as bad:
+        raise ProtocolError(bad.kind, bad.problem, name + bad.sub) from None
+    if plan.cross_checked:
+        _check_consistency(msg)
     data = msgpack.packb(body, use_bin_type=True)
     if len(data) > max_bytes:
         raise ProtocolError("oversize", f"message is {len(data)} bytes, over the cap of {max_bytes}")
@@ -71,7 +78,7 @@ def encode(msg: Message, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
 
 
 def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
-    if not isinstance(data, bytes | bytearray | memoryview):
+    if type(data) is not bytes and not isinstance(data, bytes | bytearray | memoryview):
         raise ProtocolError("not_msgpack", f"expected bytes, got {type(data).__name__}")
     if len(data) > max_bytes:
         raise ProtocolError("oversize", f"message is {len(data)} bytes, over the cap of {max_bytes}")
@@ -91,20 +98,28 @@ def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
     if cls is None:
         raise ProtocolError("unknown_type", f"unknown message type {type_name!r}; known: "
                             f"{', '.join(sorted(MESSAGE_TYPES))}", "type")
-    names = _field_names(cls)
-    if not names.issuperset(raw):
-        extra = sorted(str(k) for k in raw if k not in names)
+    plan = _plan(cls)
+    if not plan.names.issuperset(raw):
+        extra = sorted(str(k) for k in raw if k not in plan.names)
         raise ProtocolError("extra_field", f"not a field of '{cls.TYPE}'", extra[0])
-    values: dict[str, Any] = {}
-    for name, required, check in _compiled(cls):
-        if name not in raw:
-            if required:
+    values = dict(plan.defaults)
+    for name, factory in plan.factories:
+        values[name] = factory()
+    name = ""
+    try:
+        for name, required, check in plan.checks:
+            if name in raw:
+                values[name] = check(raw[name])
+            elif required:
                 raise ProtocolError("missing_field", f"required by '{cls.TYPE}' but missing", name)
-            continue
-        values[name] = _run(check, raw[name], name)
-    _check_agent(values["agent"])
-    msg = cls(**values)
-    _check_consistency(msg)
+    except _Bad as bad:
+        raise ProtocolError(bad.kind, bad.problem, name + bad.sub) from None
+    # Every field is checked above, so the instance is built without re-running the frozen
+    # dataclass's __init__ (a large share of the cost of each received message).
+    msg = object.__new__(cls)
+    msg.__dict__.update(values)
+    if plan.cross_checked:
+        _check_consistency(msg)
     return msg
 
 
@@ -114,10 +129,45 @@ def _check_consistency(msg: Message) -> None:
         raise ProtocolError("inconsistent", problem[1], problem[0])
 
 
-def _check_agent(agent: str) -> None:
-    if agent != ALL_AGENTS and not _AGENT_ID.match(agent):
-        raise ProtocolError("out_of_range", f"agent id {agent!r} must be 1-32 letters, digits, '_' or '-'",
-                            "agent")
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """What the codec needs to know about one message type, worked out once."""
+
+    checks: tuple[tuple[str, bool, Check], ...]
+    names: frozenset[str]  # fields and envelope keys allowed on the wire
+    defaults: dict[str, Any]  # plain defaults of optional fields
+    factories: tuple[tuple[str, Any], ...]  # container defaults, made fresh per message
+    cross_checked: bool  # the type checks fields against each other
+
+
+_PLANS: dict[type[Message], _Plan] = {}
+
+
+def _plan(cls: type[Message]) -> _Plan:
+    plan = _PLANS.get(cls)
+    if plan is None:
+        fields = dataclasses.fields(cls)
+        checks = []
+        for spec in field_specs(cls):
+            check = _compile(spec, spec.kind)
+            checks.append((spec.name, spec.required, _agent_check(check) if spec.name == "agent" else check))
+        plan = _PLANS[cls] = _Plan(
+            checks=tuple(checks),
+            names=frozenset(spec.name for spec in field_specs(cls)) | frozenset(ENVELOPE_KEYS),
+            defaults={f.name: f.default for f in fields if f.default is not dataclasses.MISSING},
+            factories=tuple((f.name, f.default_factory) for f in fields
+                            if f.default_factory is not dataclasses.MISSING),
+            cross_checked=cls.consistency_problem is not Message.consistency_problem)
+    return plan
+
+
+def _agent_check(check_str: Check) -> Check:
+    def check(v: Any) -> Any:
+        v = check_str(v)
+        if v != ALL_AGENTS and not _AGENT_ID.match(v):
+            raise _Bad("out_of_range", f"agent id {v!r} must be 1-32 letters, digits, '_' or '-'")
+        return v
+    return check
 
 
 # --- validators, compiled once per message type (the hot path of every bus message) -------------
@@ -131,23 +181,6 @@ class _Bad(Exception):
     def __init__(self, kind: str, problem: str, sub: str = "") -> None:
         super().__init__(problem)
         self.kind, self.problem, self.sub = kind, problem, sub
-
-
-def _run(check: Check, value: Any, name: str) -> Any:
-    try:
-        return check(value)
-    except _Bad as bad:
-        raise ProtocolError(bad.kind, bad.problem, name + bad.sub) from None
-
-
-@cache
-def _field_names(cls: type[Message]) -> frozenset[str]:
-    return frozenset(spec.name for spec in field_specs(cls)) | frozenset(ENVELOPE_KEYS)
-
-
-@cache
-def _compiled(cls: type[Message]) -> tuple[tuple[str, bool, Check], ...]:
-    return tuple((spec.name, spec.required, _compile(spec, spec.kind)) for spec in field_specs(cls))
 
 
 def _compile(spec: FieldSpec, kind: Any) -> Check:
@@ -218,12 +251,14 @@ def _mapping(spec: FieldSpec, item: Check) -> Check:
 
 def _scalar(spec: FieldSpec, kind: Any) -> Check:
     lo, hi, max_len = spec.lo, spec.hi, spec.max_len
+    # finite stand-ins for "no limit", so infinities still fail the range test and reach isfinite
+    low = -sys.float_info.max if lo is None else lo
+    high = sys.float_info.max if hi is None else hi
 
     def in_range(v: float) -> None:
-        if lo is not None and v < lo:
+        if v < low:
             raise _Bad("out_of_range", f"{v} is below the minimum {lo}")
-        if hi is not None and v > hi:
-            raise _Bad("out_of_range", f"{v} is above the maximum {hi}")
+        raise _Bad("out_of_range", f"{v} is above the maximum {hi}")
 
     if kind is bool:
         def check_bool(v: Any) -> Any:
@@ -237,7 +272,8 @@ def _scalar(spec: FieldSpec, kind: Any) -> Check:
                 if isinstance(v, bool) or not isinstance(v, int):
                     raise _Bad("wrong_type", f"expected an integer, got {_type_name(v)}")
                 v = int(v)
-            in_range(v)
+            if not low <= v <= high:
+                in_range(v)
             return v
         return check_int
     if kind is float:
@@ -246,9 +282,10 @@ def _scalar(spec: FieldSpec, kind: Any) -> Check:
                 if isinstance(v, bool) or not isinstance(v, int | float):
                     raise _Bad("wrong_type", f"expected a number, got {_type_name(v)}")
                 v = float(v)
-            if not math.isfinite(v):
-                raise _Bad("not_finite", f"{v} is not a finite number")
-            in_range(v)
+            if not low <= v <= high:  # NaN fails this too
+                if not math.isfinite(v):
+                    raise _Bad("not_finite", f"{v} is not a finite number")
+                in_range(v)
             return v
         return check_float
     if kind is str:

@@ -11,7 +11,7 @@ from scipy.signal import lfilter
 
 from agent.config import ConfigError, load_toml
 from agent.lipsync import MOUTH_FLEXORS, LipSyncConfig, LipSyncEstimator, MouthTrack, mouth_track
-from agent.lipsync.features import formants, levinson
+from agent.lipsync.features import SpectrumPeaks, formants, levinson, lpc_solve
 
 FRAME_S = 1.0 / 60.0  # one video frame
 
@@ -157,6 +157,13 @@ def test_lpc_roots_recover_known_resonances() -> None:
     assert np.allclose(a, poly, atol=0.05)
     peaks = formants(a, rate, 300.0)
     assert peaks == pytest.approx([700.0, 1200.0], abs=15.0)
+    # the normal equations give the same predictor, and the spectrum peaks the same resonances as the roots
+    toeplitz = np.abs(np.arange(4)[:, None] - np.arange(4)[None, :])
+    assert np.allclose(lpc_solve(r, toeplitz), a)
+    for contour_hz in (0.0, 150.0):
+        assert SpectrumPeaks(4, rate, 3000.0, 25.0, 300.0, contour_hz)(a) == pytest.approx(peaks, abs=10.0)
+    # a resonance wider than the limit is no peak
+    assert SpectrumPeaks(4, rate, 3000.0, 25.0, 60.0, 0.0)(a) == []
 
 
 def test_config_errors_name_the_key() -> None:

@@ -42,8 +42,21 @@ HELD_OUT = (
     "the old farmer sees a cow",
 )
 
-FLOORS = {"open": 0.75, "rounded": 0.45, "spread": 0.65, "closed": 0.55, "fricative": 0.75}
-HELD_OUT_FLOORS = {"open": 0.75, "rounded": 0.35, "spread": 0.65, "closed": 0.35, "fricative": 0.75}
+# A second held-out set, written before the thresholds were revised and scored only afterwards.
+FRESH = (
+    "bring me a spoon of warm soup",
+    "the boat floats near the pool",
+    "mother put the blue book on the bed",
+    "maybe we should move to a room upstairs",
+    "a cool wind blows over the moor",
+    "please pick up the small black box",
+    "my brother rode a brown horse",
+    "we will meet at noon by the fountain",
+)
+
+FLOORS = {"open": 0.80, "rounded": 0.65, "spread": 0.72, "closed": 0.63, "fricative": 0.80}
+HELD_OUT_FLOORS = {"open": 0.72, "rounded": 0.58, "spread": 0.75, "closed": 0.45, "fricative": 0.80}
+FRESH_FLOORS = {"open": 0.57, "rounded": 0.68, "spread": 0.66, "closed": 0.44, "fricative": 0.77}
 
 
 def _synth(text: str) -> object:
@@ -63,8 +76,9 @@ def measure(sentences: tuple[str, ...] = SENTENCES) -> Agreement:
     return total
 
 
-@pytest.mark.parametrize(("sentences", "floors"), [(SENTENCES, FLOORS), (HELD_OUT, HELD_OUT_FLOORS)],
-                         ids=["tuning-set", "held-out"])
+@pytest.mark.parametrize(("sentences", "floors"),
+                         [(SENTENCES, FLOORS), (HELD_OUT, HELD_OUT_FLOORS), (FRESH, FRESH_FLOORS)],
+                         ids=["tuning-set", "held-out", "held-out-2"])
 def test_mouth_shapes_agree_with_phonemes(sentences: tuple[str, ...], floors: dict[str, float]) -> None:
     agreement = measure(sentences)
     report = {c: (round(agreement.share(c), 2), agreement.n(c)) for c in floors}
