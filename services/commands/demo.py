@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -66,6 +67,10 @@ def run_live(args: argparse.Namespace) -> int:
     """`eca up` with the window, then the demo played into it over the bus."""
     from services.testing import LineReader, eca_command, subprocess_env
 
+    def stop(*_: object) -> None:
+        raise KeyboardInterrupt  # so the runtime below is stopped in order, not orphaned
+
+    signal.signal(signal.SIGTERM, stop)
     instance = f"demo{os.getpid()}"
     up = subprocess.Popen(eca_command("up", "--instance", instance, "--quiet"), stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, env=subprocess_env(), start_new_session=True)
@@ -73,9 +78,11 @@ def run_live(args: argparse.Namespace) -> int:
     try:
         reader.wait_for("[up] ready in", 60.0)
         return subprocess.call(eca_command("play", str(DEMO_DIALOGUE), "--instance", instance))
+    except KeyboardInterrupt:
+        return 130
     except TimeoutError as exc:
         print(f"eca demo: the runtime did not start:\n{exc}", file=sys.stderr)
         return 1
     finally:
-        up.send_signal(2)
+        up.send_signal(signal.SIGINT)
         up.wait(timeout=10)
