@@ -2,9 +2,10 @@
 
 The baseline is the same model (Eyes Alive saccades, the statistical blink model, the bell velocity
 profile) written the obvious way: one Python object per agent, `random.Random` per agent, `math.erf`
-per in-flight eye. It is timed on fewer agents and scaled per agent. Both run on virtual time at 60 Hz
-after a warm-up that reaches the steady state, timed in alternating blocks of a tenth of a second so
-that load from other processes hits both alike. Figures are medians.
+per in-flight eye; each tick it produces what the engine's tick does (every eye's position and lid,
+the saccade and blink onsets sorted by time). It is timed on fewer agents and scaled per agent. Both
+run on virtual time at 60 Hz after a warm-up that reaches the steady state, timed in alternating blocks
+of a tenth of a second so that load from other processes hits both alike. Figures are medians.
 
     python bench/gaze_engine.py [--sizes 1 1000 100000 1000000] [--ticks 60] [--json]
 """
@@ -34,18 +35,28 @@ BLOCK_TICKS = 6
 TARGETS_MS = {100_000: 2.0, 1_000_000: 16.7}
 
 
-class PythonAgent:
-    """One agent of the same model, in plain Python: the per-agent baseline."""
+HOLD_TABLE_INTERVALS = 32_768
 
-    def __init__(self, params: GazeParams, seed: int, role: str) -> None:
+
+class PythonAgent:
+    """One agent of the same model, in plain Python: the per-agent baseline.
+
+    It does what the engine does for each agent and tick: advance its timers in time order (saccade
+    decisions with the role's and emotion's statistics around its gaze target, spontaneous and
+    gaze-evoked blinks), report every onset, and give its eye position and lid. Hold times are read from
+    the same quantile tables as the engine's, the cheapest exact inverse CDF in Python too.
+    """
+
+    def __init__(self, params: GazeParams, index: int, seed: int, role: str, tables: dict[str, list[float]]) -> None:
         self.p = params
+        self.index = index
         self.rng = random.Random(seed)
         self.role = params.roles[role]
         self.cumulative_direction = list(np.cumsum(params.direction_probability))
-        self.tables = {
-            kind: (list(dist.cdf_grid), list(dist.grid_s))
-            for kind, dist in (("mutual", self.role.mutual_interval), ("away", self.role.away_interval))
-        }
+        self.bins = [math.radians(b) for b in params.direction_bins_deg]
+        self.tables = tables
+        self.interval_scale, self.magnitude_scale, self.mutual_shift = 1.0, 1.0, 0.0  # "natural"
+        self.target = (0.0, 0.0)
         self.p_min = params.p_ref * math.exp(-self.role.max_magnitude_deg / params.a_scale_deg)
         self.blink_mean_s = 60.0 / self.role.blink_rate_per_min
         self.k = math.sqrt(math.pi) / 2.0
@@ -57,11 +68,10 @@ class PythonAgent:
         self.blink_onset = -(10**18)
 
     def _hold(self, kind: str) -> float:
-        cdf, grid = self.tables[kind]
-        u = self.rng.random()
-        i = min(max(bisect.bisect_right(cdf, u), 1), len(cdf) - 1)
-        span = cdf[i] - cdf[i - 1]
-        return grid[i - 1] + (grid[i] - grid[i - 1]) * ((u - cdf[i - 1]) / span if span > 0 else 0.0)
+        table = self.tables[kind]
+        x = self.rng.random() * HOLD_TABLE_INTERVALS
+        cell = int(x)
+        return (table[cell] + (table[cell + 1] - table[cell]) * (x - cell)) * self.interval_scale
 
     def _blink_interval(self) -> int:
         refractory = self.p.blink.refractory_s
@@ -77,26 +87,31 @@ class PythonAgent:
             self.from_[1] + (self.to[1] - self.from_[1]) * progress,
         )
 
-    def _decide(self, t: int) -> None:
+    def _decide(self, t: int, onsets: list[tuple], blinks: list[tuple[int, int]]) -> None:
         p = self.p
         start = self._position(t)
-        mutual = self.rng.random() < self.role.mutual_probability
+        mutual = self.rng.random() < min(max(self.role.mutual_probability + self.mutual_shift, 0.0), 1.0)
         magnitude = -p.a_scale_deg * math.log((p.p_max - self.rng.random() * (p.p_max - self.p_min)) / p.p_ref)
-        direction = math.radians(
-            p.direction_bins_deg[bisect.bisect_right(self.cumulative_direction, self.rng.random())]
-        )
+        magnitude *= self.magnitude_scale
+        direction = self.bins[bisect.bisect_right(self.cumulative_direction, self.rng.random())]
         if mutual:
-            target = (0.0, 0.0)
+            target = self.target
         else:
             target = (
-                max(-30.0, min(30.0, magnitude * math.cos(direction))),
-                max(-30.0, min(30.0, magnitude * math.sin(direction))),
+                max(-30.0, min(30.0, self.target[0] + magnitude * math.cos(direction))),
+                max(-30.0, min(30.0, self.target[1] + magnitude * math.sin(direction))),
             )
         hold = self._hold("mutual" if mutual else "away")
-        amplitude = math.hypot(target[0] - start[0], target[1] - start[1])
-        self.onset, self.end = t, t + round((p.d0_s + p.d_s_per_deg * amplitude) * NS)
+        d_yaw, d_pitch = target[0] - start[0], target[1] - start[1]
+        amplitude = math.hypot(d_yaw, d_pitch)
+        duration = round((p.d0_s + p.d_s_per_deg * amplitude) * NS)
+        self.onset, self.end = t, t + duration
         self.from_, self.to = start, target
         self.next_saccade = self.end + round(hold * NS)
+        onsets.append((
+            t, self.index, start, target, amplitude if mutual else magnitude, amplitude,
+            math.degrees(math.atan2(d_pitch, d_yaw)) % 360.0, duration * 1e-9, "mutual" if mutual else "away", hold,
+        ))  # fmt: skip
         blink = p.blink
         chance = min(max((amplitude - blink.evoked_min_deg) / (blink.evoked_full_deg - blink.evoked_min_deg), 0), 1)
         if (
@@ -105,13 +120,15 @@ class PythonAgent:
         ):
             self.blink_onset = t
             self.next_blink += self._blink_interval()
+            blinks.append((t, self.index))
 
-    def tick(self, t: int) -> tuple[float, float, float]:
+    def tick(self, t: int, onsets: list[tuple], blinks: list[tuple[int, int]]) -> tuple[float, float, float]:
         while min(self.next_saccade, self.next_blink) <= t:
             if self.next_saccade <= self.next_blink:
-                self._decide(self.next_saccade)
+                self._decide(self.next_saccade, onsets, blinks)
             else:
                 self.blink_onset = self.next_blink
+                blinks.append((self.next_blink, self.index))
                 self.next_blink += self._blink_interval()
         yaw, pitch = self._position(t)
         elapsed = (t - self.blink_onset) * 1e-9
@@ -125,17 +142,37 @@ class PythonAgent:
         return yaw, pitch, lid
 
 
+def python_tick(agents: list[PythonAgent], t: int) -> tuple[list[tuple[float, float, float]], list, list]:
+    """What GazeEngine.tick returns, agent by agent: every eye's state and the onsets, sorted by time."""
+    onsets: list[tuple] = []
+    blinks: list[tuple[int, int]] = []
+    states = [agent.tick(t, onsets, blinks) for agent in agents]
+    onsets.sort(key=lambda onset: onset[:2])
+    blinks.sort()
+    return states, onsets, blinks
+
+
+def hold_tables(params: GazeParams, role: str) -> dict[str, list[float]]:
+    """The engine's quantile tables of the role's hold distributions, as Python lists."""
+    u = np.linspace(0.0, 1.0, HOLD_TABLE_INTERVALS + 1)
+    role_params = params.roles[role]
+    return {
+        "mutual": role_params.mutual_interval.sample_s(u).tolist(),
+        "away": role_params.away_interval.sample_s(u).tolist(),
+    }
+
+
 def time_both(params: GazeParams, n: int, python_n: int, ticks: int) -> tuple[float, float]:
     """Median seconds per 60 Hz tick of the engine (n agents) and of plain Python (python_n agents).
 
     The two are timed in alternating blocks of ticks, so load from other processes hits both alike.
     """
     engine = GazeEngine(n, seed=1, params=params, role="talking")
-    agents = [PythonAgent(params, seed, "talking") for seed in range(python_n)]
+    tables = hold_tables(params, "talking")
+    agents = [PythonAgent(params, i, i, "talking", tables) for i in range(python_n)]
     for second in range(1, 11):  # warm-up to the steady state; onsets are exact whatever the step
         engine.tick(second * NS)
-        for agent in agents:
-            agent.tick(second * NS)
+        python_tick(agents, second * NS)
     start_ns = 10 * NS
     engine_samples, python_samples = [], []
     for block_start in range(1, ticks + 1, BLOCK_TICKS):
@@ -147,8 +184,7 @@ def time_both(params: GazeParams, n: int, python_n: int, ticks: int) -> tuple[fl
         for k in block:
             t = start_ns + k * FRAME_NS
             began = time.perf_counter()
-            for agent in agents:
-                agent.tick(t)
+            python_tick(agents, t)
             python_samples.append(time.perf_counter() - began)
     return statistics.median(engine_samples), statistics.median(python_samples)
 

@@ -9,7 +9,7 @@ import pytest
 
 from agent.config import CONFIG_DIR, ConfigError
 from agent.counter_rng import uniform01
-from agent.gaze.engine import GazeEngine, derive_seed
+from agent.gaze.engine import COUNTER_SACCADE, KEY_SACCADE, GazeEngine, derive_seed
 from agent.gaze.params import GazeParams
 
 EMOTIONS = ("natural", "happy", "surprised", "arrogant", "angry", "half-angry", "disappointed", "annoyed", "frightened")
@@ -77,10 +77,11 @@ def test_missing_config_file_is_named(tmp_path: Path) -> None:
 def test_engine_draws_are_the_counter_rng_streams() -> None:
     engine = GazeEngine(5, seed=99, role="talking")
     agents = np.array([1, 3, 4])
-    before = engine._s.counter_saccade[agents].copy()
-    drawn = engine._draw(agents, 0, 3)
+    rows = engine._rows[agents]
+    before = rows[:, COUNTER_SACCADE].view(np.uint64).copy()
+    drawn = engine._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)
     expected = uniform01(
         derive_seed(99, 1), agents[:, None].astype(np.uint64), before[:, None] + np.arange(3, dtype=np.uint64)
     )
     np.testing.assert_array_equal(drawn, expected)
-    assert np.all(engine._s.counter_saccade[agents] == before + 3)
+    assert np.all(rows[:, COUNTER_SACCADE].view(np.uint64) == before + 3)

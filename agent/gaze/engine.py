@@ -6,9 +6,19 @@ their exact scheduled times (never quantised to the tick), so the trajectory doe
 tick rate. Each agent draws from its own counter-based stream (seed, agent index, per-agent counter),
 so adding an agent leaves every other agent's trajectory unchanged.
 
-Each per-agent quantity is its own contiguous 1-D array: numpy gathers and scatters single columns
-several times faster than rows of a 2-D array, and with a million agents memory traffic, not
-arithmetic, sets the tick time.
+Layout, chosen for memory traffic (with a million agents, random access to per-agent state, not
+arithmetic, sets the tick time):
+
+- The state an event reads or writes is one row per agent of an int64 matrix (float fields are stored
+  as their bit patterns and read through a float64 view). An event batch gathers its agents' rows
+  once, works on that small contiguous copy, and scatters it back once: two random accesses per agent
+  instead of two per field.
+- Role and emotion are folded into per-agent derived columns (P(mutual), the magnitude map, the hold
+  table row, the blink spread) when they change, so a decision needs no table look-ups by role.
+- What every tick reads for every agent is contiguous 1-D: the next event time (scanned), the resting
+  eye position (copied into the output), the blink onset.
+- Eyes in flight keep a compact copy of their saccade, so a tick interpolates them without touching
+  the per-agent rows.
 
 Events from outside (role, emotion, mode, head, target) take effect at their own timestamp; one stamped
 before the last tick is applied at the last tick's time.
@@ -16,14 +26,14 @@ before the last tick is applied at the last tick's time.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from agent.counter_rng import splitmix64
-from agent.gaze.blink import evoked_blink_probability, lid_closure
+from agent.gaze.blink import lid_closure
 from agent.gaze.events import BlinkOnsets, GazeTick, SaccadeOnsets
-from agent.gaze.generator import direction_from_uniform, magnitude_from_uniform
+from agent.gaze.generator import direction_weights
 from agent.gaze.params import KINDS, MODES, ROLES, GazeParams, check_name
 from agent.gaze.synth import saccade_progress
 from agent.noise import perlin1d, perlin_blink
@@ -34,77 +44,58 @@ NEVER_NS = 1 << 62
 _NS = 1_000_000_000
 _TWO_POW_MINUS_53 = 1.0 / float(1 << 53)
 _HOLD_TABLE_INTERVALS = 32_768
+_HOLD_ROW = _HOLD_TABLE_INTERVALS + 1
 
 STATIC, NOISE, SACCADE, SACCADE_BLINK = (MODES.index(m) for m in ("static", "noise", "saccade", "saccade+blink"))
 MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))
+assert (MUTUAL, AWAY) == (0, 1)  # a decision's kind is its "away" flag read as int8
 DEFAULT_ROLE = "silence"
 
-SACCADE_STREAM, BLINK_STREAM = 0, 1
+_RowHandler = Callable[[np.ndarray, np.ndarray], None]  # (agents, their gathered rows)
 
-# Per-agent arrays: name -> (dtype, initial value).
-_STATE: dict[str, tuple[type, float | int]] = {
-    "onset": (np.int64, 0), "end": (np.int64, 0),  # the current (or last) saccade, ns
-    "next_saccade": (np.int64, NEVER_NS), "next_blink": (np.int64, NEVER_NS),
-    "next_event": (np.int64, NEVER_NS), "blink_onset": (np.int64, -NEVER_NS),
-    "from_yaw": (np.float64, 0.0), "from_pitch": (np.float64, 0.0),
-    "to_yaw": (np.float64, 0.0), "to_pitch": (np.float64, 0.0),
-    "target_yaw": (np.float64, 0.0), "target_pitch": (np.float64, 0.0),
-    "interval_scale": (np.float64, 1.0), "magnitude_scale": (np.float64, 1.0), "mutual_shift": (np.float64, 0.0),
-    "bias_direction": (np.float64, 0.0), "bias_strength": (np.float64, 0.0),
+# Columns of the per-agent row matrix. Integer fields first; float fields hold float64 bit patterns.
+(
+    ONSET, END, NEXT_SACCADE, NEXT_BLINK, COUNTER_SACCADE, COUNTER_BLINK, KEY_SACCADE, KEY_BLINK,
+    ROLE, MODE, KIND, HOLD_BASE,
+    FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH, TARGET_YAW, TARGET_PITCH,
+    P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE, BLINK_SPREAD_NS,
+) = range(23)  # fmt: skip
+_N_COLUMNS = 23
+# The compact copy of a saccade in flight: these row columns, in this order.
+_FLIGHT_COLUMNS = np.array([ONSET, END, FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH])
+
+# Per-agent 1-D arrays outside the rows: name -> (dtype, initial value). The first four are read for
+# every agent (or every blinking agent) each tick; the rest only by set_head / set_emotion / set_role.
+_COLUMNS_1D: dict[str, tuple[type, float | int]] = {
+    "next_event": (np.int64, NEVER_NS), "rest_yaw": (np.float64, 0.0), "rest_pitch": (np.float64, 0.0),
+    "blink_onset": (np.int64, -NEVER_NS), "next_is_blink": (np.bool_, False), "mode": (np.int8, 0),
     "head_yaw": (np.float64, 0.0), "head_pitch": (np.float64, 0.0),
     "head_ref_yaw": (np.float64, 0.0), "head_ref_pitch": (np.float64, 0.0),
-    "role": (np.int8, 0), "mode": (np.int8, 0), "fix_kind": (np.int8, MUTUAL),
-    "key_saccade": (np.uint64, 0), "key_blink": (np.uint64, 0),
-    "counter_saccade": (np.uint64, 0), "counter_blink": (np.uint64, 0),
+    "magnitude_scale": (np.float64, 1.0), "mutual_shift": (np.float64, 0.0),
+    "bias_direction": (np.float64, 0.0), "bias_strength": (np.float64, 0.0),
 }  # fmt: skip
-
-
-class _State:
-    """Per-agent arrays, one attribute each (see _STATE)."""
-
-    onset: np.ndarray
-    end: np.ndarray
-    next_saccade: np.ndarray
-    next_blink: np.ndarray
-    next_event: np.ndarray
-    blink_onset: np.ndarray
-    from_yaw: np.ndarray
-    from_pitch: np.ndarray
-    to_yaw: np.ndarray
-    to_pitch: np.ndarray
-    target_yaw: np.ndarray
-    target_pitch: np.ndarray
-    interval_scale: np.ndarray
-    magnitude_scale: np.ndarray
-    mutual_shift: np.ndarray
-    bias_direction: np.ndarray
-    bias_strength: np.ndarray
-    head_yaw: np.ndarray
-    head_pitch: np.ndarray
-    head_ref_yaw: np.ndarray
-    head_ref_pitch: np.ndarray
-    role: np.ndarray
-    mode: np.ndarray
-    fix_kind: np.ndarray
-    key_saccade: np.ndarray
-    key_blink: np.ndarray
-    counter_saccade: np.ndarray
-    counter_blink: np.ndarray
-
-    def __init__(self) -> None:
-        for name, (dtype, _) in _STATE.items():
-            setattr(self, name, np.empty(0, dtype=dtype))
-
-    def grow(self, count: int, overrides: dict[str, np.ndarray | float | int]) -> None:
-        for name, (dtype, fill) in _STATE.items():
-            extra = np.empty(count, dtype=dtype)
-            extra[:] = overrides.get(name, fill)
-            setattr(self, name, np.concatenate([getattr(self, name), extra]))
 
 
 def derive_seed(seed: int, purpose: int) -> int:
     """Independent seeds for the saccade, blink and noise streams of one engine seed."""
     return int(splitmix64(np.uint64((seed * 8 + purpose) & 0xFFFFFFFFFFFFFFFF)))
+
+
+def _splitmix64_inplace(z: np.ndarray, scratch: np.ndarray) -> None:
+    """counter_rng.splitmix64 on a uint64 array in place (array arithmetic wraps without warnings)."""
+    z += np.uint64(0x9E3779B97F4A7C15)
+    np.right_shift(z, np.uint64(30), out=scratch)
+    z ^= scratch
+    z *= np.uint64(0xBF58476D1CE4E5B9)
+    np.right_shift(z, np.uint64(27), out=scratch)
+    z ^= scratch
+    z *= np.uint64(0x94D049BB133111EB)
+    np.right_shift(z, np.uint64(31), out=scratch)
+    z ^= scratch
+
+
+def _float_bits(values: np.ndarray | float) -> np.ndarray:
+    return np.asarray(values, dtype=np.float64).view(np.int64)
 
 
 class GazeEngine:
@@ -130,22 +121,35 @@ class GazeEngine:
         self._seed_perlin_blink = derive_seed(self.seed, 4)
         self._now_ns = int(start_ns)
         p = self.params
+        blink = p.blink
         self._max_magnitude = np.array([p.roles[r].max_magnitude_deg for r in ROLES])
         self._p_mutual = np.array([p.roles[r].mutual_probability for r in ROLES])
-        self._blink_mean_s = np.array([60.0 / p.roles[r].blink_rate_per_min for r in ROLES])
-        self._blink_duration_ns = int(round(p.blink.duration_s * _NS))
-        self._pull_window_ns = int(round(p.blink.pull_window_s * _NS))
-        self._hold_quantiles = self._hold_table()
+        self._blink_spread_ns = np.array(
+            [(60.0 / p.roles[r].blink_rate_per_min - blink.refractory_s) * _NS for r in ROLES]
+        )
+        self._refractory_ns = blink.refractory_s * _NS
+        self._blink_duration_ns = int(round(blink.duration_s * _NS))
+        self._pull_window_ns = int(round(blink.pull_window_s * _NS))
+        # Gaze-evoked blink chance = clip((A - min) * slope, 0, max): the ramp of blink.evoked_blink_probability.
+        self._evoked_slope = blink.evoked_max_probability / max(blink.evoked_full_deg - blink.evoked_min_deg, 1e-9)
+        self._magnitude_top = p.p_max / p.p_ref
+        self._d_ns_per_deg = p.d_s_per_deg * _NS
+        self._d0_ns = p.d0_s * _NS
+        self._hold_quantiles, self._hold_slopes = self._hold_table()
         cumulative = np.cumsum(p.direction_probability)
         self._direction_cumulative = cumulative[:-1]  # a uniform beyond the last edge falls in the last bin
         self._bin_cos = np.cos(np.deg2rad(p.direction_bins_deg))
         self._bin_sin = np.sin(np.deg2rad(p.direction_bins_deg))
         self._biased_agents = 0  # how many agents' emotion tilts the direction bins
         self._n = 0
-        self._s = _State()
-        self._flight = np.empty(0, np.int64)
+        self._rows = np.empty((0, _N_COLUMNS), np.int64)
+        for name, (dtype, _) in _COLUMNS_1D.items():
+            setattr(self, "_" + name, np.empty(0, dtype=dtype))
+        self._flight_agents = np.empty(0, np.int64)
+        self._flight = np.empty((0, _FLIGHT_COLUMNS.size), np.int64)
+        self._flight_chunks: list[tuple[np.ndarray, np.ndarray]] = []
+        self._flight_stale = False  # set when an eye in flight is relaunched or stopped from outside
         self._blinking = np.empty(0, np.int64)
-        self._new_flight: list[np.ndarray] = []
         self._new_blinking: list[np.ndarray] = []
         self._saccade_chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._blink_chunks: list[tuple[np.ndarray, np.ndarray]] = []
@@ -153,14 +157,16 @@ class GazeEngine:
         if n_agents:
             self.add_agents(int(n_agents), self._now_ns, role, mode)
 
-    def _hold_table(self) -> np.ndarray:
-        """Quantile tables of the six (role, mutual/away) hold distributions, one row each, raveled."""
+    def _hold_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """Quantile tables of the six (role, mutual/away) hold distributions, one row each, raveled, and
+        the step from each quantile to the next (the interpolation reads value + fraction * step)."""
         u = np.linspace(0.0, 1.0, _HOLD_TABLE_INTERVALS + 1)
         rows = []
         for role in ROLES:
             for distribution in (self.params.roles[role].mutual_interval, self.params.roles[role].away_interval):
                 rows.append(distribution.sample_s(u))
-        return np.concatenate(rows)
+        quantiles = np.concatenate(rows)
+        return quantiles, np.append(np.diff(quantiles), 0.0)
 
     # ------------------------------------------------------------------ agents
 
@@ -175,24 +181,28 @@ class GazeEngine:
         check_name(role, ROLES, "role")
         mode = self.params.default_mode if mode is None else mode
         check_name(mode, MODES, "eye mode")
+        mode_code = MODES.index(mode)
         t = max(int(t_ns), self._now_ns)
         new = np.arange(self._n, self._n + count, dtype=np.int64)
-        # The same per-agent keys counter_rng.hash3 derives for (stream seed, stream = agent index).
-        keys = [splitmix64(splitmix64(np.uint64(seed)) ^ new.astype(np.uint64)) for seed in self._stream_seeds]
-        self._s.grow(
-            count,
-            {
-                "onset": t, "end": t, "role": ROLES.index(role), "mode": MODES.index(mode),
-                "key_saccade": keys[SACCADE_STREAM], "key_blink": keys[BLINK_STREAM],
-            },
-        )  # fmt: skip
+        rows = np.zeros((count, _N_COLUMNS), np.int64)  # the bits of 0.0 are 0: eyes at the primary position
+        rows[:, ONSET] = rows[:, END] = t
+        rows[:, NEXT_SACCADE] = t if mode_code >= SACCADE else NEVER_NS
+        rows[:, NEXT_BLINK] = NEVER_NS
+        for column, seed in zip((KEY_SACCADE, KEY_BLINK), self._stream_seeds, strict=True):
+            # The same per-agent keys counter_rng.hash3 derives for (stream seed, stream = agent index).
+            rows[:, column] = splitmix64(splitmix64(np.uint64(seed)) ^ new.astype(np.uint64)).view(np.int64)
+        rows[:, ROLE], rows[:, MODE], rows[:, KIND] = ROLES.index(role), mode_code, MUTUAL
+        rows[:, INTERVAL_SCALE] = _float_bits(1.0)
+        self._rows = np.concatenate([self._rows, rows])
+        for name, (dtype, fill) in _COLUMNS_1D.items():
+            setattr(self, "_" + name, np.concatenate([getattr(self, "_" + name), np.full(count, fill, dtype=dtype)]))
+        self._mode[new] = mode_code
         self._n += count
         self._members_cache.clear()
-        if MODES.index(mode) >= SACCADE:
-            self._s.next_saccade[new] = t
-        if MODES.index(mode) == SACCADE_BLINK:
-            self._s.next_blink[new] = t + self._blink_interval_ns(new)
-        self._refresh_next_event(new)
+        self._derive(new)
+        fresh = self._rows[new]
+        self._schedule_blinks(fresh, t)
+        self._store(new, fresh)
         self._advance(new, t)
         return new
 
@@ -205,10 +215,10 @@ class GazeEngine:
         return self._now_ns
 
     def role_of(self, i: int) -> str:
-        return ROLES[int(self._s.role[self._indices(i)][0])]
+        return ROLES[int(self._rows[self._indices(i)[0], ROLE])]
 
     def mode_of(self, i: int) -> str:
-        return MODES[int(self._s.mode[self._indices(i)][0])]
+        return MODES[int(self._mode[self._indices(i)[0]])]
 
     # ------------------------------------------------------------------ the Attention Monitor's inputs
 
@@ -216,56 +226,59 @@ class GazeEngine:
         """Switch the conversational role; agents whose role changes decide a new saccade at once."""
         check_name(role, ROLES, "role")
         idx, t = self._prepare(i, t_ns)
-        st = self._s
         code = ROLES.index(role)
-        idx = idx[st.role[idx] != code]
-        st.role[idx] = code
-        saccading = idx[st.mode[idx] >= SACCADE]
-        st.next_saccade[saccading] = t
-        blinking = idx[st.mode[idx] == SACCADE_BLINK]
-        st.next_blink[blinking] = t + self._blink_interval_ns(blinking)
-        self._refresh_next_event(idx)
+        idx = idx[self._rows[idx, ROLE] != code]
+        if not idx.size:
+            return
+        self._rows[idx, ROLE] = code
+        self._derive(idx)
+        rows = self._rows[idx]
+        rows[rows[:, MODE] >= SACCADE, NEXT_SACCADE] = t
+        self._schedule_blinks(rows, t)
+        self._store(idx, rows)
         self._advance(idx, t)
 
     def set_emotion(self, i: int | Sequence[int] | np.ndarray, name: str, intensity: float, t_ns: int) -> None:
         """Modulate the statistics of every later saccade decision (configs/gaze_emotions.toml)."""
         emotion = self.params.emotion(name, float(intensity))
         idx, _ = self._prepare(i, t_ns)
-        st = self._s
-        st.interval_scale[idx] = emotion.interval_scale
-        st.magnitude_scale[idx] = emotion.magnitude_scale
-        st.mutual_shift[idx] = emotion.mutual_shift
-        st.bias_direction[idx] = emotion.bias_direction_deg
-        biased_before = int(np.count_nonzero(st.bias_strength[idx]))
-        st.bias_strength[idx] = emotion.bias_strength
-        self._biased_agents += int(np.count_nonzero(st.bias_strength[idx])) - biased_before
+        self._rows[idx, INTERVAL_SCALE] = _float_bits(emotion.interval_scale)
+        self._magnitude_scale[idx] = emotion.magnitude_scale
+        self._mutual_shift[idx] = emotion.mutual_shift
+        self._bias_direction[idx] = emotion.bias_direction_deg
+        biased_before = int(np.count_nonzero(self._bias_strength[idx]))
+        self._bias_strength[idx] = emotion.bias_strength
+        self._biased_agents += int(np.count_nonzero(self._bias_strength[idx])) - biased_before
+        self._derive(idx)
 
     def set_mode(self, i: int | Sequence[int] | np.ndarray, mode: str, t_ns: int) -> None:
         """Switch the eye mode: static, noise, saccade or saccade+blink."""
         check_name(mode, MODES, "eye mode")
         idx, t = self._prepare(i, t_ns)
-        st = self._s
         code = MODES.index(mode)
-        idx = idx[st.mode[idx] != code]
+        idx = idx[self._mode[idx] != code]
         if not idx.size:
             return
         yaw, pitch = self._shown_position(idx, t)
-        was_saccading = st.mode[idx] >= SACCADE
-        st.mode[idx] = code
+        was_saccading = self._mode[idx] >= SACCADE
+        self._mode[idx] = code
         self._members_cache.clear()
-        if code >= SACCADE:
-            start = idx[~was_saccading]
-            self._fixate(start, t, yaw[~was_saccading], pitch[~was_saccading])
-            st.next_saccade[start] = t
-        else:
-            self._fixate(idx, t, yaw, pitch)
-            st.next_saccade[idx] = NEVER_NS
+        self._flight_stale = True  # eyes stopped mid-flight fixate where they are
+        rows = self._rows[idx]
+        rows[:, MODE] = code
+        fixate = ~was_saccading if code >= SACCADE else np.ones(idx.size, dtype=bool)
+        rows[fixate, ONSET] = rows[fixate, END] = t
+        floats = rows.view(np.float64)
+        floats[fixate, FROM_YAW] = floats[fixate, TO_YAW] = yaw[fixate]
+        floats[fixate, FROM_PITCH] = floats[fixate, TO_PITCH] = pitch[fixate]
+        self._rest_yaw[idx[fixate]], self._rest_pitch[idx[fixate]] = yaw[fixate], pitch[fixate]
+        rows[fixate, NEXT_SACCADE] = t if code >= SACCADE else NEVER_NS
         if code == SACCADE_BLINK:
-            st.next_blink[idx] = t + self._blink_interval_ns(idx)
+            self._schedule_blinks(rows, t)
         else:
-            st.next_blink[idx] = NEVER_NS
-            st.blink_onset[idx] = -NEVER_NS
-        self._refresh_next_event(idx)
+            rows[:, NEXT_BLINK] = NEVER_NS
+            self._blink_onset[idx] = -NEVER_NS
+        self._store(idx, rows)
         self._advance(idx, t)
 
     def set_head(
@@ -279,27 +292,30 @@ class GazeEngine:
         saccade in the direction of the turn (the eyes lead the head)."""
         yaw, pitch = _finite_pair(yaw_deg, pitch_deg, "head")
         idx, t = self._prepare(i, t_ns)
-        st = self._s
-        st.head_yaw[idx] = np.broadcast_to(yaw, idx.shape)
-        st.head_pitch[idx] = np.broadcast_to(pitch, idx.shape)
-        d_yaw = st.head_yaw[idx] - st.head_ref_yaw[idx]
-        d_pitch = st.head_pitch[idx] - st.head_ref_pitch[idx]
+        self._head_yaw[idx] = np.broadcast_to(yaw, idx.shape)
+        self._head_pitch[idx] = np.broadcast_to(pitch, idx.shape)
+        d_yaw = self._head_yaw[idx] - self._head_ref_yaw[idx]
+        d_pitch = self._head_pitch[idx] - self._head_ref_pitch[idx]
         turn = np.hypot(d_yaw, d_pitch)
         turned = turn > self.params.head_turn_threshold_deg
         idx, d_yaw, d_pitch, turn = idx[turned], d_yaw[turned], d_pitch[turned], turn[turned]
-        st.head_ref_yaw[idx] = st.head_yaw[idx]
-        st.head_ref_pitch[idx] = st.head_pitch[idx]
-        saccading = st.mode[idx] >= SACCADE
+        self._head_ref_yaw[idx] = self._head_yaw[idx]
+        self._head_ref_pitch[idx] = self._head_pitch[idx]
+        saccading = self._mode[idx] >= SACCADE
         idx, d_yaw, d_pitch, turn = idx[saccading], d_yaw[saccading], d_pitch[saccading], turn[saccading]
         if not idx.size:
             return
+        rows = self._rows[idx]
+        floats = rows.view(np.float64)
+        amplitude = np.minimum(turn, self._max_magnitude[rows[:, ROLE]])
+        to_yaw = self._clip_yaw(floats[:, TARGET_YAW] + amplitude * d_yaw / turn)
+        to_pitch = self._clip_pitch(floats[:, TARGET_PITCH] + amplitude * d_pitch / turn)
+        u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)  # hold, blink pull, blink follower
+        hold = self._hold_s(rows, u[:, 0], None)
+        kind = np.full(idx.size, HEAD, np.int8)
         times = np.full(idx.size, t, dtype=np.int64)
-        amplitude = np.minimum(turn, self._max_magnitude[st.role[idx]])
-        to_yaw = self._clip_yaw(st.target_yaw[idx] + amplitude * d_yaw / turn)
-        to_pitch = self._clip_pitch(st.target_pitch[idx] + amplitude * d_pitch / turn)
-        u_hold = self._draw(idx, SACCADE_STREAM, 1)
-        hold = self._sample_hold(idx, np.zeros(idx.size, dtype=bool), u_hold) * st.interval_scale[idx]
-        self._launch(idx, times, to_yaw, to_pitch, amplitude, np.full(idx.size, HEAD, np.int8), hold)
+        self._launch(idx, rows, times, to_yaw, to_pitch, kind, hold, u[:, 1], u[:, 2], magnitude=amplitude, head=True)
+        self._store(idx, rows)
 
     def set_target(
         self,
@@ -314,17 +330,22 @@ class GazeEngine:
         """
         yaw, pitch = _finite_pair(yaw_deg, pitch_deg, "target")
         idx, t = self._prepare(i, t_ns)
-        st = self._s
-        st.target_yaw[idx] = self._clip_yaw(np.broadcast_to(yaw, idx.shape))
-        st.target_pitch[idx] = self._clip_pitch(np.broadcast_to(pitch, idx.shape))
-        follow = (st.mode[idx] >= SACCADE) & (st.fix_kind[idx] == MUTUAL)
-        follow &= (st.to_yaw[idx] != st.target_yaw[idx]) | (st.to_pitch[idx] != st.target_pitch[idx])
-        idx = idx[follow]
-        if not idx.size:
-            return
-        times = np.full(idx.size, t, dtype=np.int64)
-        kind = np.full(idx.size, MUTUAL, np.int8)
-        self._launch(idx, times, st.target_yaw[idx], st.target_pitch[idx], None, kind, None)
+        rows = self._rows[idx]
+        floats = rows.view(np.float64)
+        floats[:, TARGET_YAW] = self._clip_yaw(np.broadcast_to(yaw, idx.shape))
+        floats[:, TARGET_PITCH] = self._clip_pitch(np.broadcast_to(pitch, idx.shape))
+        follow = (rows[:, MODE] >= SACCADE) & (rows[:, KIND] == MUTUAL)
+        follow &= (floats[:, TO_YAW] != floats[:, TARGET_YAW]) | (floats[:, TO_PITCH] != floats[:, TARGET_PITCH])
+        j = np.flatnonzero(follow)
+        if j.size:
+            moving = rows[j]
+            to = moving.view(np.float64)[:, [TARGET_YAW, TARGET_PITCH]]
+            u = self._uniforms(moving, KEY_SACCADE, COUNTER_SACCADE, 2)  # blink pull, blink follower
+            times = np.full(j.size, t, dtype=np.int64)
+            kind = np.full(j.size, MUTUAL, np.int8)
+            self._launch(idx[j], moving, times, to[:, 0], to[:, 1], kind, None, u[:, 0], u[:, 1])
+            rows[j] = moving
+        self._store(idx, rows)
 
     # ------------------------------------------------------------------ the tick
 
@@ -333,26 +354,56 @@ class GazeEngine:
         t = int(t_ns)
         if t < self._now_ns:
             raise ValueError(f"tick time {t} ns is before the previous tick at {self._now_ns} ns")
-        st = self._s
-        due = np.flatnonzero(st.next_event <= t)
+        due = np.flatnonzero(self._next_event <= t)
         if due.size:
-            self._advance(due, t)
+            self._advance_due(due, t)
         self._now_ns = t
-        yaw = st.to_yaw.copy()
-        pitch = st.to_pitch.copy()
-        flight = self._merge(self._flight, self._new_flight)
-        self._flight = flight[st.end[flight] > t]
-        if self._flight.size:
-            yaw[self._flight], pitch[self._flight] = self._saccade_position(self._flight, np.int64(t))
+        yaw = self._rest_yaw.copy()
+        pitch = self._rest_pitch.copy()
+        self._flight_positions(t, yaw, pitch)
         lid = np.zeros(self._n)
         blinking = self._merge(self._blinking, self._new_blinking)
-        elapsed_ns = t - st.blink_onset[blinking]
+        elapsed_ns = t - self._blink_onset[blinking]
         still = elapsed_ns < self._blink_duration_ns
         self._blinking = blinking[still]
         if self._blinking.size:
             lid[self._blinking] = lid_closure(elapsed_ns[still] * 1e-9, self.params.blink)
         self._apply_non_saccade_modes(t, yaw, pitch, lid)
         return GazeTick(t, yaw, pitch, lid, self._take_saccades(), self._take_blinks())
+
+    def _flight_positions(self, t: int, yaw: np.ndarray, pitch: np.ndarray) -> None:
+        """Write the position of every eye in flight at `t` from the compact copies of their saccades."""
+        agents, flight = self._flight_agents, self._flight
+        if self._flight_chunks:
+            agents = np.concatenate([agents, *(chunk[0] for chunk in self._flight_chunks)])
+            flight = np.concatenate([flight, *(chunk[1] for chunk in self._flight_chunks)])
+            self._flight_chunks.clear()
+        if self._flight_stale:
+            agents, flight = self._current_flights(agents, flight)
+            self._flight_stale = False
+        # A relaunch by the timer comes after landing, so an earlier copy of the same agent has ended.
+        flying = flight[:, 1] > t
+        if not flying.all():
+            agents, flight = agents[flying], flight[flying]
+        self._flight_agents, self._flight = agents, flight
+        if agents.size:
+            onset = flight[:, 0]
+            progress = saccade_progress((t - onset) / (flight[:, 1] - onset))
+            remaining = 1.0 - progress  # this form is exact at both ends of the saccade
+            floats = flight.view(np.float64)
+            yaw[agents] = floats[:, 2] * remaining + floats[:, 4] * progress
+            pitch[agents] = floats[:, 3] * remaining + floats[:, 5] * progress
+
+    def _current_flights(self, agents: np.ndarray, flight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Drop the copies of saccades that were cut short from outside (relaunched or stopped)."""
+        current = self._rows[agents][:, [ONSET, END]]
+        keep = np.all(flight[:, :2] == current, axis=1)
+        # Two launches of one agent at the same instant: the later one, appended last, is the current one.
+        _, first_in_reverse = np.unique(agents[::-1], return_index=True)
+        latest = np.zeros(agents.size, dtype=bool)
+        latest[agents.size - 1 - first_in_reverse] = True
+        keep &= latest
+        return agents[keep], flight[keep]
 
     # ------------------------------------------------------------------ events
 
@@ -373,224 +424,288 @@ class GazeEngine:
             raise ValueError(f"agent indices must be unique: {i!r}")
         return idx
 
-    def _draw(self, idx: np.ndarray, stream: int, count: int) -> np.ndarray:
-        """`count` uniforms in [0, 1) per agent from its own stream: shape (len(idx),), or (len(idx), count).
+    def _store(self, idx: np.ndarray, rows: np.ndarray) -> None:
+        """Scatter gathered rows back and refresh the agents' next event times."""
+        self._rows[idx] = rows
+        next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]
+        self._next_event[idx] = np.minimum(next_saccade, next_blink)
+        self._next_is_blink[idx] = next_blink < next_saccade
 
-        Bit for bit counter_rng.uniform01(stream seed, agent index, counter), with the per-agent key cached.
+    def _derive(self, idx: np.ndarray) -> None:
+        """Fold role and emotion into the columns a decision reads (see _decide)."""
+        p = self.params
+        rows = self._rows
+        role = rows[idx, ROLE]
+        scale = self._magnitude_scale[idx]
+        # Eyes Alive eq. 1 with its redraw above the role's limit is P uniform on [P_min, p_max]; for
+        # emotion scales above 1 the unscaled draw is truncated at limit / scale so the limit still holds
+        # (generator.magnitude_from_uniform). Then A = -a scale ln(p_max / p_ref - u (p_max - P_min) / p_ref).
+        p_min = p.p_ref * np.exp(-self._max_magnitude[role] / np.maximum(scale, 1.0) / p.a_scale_deg)
+        rows[idx, MAG_SPAN] = _float_bits((p.p_max - p_min) / p.p_ref)
+        rows[idx, MAG_SCALE] = _float_bits(-p.a_scale_deg * scale)
+        rows[idx, P_MUTUAL] = _float_bits(np.clip(self._p_mutual[role] + self._mutual_shift[idx], 0.0, 1.0))
+        rows[idx, HOLD_BASE] = role * (2 * _HOLD_ROW)
+        rows[idx, BLINK_SPREAD_NS] = _float_bits(self._blink_spread_ns[role])
+
+    def _uniforms(self, rows: np.ndarray, key: int, counter: int, count: int) -> np.ndarray:
+        """`count` uniforms in [0, 1) per row from the agent's own stream: shape (len(rows), count).
+
+        Bit for bit counter_rng.uniform01(stream seed, agent index, counter), with the per-agent key in
+        the row; the row's counter advances by `count`.
         """
-        st = self._s
-        keys, counters = (
-            (st.key_saccade, st.counter_saccade) if stream == SACCADE_STREAM else (st.key_blink, st.counter_blink)
-        )
-        key, counter = keys[idx], counters[idx]
-        counters[idx] = counter + np.uint64(count)
-        if count == 1:
-            bits = splitmix64(key ^ counter)
-        else:
-            bits = splitmix64(key[:, None] ^ (counter[:, None] + np.arange(count, dtype=np.uint64)))
-        return (bits >> np.uint64(11)).astype(np.float64) * _TWO_POW_MINUS_53
+        z = rows[:, counter].view(np.uint64)[:, None] + np.arange(count, dtype=np.uint64)
+        z ^= rows[:, key].view(np.uint64)[:, None]
+        _splitmix64_inplace(z, scratch := np.empty_like(z))
+        rows[:, counter] += count
+        np.right_shift(z, np.uint64(11), out=scratch)
+        u = scratch.astype(np.float64)
+        u *= _TWO_POW_MINUS_53
+        return u
 
-    def _refresh_next_event(self, idx: np.ndarray) -> None:
-        st = self._s
-        st.next_event[idx] = np.minimum(st.next_saccade[idx], st.next_blink[idx])
+    def _schedule_blinks(self, rows: np.ndarray, t: int) -> None:
+        """Draw a fresh next blink from `t` for the rows with the statistical blink model."""
+        with_model = np.flatnonzero(rows[:, MODE] == SACCADE_BLINK)
+        if with_model.size:
+            sub = rows[with_model]
+            u = self._uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[:, 0]
+            sub[:, NEXT_BLINK] = t + self._blink_interval_ns(sub.view(np.float64)[:, BLINK_SPREAD_NS], u)
+            rows[with_model] = sub
 
     def _advance(self, idx: np.ndarray, t: int) -> None:
-        """Process every timer event at or before `t` of the given agents, in time order per agent.
+        """Process every timer event at or before `t` of the given agents, in time order per agent."""
+        if idx.size:
+            idx = idx[self._next_event[idx] <= t]
+            if idx.size:
+                self._advance_due(idx, t)
 
-        One pass handles up to three events per agent (a blink, then a saccade decision, then a blink),
-        each only when it is that agent's earliest pending event, so at video rates one pass suffices.
-        """
-        st = self._s
-        while idx.size:
-            idx = idx[st.next_event[idx] <= t]
-            if not idx.size:
-                return
-            next_saccade, next_blink = st.next_saccade[idx], st.next_blink[idx]
-            blink_first = next_blink < next_saccade  # a tie goes to the saccade, which may carry the blink
-            if blink_first.any():
-                self._blink(idx[blink_first], next_blink[blink_first])
-                next_blink = st.next_blink[idx]
-            saccade_now = (next_saccade <= t) & (next_saccade <= next_blink)
-            if saccade_now.any():
-                self._decide(idx[saccade_now], next_saccade[saccade_now])
-                next_saccade, next_blink = st.next_saccade[idx], st.next_blink[idx]
-            blink_now = (next_blink <= t) & (next_blink < next_saccade)
-            if blink_now.any():
-                self._blink(idx[blink_now], next_blink[blink_now])
+    def _advance_due(self, idx: np.ndarray, t: int) -> None:
+        # Gathering the blink-first and the saccade-first agents' rows apart (told by one byte per agent)
+        # saves copying each kind out of one mixed batch and back.
+        blink_first = self._next_is_blink[idx]
+        count = int(np.count_nonzero(blink_first))
+        groups = (idx,) if count in (0, idx.size) else (idx[blink_first], idx[~blink_first])
+        for group in groups:
+            rows = self._rows[group]
+            self._process(group, rows, t)
+            self._store(group, rows)
 
-    def _decide(self, idx: np.ndarray, times: np.ndarray) -> None:
-        """The gaze timer expired (or the regime changed): choose mutual or away and launch the saccade."""
-        st = self._s
-        role = st.role[idx]
-        u = self._draw(idx, SACCADE_STREAM, 4)
-        mutual = u[:, 0] < np.clip(self._p_mutual[role] + st.mutual_shift[idx], 0.0, 1.0)
-        magnitude = magnitude_from_uniform(u[:, 1], self.params, self._max_magnitude[role], st.magnitude_scale[idx])
+    def _process(self, agents: np.ndarray, rows: np.ndarray, t: int) -> None:
+        """One pass over agents with events due: a blink, then a saccade decision, then a blink, each only
+        where it is that agent's earliest pending event (a tie goes to the saccade, which may carry the
+        blink). At video rates one pass suffices; agents with more events due go round again."""
+        next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]  # views: they see the updates
+        self._on_rows(agents, rows, next_blink < next_saccade, self._blink)
+        self._on_rows(agents, rows, (next_saccade <= t) & (next_saccade <= next_blink), self._decide)
+        self._on_rows(agents, rows, (next_blink <= t) & (next_blink < next_saccade), self._blink)
+        more = np.flatnonzero(np.minimum(next_saccade, next_blink) <= t)
+        if more.size:
+            sub = rows[more]
+            self._process(agents[more], sub, t)
+            rows[more] = sub
+
+    @staticmethod
+    def _on_rows(agents: np.ndarray, rows: np.ndarray, mask: np.ndarray, handler: _RowHandler) -> None:
+        """Apply `handler` to the masked rows, on a compact copy unless every row is selected."""
+        count = int(np.count_nonzero(mask))
+        if count == mask.size:
+            handler(agents, rows)
+        elif count:
+            sub = rows[mask]
+            handler(agents[mask], sub)
+            rows[mask] = sub
+
+    def _blink(self, agents: np.ndarray, rows: np.ndarray) -> None:
+        """The blink timer expired: blink now and draw the next spontaneous blink."""
+        times = rows[:, NEXT_BLINK].copy()
+        u = self._uniforms(rows, KEY_BLINK, COUNTER_BLINK, 1)[:, 0]
+        rows[:, NEXT_BLINK] = times + self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS], u)
+        self._blink_onset[agents] = times
+        self._new_blinking.append(agents)
+        self._blink_chunks.append((agents, times))
+
+    def _decide(self, agents: np.ndarray, rows: np.ndarray) -> None:
+        """The gaze timer expired (or the regime changed): choose mutual or away and launch the saccade.
+
+        Six uniforms per agent in one draw: mutual or away, magnitude, direction, hold, and the gaze-evoked
+        blink's chance and follower interval."""
+        times = rows[:, NEXT_SACCADE].copy()
+        floats = rows.view(np.float64)
+        u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 6)
+        away = u[:, 0] >= floats[:, P_MUTUAL]
+        magnitude = np.log(self._magnitude_top - u[:, 1] * floats[:, MAG_SPAN])
+        magnitude *= floats[:, MAG_SCALE]
+        cos, sin = self._direction(agents, u[:, 2])
+        target_yaw, target_pitch = floats[:, TARGET_YAW].copy(), floats[:, TARGET_PITCH].copy()
+        to_yaw = np.where(away, self._clip_yaw(target_yaw + magnitude * cos), target_yaw)
+        to_pitch = np.where(away, self._clip_pitch(target_pitch + magnitude * sin), target_pitch)
+        hold = self._hold_s(rows, u[:, 3], away)
+        kind = away.view(np.int8)
+        self._launch(agents, rows, times, to_yaw, to_pitch, kind, hold, u[:, 4], u[:, 5], magnitude, away)
+
+    def _direction(self, agents: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cosine and sine of the drawn direction bin, tilted by the agents' emotions where they have one."""
         if self._biased_agents:
-            direction = np.deg2rad(
-                direction_from_uniform(u[:, 2], self.params, st.bias_direction[idx], st.bias_strength[idx])
-            )
-            cos, sin = np.cos(direction), np.sin(direction)
-        else:  # the common case: the table's bins, read through precomputed cosines and sines
-            bin_index = np.searchsorted(self._direction_cumulative, u[:, 2], side="right")
-            cos, sin = self._bin_cos[bin_index], self._bin_sin[bin_index]
-        target_yaw, target_pitch = st.target_yaw[idx], st.target_pitch[idx]
-        to_yaw = np.where(mutual, target_yaw, self._clip_yaw(target_yaw + magnitude * cos))
-        to_pitch = np.where(mutual, target_pitch, self._clip_pitch(target_pitch + magnitude * sin))
-        hold = self._sample_hold(idx, mutual, u[:, 3], role) * st.interval_scale[idx]
-        kind = np.where(mutual, MUTUAL, AWAY).astype(np.int8)
-        self._launch(idx, times, to_yaw, to_pitch, np.where(mutual, np.nan, magnitude), kind, hold)
+            strength = self._bias_strength[agents]
+            if strength.any():
+                weights = direction_weights(self.params, self._bias_direction[agents], strength)
+                index = (u[:, None] >= np.cumsum(weights, axis=-1)).sum(axis=-1)
+                index = np.minimum(index, self._bin_cos.size - 1)
+                return self._bin_cos[index], self._bin_sin[index]
+        index = np.searchsorted(self._direction_cumulative, u, side="right")
+        return self._bin_cos[index], self._bin_sin[index]
 
-    def _sample_hold(
-        self, idx: np.ndarray, mutual: np.ndarray, u: np.ndarray, role: np.ndarray | None = None
-    ) -> np.ndarray:
-        """Inverse-CDF hold times (s) from the quantile table of each agent's (role, mutual/away)."""
-        role = self._s.role[idx] if role is None else role
-        row = role.astype(np.int64) * 2 + (~mutual)
+    def _hold_s(self, rows: np.ndarray, u: np.ndarray, away: np.ndarray | None) -> np.ndarray:
+        """Inverse-CDF hold times (s) from the quantile table of each agent's (role, mutual/away), scaled by
+        its emotion; `away=None` means away for every row."""
         x = u * _HOLD_TABLE_INTERVALS
-        cell = np.minimum(x.astype(np.int64), _HOLD_TABLE_INTERVALS - 1)
-        frac = x - cell
-        at = row * (_HOLD_TABLE_INTERVALS + 1) + cell
-        table = self._hold_quantiles
-        return table[at] * (1.0 - frac) + table[at + 1] * frac
+        cell = x.astype(np.int64)  # u < 1, so the cell is at most the last one
+        x -= cell
+        cell += rows[:, HOLD_BASE]
+        if away is None:
+            cell += _HOLD_ROW
+        else:
+            np.add(cell, _HOLD_ROW, out=cell, where=away)
+        hold = self._hold_slopes[cell]
+        hold *= x
+        hold += self._hold_quantiles[cell]
+        hold *= rows.view(np.float64)[:, INTERVAL_SCALE]
+        return hold
 
     def _launch(
         self,
-        idx: np.ndarray,
+        agents: np.ndarray,
+        rows: np.ndarray,
         times: np.ndarray,
         to_yaw: np.ndarray,
         to_pitch: np.ndarray,
-        magnitude: np.ndarray | None,
         kind: np.ndarray,
         hold_s: np.ndarray | None,
+        u_pull: np.ndarray,
+        u_follow: np.ndarray,
+        magnitude: np.ndarray | None = None,
+        drawn: np.ndarray | None = None,
+        head: bool = False,
     ) -> None:
-        """Start saccades at `times` from where each eye is then. Without `hold_s` the hold timer is kept."""
-        st = self._s
-        from_yaw, from_pitch = self._saccade_position(idx, times)
+        """Start saccades at `times` from where each eye is then. Without `hold_s` the hold timer is kept.
+
+        `magnitude` is the drawn Eyes Alive magnitude to report, where `drawn` (default: everywhere); the
+        others report the amplitude moved."""
+        floats = rows.view(np.float64)
+        from_yaw, from_pitch = self._position(rows, times)
         d_yaw, d_pitch = to_yaw - from_yaw, to_pitch - from_pitch
         amplitude = np.hypot(d_yaw, d_pitch)
-        direction = np.mod(np.rad2deg(np.arctan2(d_pitch, d_yaw)), 360.0)
-        duration_ns = np.rint((self.params.d0_s + self.params.d_s_per_deg * amplitude) * _NS).astype(np.int64)
+        duration_ns = np.rint(amplitude * self._d_ns_per_deg + self._d0_ns).astype(np.int64)
         end = times + duration_ns
-        st.onset[idx], st.end[idx] = times, end
         if hold_s is not None:
             next_saccade = end + np.rint(hold_s * _NS).astype(np.int64)
         else:
-            next_saccade = np.maximum(st.next_saccade[idx], end)
+            next_saccade = np.maximum(rows[:, NEXT_SACCADE], end)
             hold_s = (next_saccade - end) * 1e-9
-        st.next_saccade[idx] = next_saccade
-        st.from_yaw[idx], st.from_pitch[idx] = from_yaw, from_pitch
-        st.to_yaw[idx], st.to_pitch[idx] = to_yaw, to_pitch
-        st.fix_kind[idx] = kind
-        next_blink = self._couple_blinks(idx, times, amplitude, kind)
-        st.next_event[idx] = np.minimum(next_saccade, next_blink)
-        self._new_flight.append(idx)
-        magnitude = amplitude if magnitude is None else np.where(np.isnan(magnitude), amplitude, magnitude)
-        floats = np.array(
+        rows[:, ONSET], rows[:, END], rows[:, NEXT_SACCADE] = times, end, next_saccade
+        floats[:, FROM_YAW], floats[:, FROM_PITCH] = from_yaw, from_pitch
+        floats[:, TO_YAW], floats[:, TO_PITCH] = to_yaw, to_pitch
+        rows[:, KIND] = kind
+        self._couple_blinks(agents, rows, times, amplitude, u_pull, u_follow, head)
+        self._rest_yaw[agents] = to_yaw
+        self._rest_pitch[agents] = to_pitch
+        self._flight_chunks.append((agents, rows[:, _FLIGHT_COLUMNS]))
+        if magnitude is None:
+            magnitude = amplitude
+        elif drawn is not None:
+            magnitude = np.where(drawn, magnitude, amplitude)
+        direction = np.mod(np.rad2deg(np.arctan2(d_pitch, d_yaw)), 360.0)
+        floats_out = np.array(
             (from_yaw, from_pitch, to_yaw, to_pitch, magnitude, amplitude, direction, duration_ns * 1e-9, hold_s)
         )
-        self._saccade_chunks.append((idx, times, kind, floats))
+        self._saccade_chunks.append((agents, times, kind, floats_out))
 
-    def _couple_blinks(self, idx: np.ndarray, times: np.ndarray, amplitude: np.ndarray, kind: np.ndarray) -> np.ndarray:
-        """Large saccades and head-led saccades pull the next due blink forward to their onset.
-
-        Returns every agent's next blink time after the coupling."""
-        st = self._s
-        next_blink = st.next_blink[idx]
-        with_model = st.mode[idx] == SACCADE_BLINK
-        if not with_model.all():
-            if not with_model.any():
-                return next_blink
-            next_blink[with_model] = self._couple_blinks(
-                idx[with_model], times[with_model], amplitude[with_model], kind[with_model]
-            )
-            return next_blink
+    def _couple_blinks(
+        self,
+        agents: np.ndarray,
+        rows: np.ndarray,
+        times: np.ndarray,
+        amplitude: np.ndarray,
+        u_pull: np.ndarray,
+        u_follow: np.ndarray,
+        head: bool,
+    ) -> None:
+        """Large saccades and head-led saccades pull the next due blink forward to their onset (blink model
+        agents only), when that blink is due within the pull window."""
         blink = self.params.blink
-        u = self._draw(idx, BLINK_STREAM, 2)  # whether to pull a blink; its follower's interval
-        chance = evoked_blink_probability(amplitude, blink)
-        if (kind == HEAD).any():
-            chance = np.where(kind == HEAD, blink.head_turn_probability, chance)
-        pull = (u[:, 0] < chance) & (next_blink - times <= self._pull_window_ns)
-        if pull.any():
-            pulled, onset = idx[pull], times[pull]
-            next_blink[pull] += self._blink_interval_ns(pulled, u[pull, 1])
-            st.next_blink[pulled] = next_blink[pull]
-            st.blink_onset[pulled] = onset
+        if head:
+            pull = u_pull < blink.head_turn_probability
+        else:
+            chance = amplitude - blink.evoked_min_deg
+            chance *= self._evoked_slope
+            pull = u_pull < np.clip(chance, 0.0, blink.evoked_max_probability, out=chance)
+        next_blink = rows[:, NEXT_BLINK]
+        pull &= next_blink - times <= self._pull_window_ns
+        pull &= rows[:, MODE] == SACCADE_BLINK
+        j = np.flatnonzero(pull)
+        if j.size:
+            interval = self._blink_interval_ns(rows.view(np.float64)[j, BLINK_SPREAD_NS], u_follow[j])
+            rows[j, NEXT_BLINK] = next_blink[j] + interval
+            pulled, onset = agents[j], times[j]
+            self._blink_onset[pulled] = onset
             self._new_blinking.append(pulled)
             self._blink_chunks.append((pulled, onset))
-        return next_blink
 
-    def _blink(self, idx: np.ndarray, times: np.ndarray) -> None:
-        st = self._s
-        next_blink = times + self._blink_interval_ns(idx)
-        st.blink_onset[idx] = times
-        st.next_blink[idx] = next_blink
-        st.next_event[idx] = np.minimum(st.next_saccade[idx], next_blink)
-        self._new_blinking.append(idx)
-        self._blink_chunks.append((idx, times))
-
-    def _blink_interval_ns(self, idx: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
-        """Refractory gap plus an exponential, with the role's mean interval 60 / rate."""
-        refractory = self.params.blink.refractory_s
-        u = self._draw(idx, BLINK_STREAM, 1) if u is None else u
-        mean = self._blink_mean_s[self._s.role[idx]]
-        return np.rint((refractory - (mean - refractory) * np.log1p(-u)) * _NS).astype(np.int64)
+    def _blink_interval_ns(self, spread_ns: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Refractory gap plus an exponential, with the role's mean interval 60 / rate (spread = mean - gap)."""
+        return np.rint(self._refractory_ns - spread_ns * np.log1p(-u)).astype(np.int64)
 
     # ------------------------------------------------------------------ positions
 
-    def _saccade_position(self, idx: np.ndarray, t: np.ndarray | np.int64) -> tuple[np.ndarray, np.ndarray]:
-        """Eye position at `t` along each agent's current saccade; landed eyes skip the velocity profile."""
-        st = self._s
-        end = st.end[idx]
-        to_yaw, to_pitch = st.to_yaw[idx], st.to_pitch[idx]
-        in_flight = t < end
-        if not in_flight.any():
-            return to_yaw, to_pitch
-        onset = st.onset[idx]
-        duration = (end - onset).astype(np.float64)
-        elapsed = (t - onset).astype(np.float64)
-        progress = saccade_progress(np.divide(elapsed, duration, out=np.ones_like(elapsed), where=duration > 0))
-        remaining = 1.0 - progress  # this form is exact at both ends of the saccade
-        return st.from_yaw[idx] * remaining + to_yaw * progress, st.from_pitch[idx] * remaining + to_pitch * progress
+    def _position(self, rows: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eye position at `times` along each row's current saccade; landed eyes skip the velocity profile."""
+        floats = rows.view(np.float64)
+        yaw, pitch = floats[:, TO_YAW].copy(), floats[:, TO_PITCH].copy()
+        in_flight = np.flatnonzero(times < rows[:, END])
+        if in_flight.size:
+            self._flight_stale = True  # these eyes are relaunched or stopped mid-flight
+            onset = rows[in_flight, ONSET]
+            progress = saccade_progress((times[in_flight] - onset) / (rows[in_flight, END] - onset))
+            remaining = 1.0 - progress  # this form is exact at both ends of the saccade
+            yaw[in_flight] = floats[in_flight, FROM_YAW] * remaining + yaw[in_flight] * progress
+            pitch[in_flight] = floats[in_flight, FROM_PITCH] * remaining + pitch[in_flight] * progress
+        return yaw, pitch
 
     def _noise_position(self, idx: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
-        st = self._s
+        floats = self._rows.view(np.float64)
         x = t * 1e-9 * p.noise_frequency_hz
         stream = idx.astype(np.uint64) * np.uint64(2)
-        yaw = st.target_yaw[idx] + p.noise_yaw_amplitude_deg * perlin1d(x, self._seed_noise, stream)
-        pitch = st.target_pitch[idx] + p.noise_pitch_amplitude_deg * perlin1d(
+        yaw = floats[idx, TARGET_YAW] + p.noise_yaw_amplitude_deg * perlin1d(x, self._seed_noise, stream)
+        pitch = floats[idx, TARGET_PITCH] + p.noise_pitch_amplitude_deg * perlin1d(
             x, self._seed_noise, stream + np.uint64(1)
         )
         return self._clip_yaw(yaw), self._clip_pitch(pitch)
 
     def _shown_position(self, idx: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
         """Where each eye is at `t` in its current mode."""
-        st = self._s
-        yaw, pitch = self._saccade_position(idx, np.int64(t))
-        mode = st.mode[idx]
+        rows = self._rows[idx]
+        stale = self._flight_stale  # only looking: nothing is relaunched here
+        yaw, pitch = self._position(rows, np.full(idx.size, t, dtype=np.int64))
+        self._flight_stale = stale
+        mode = self._mode[idx]
         static = mode == STATIC
-        yaw[static], pitch[static] = st.target_yaw[idx[static]], st.target_pitch[idx[static]]
+        floats = rows.view(np.float64)
+        yaw[static], pitch[static] = floats[static, TARGET_YAW], floats[static, TARGET_PITCH]
         noisy = mode == NOISE
         if noisy.any():
             yaw[noisy], pitch[noisy] = self._noise_position(idx[noisy], t)
         return yaw, pitch
 
-    def _fixate(self, idx: np.ndarray, t: int, yaw: np.ndarray, pitch: np.ndarray) -> None:
-        st = self._s
-        st.onset[idx] = st.end[idx] = t
-        st.from_yaw[idx] = st.to_yaw[idx] = yaw
-        st.from_pitch[idx] = st.to_pitch[idx] = pitch
-
     def _members(self, mode: int) -> np.ndarray:
         if mode not in self._members_cache:
-            self._members_cache[mode] = np.flatnonzero(self._s.mode == mode)
+            self._members_cache[mode] = np.flatnonzero(self._mode == mode)
         return self._members_cache[mode]
 
     def _apply_non_saccade_modes(self, t: int, yaw: np.ndarray, pitch: np.ndarray, lid: np.ndarray) -> None:
-        st = self._s
         static = self._members(STATIC)
         if static.size:
-            yaw[static], pitch[static] = st.target_yaw[static], st.target_pitch[static]
+            floats = self._rows.view(np.float64)
+            yaw[static], pitch[static] = floats[static, TARGET_YAW], floats[static, TARGET_PITCH]
         noisy = self._members(NOISE)
         if noisy.size:
             yaw[noisy], pitch[noisy] = self._noise_position(noisy, t)
@@ -603,8 +718,8 @@ class GazeEngine:
 
     @staticmethod
     def _merge(current: np.ndarray, new: list[np.ndarray]) -> np.ndarray:
-        # Duplicates (an agent relaunched mid-flight) are harmless: they write the same value twice and
-        # drop out together; so no costly np.unique here.
+        # Duplicates (an agent that blinks again within a blink) are harmless: both read the agent's one
+        # blink onset, write the same value and drop out together; so no costly np.unique here.
         if not new:
             return current
         merged = np.concatenate([current, *new])
