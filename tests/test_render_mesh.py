@@ -11,13 +11,17 @@ from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
 from services.renderer.config import load_render_config
 from services.renderer.mesh import (
     BONE_ULID_L,
+    EXTRUDED,
     EYE_RADIUS,
     RING,
     FacePoser,
+    RigidFacing,
+    Silhouette,
+    _ellipsoid,
     build_static_mesh,
     clean_flexors,
+    extruded_copy,
     eye_centre,
-    hull_prefix,
     lid_elevations,
     mouth_shape,
     skin,
@@ -48,7 +52,7 @@ def test_static_mesh_is_well_formed(static) -> None:
     assert np.isfinite(static.vertices).all()
     covered = sum(count for _, count in static.ranges.values())
     assert covered == static.indices.size
-    assert set(static.ranges) == {"decals", "face", "eyes", "lids"}
+    assert set(static.ranges) == {"decals", "nose", "face", "eyes", "lids"}
 
 
 def test_triangles_wind_counter_clockwise_around_their_normals(static) -> None:
@@ -189,13 +193,56 @@ def test_gaze_points_match_the_pupils_of_the_pose(poser: FacePoser) -> None:
     np.testing.assert_allclose(points[:, 0, :], pose.pupils, atol=1e-9)
 
 
-def test_outline_pass_skips_the_back_of_the_head_only_when_it_is_near_frontal(poser: FacePoser, static) -> None:
-    full = static.ranges["face"][1]
-    frontal = hull_prefix(static, poser.pose(flexors()).model)
-    head = full - (static.head_first - static.ranges["face"][0])
-    assert frontal % 3 == 0 and frontal < full - 0.1 * head  # the back cap: few triangles, much screen area
-    assert hull_prefix(static, poser.pose(flexors(turn=1.0)).model) == full
-    assert frontal < hull_prefix(static, poser.pose(flexors(nod=0.6)).model) <= full
+def _eye_in_head(model: np.ndarray, world_eye: np.ndarray) -> np.ndarray:
+    return model[:3, :3].T @ (world_eye - model[:3, 3])
+
+
+@pytest.mark.parametrize(
+    "values",
+    [{}, {"turn": 0.8, "look_x": 0.7}, {"nod": -0.6, "blink_l": 1.0, "lids_r": 0.9}, {"tilt": 1.0, "say_ah": 1.0}],
+)
+def test_rigid_facing_agrees_with_the_posed_geometry(poser: FacePoser, static, values: dict[str, float]) -> None:
+    pose = poser.pose(flexors(**values))
+    eye = _eye_in_head(pose.model, np.array([0.3, 0.4, 7.0]))
+    tris = static.indices.reshape(-1, 3).astype(int)
+    posed = skin(static.vertices, pose.bones, np.eye(4))
+    p0 = posed[tris[:, 0]]
+    normal = np.cross(posed[tris[:, 1]] - p0, posed[tris[:, 2]] - p0)
+    cos = np.einsum("ij,ij->i", normal, eye - p0) / np.maximum(
+        np.linalg.norm(normal, axis=1) * np.linalg.norm(eye - p0, axis=1), 1e-12
+    )
+    front = RigidFacing(static.vertices, tris).front(pose.bones, eye)
+    clear = np.abs(cos) > 1e-6  # edge-on (or zero-area) triangles may go either way
+    np.testing.assert_array_equal(front[clear], cos[clear] > 0)
+
+
+def test_silhouette_of_an_ellipsoid_is_its_rim_as_closed_loops() -> None:
+    part = _ellipsoid(np.zeros(3), np.array([1.0, 0.8, 0.6]), "skin", 16, 9)
+    sil = Silhouette(part.vertices[:, 0:3], part.triangles, part.vertices.shape[0])
+    n_tri = len(part.triangles)
+    facing = RigidFacing(part.vertices, part.triangles)
+    for eye in (np.array([0.0, 0.0, 50.0]), np.array([30.0, 10.0, 20.0])):
+        front = facing.front(np.tile(np.eye(4), (8, 1, 1)), eye)
+        quads = sil.quads_for(front)
+        assert 0 < len(quads) < n_tri / 3
+        inner = part.vertices[quads[:, :2].reshape(-1), 0:3].astype(np.float64)
+        normal = inner / np.array([1.0, 0.8, 0.6]) ** 2  # the ellipsoid's normal direction
+        cos = (normal / np.linalg.norm(normal, axis=1, keepdims=True)) @ (eye / np.linalg.norm(eye))
+        assert np.abs(cos).max() < 0.45  # every edge lies near where the surface turns edge-on
+        # Closed loops: every vertex (welded by position) is the end of an even number of edges.
+        _, ends = np.unique(np.round(inner * 1e6), axis=0, return_counts=True)
+        assert (ends % 2 == 0).all()
+        # The outer corners are the EXTRUDED copies of the inner ones.
+        np.testing.assert_array_equal(quads[:, 2], quads[:, 1] + part.vertices.shape[0])
+        np.testing.assert_array_equal(quads[:, 5], quads[:, 0] + part.vertices.shape[0])
+
+
+def test_extruded_copies_keep_everything_but_the_marked_material(static) -> None:
+    both = extruded_copy(static.vertices)
+    n = static.vertices.shape[0]
+    np.testing.assert_array_equal(both[:n], static.vertices)
+    np.testing.assert_array_equal(both[n:, 9], static.vertices[:, 9] + EXTRUDED)
+    np.testing.assert_array_equal(np.delete(both[n:], 9, axis=1), np.delete(static.vertices, 9, axis=1))
 
 
 def test_render_config_errors_name_the_file_and_key(tmp_path) -> None:

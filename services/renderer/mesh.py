@@ -416,7 +416,9 @@ def build_static_mesh(detail: float = 1.0) -> StaticMesh:
     tri_nz = head.vertices[head.triangles, 5].mean(1)
     order = np.argsort(-tri_nz, kind="stable")
     head = Part(head.vertices, head.triangles[order])
-    groups = {"decals": blush, "face": [nose, *ears, head], "eyes": eyes, "lids": lids}
+    # The nose has a group of its own because it gets no outline: it rises out of the cheek, and the
+    # line would show where it meets the skin; its shading alone shapes it.
+    groups = {"decals": blush, "nose": [nose], "face": [*ears, head], "eyes": eyes, "lids": lids}
     verts_all, idx_all, ranges = [], [], {}
     offset_v, offset_i = 0, 0
     for name, parts in groups.items():
@@ -430,63 +432,115 @@ def build_static_mesh(detail: float = 1.0) -> StaticMesh:
     return StaticMesh(np.concatenate(verts_all), np.concatenate(idx_all).astype(np.uint32), ranges)
 
 
-def skin_positions(rest: np.ndarray, info: np.ndarray, bones: np.ndarray) -> np.ndarray:
-    """Head-frame positions (V, 3) of rest positions under `bones`: the vertex shader's blend, in numpy.
+# ---------------------------------------------------------------------------------------------------
+# Outlines of the static parts. Software GL pays for every triangle it rasterises and for every pixel
+# a triangle touches, visible or not. An inverted hull (every back face, pushed outward) makes the
+# rasteriser walk the hidden back of the head to draw a thin line around it; quads along the
+# silhouette edges, found on the CPU each frame, draw the same line from a few hundred thin triangles.
 
-    info holds each vertex's (bone0, bone1, weight of bone1), the last three vertex columns.
-    """
-    b0 = info[:, 0].astype(np.intp)
-    b1 = info[:, 1].astype(np.intp)
-    w = info[:, 2:3].astype(np.float64)
-    m = bones[b0, :3, :] * (1.0 - w[:, :, None]) + bones[b1, :3, :] * w[:, :, None]
-    return np.einsum("vij,vj->vi", m[:, :, :3], rest) + m[:, :, 3]
+# Vertex rows with this added to their material are the outline's extruded copies (see Silhouette).
+EXTRUDED = 16.0
 
 
-# A triangle at less than this cosine from edge-on counts as both facing and not facing the camera, so
-# float32 rounding on the GPU can never make it disagree with the selection made here.
-FACING_EPS = 1e-3
+def extruded_copy(vertices: np.ndarray) -> np.ndarray:
+    """The vertex rows followed by their copies marked EXTRUDED (an outline quad's outer corners)."""
+    out = np.concatenate([vertices, vertices])
+    out[vertices.shape[0] :, 9] += EXTRUDED
+    return out
 
 
-class TriangleSelector:
-    """Per frame, the triangles of one mesh that can put pixels on screen, chosen on the CPU.
+class RigidFacing:
+    """Which triangles of the static mesh face the camera, from the bones and the eye's position.
 
-    Software GL pays for every triangle it is sent (vertex shading, set-up, culling), and about half
-    of a closed mesh faces away from the camera. So the surface pass gets only triangles that face the
-    camera, and the inverted-hull outline pass only the band of triangles around the silhouette (those
-    within two rings of a vertex shared by front and back faces): every other back face, extruded by a
-    few pixels, still lies behind the surface in front of it and cannot show. The GPU still culls by
-    facing after the outline's extrusion, so the images are the same as drawing every triangle.
+    A triangle whose vertices all ride one bone B, with rest normal n through rest point p, faces an
+    eye e (in the posed head frame) when n . (B^-1 e - p) > 0: one dot product per triangle, with n and
+    n . p computed once. The few triangles whose vertices blend two bones (the chin on the jaw) can
+    bend any way, so their vertices are skinned and their normals found each frame.
     """
 
-    def __init__(self, triangles: np.ndarray, n_vertices: int) -> None:
-        self.triangles = np.ascontiguousarray(triangles, dtype=np.intp)
-        self.n_vertices = n_vertices
-        self._flat = self.triangles.reshape(-1)
-        self._mark = np.zeros(n_vertices, dtype=bool)
-        self._mark2 = np.zeros(n_vertices, dtype=bool)
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
+        pos = vertices[:, 0:3].astype(np.float64)
+        tri = np.asarray(triangles, dtype=np.intp)
+        p0 = pos[tri[:, 0]]
+        self.normal = _cross(pos[tri[:, 1]] - p0, pos[tri[:, 2]] - p0)
+        self.offset = np.einsum("ij,ij->i", self.normal, p0)
+        info = vertices[:, 10:13]
+        self.bone = info[tri[:, 0], 0].astype(np.intp)
+        blended = (info[:, 2] > 0) & (info[:, 0] != info[:, 1])
+        self.mixed = np.nonzero(blended[tri].any(1) | (info[tri, 0] != self.bone[:, None]).any(1))[0]
+        used, local = np.unique(tri[self.mixed], return_inverse=True)
+        # Components in rows (3, n), so the per-frame arithmetic runs on contiguous arrays.
+        self._mixed_tri = local.reshape(-1, 3).T.copy()  # (3 corners, n)
+        self._mixed_rest = pos[used].T.copy()
+        # Skinned per pair of bones (in practice one pair: head and jaw), a few array operations each.
+        pairs = info[used, 0:2].astype(np.intp)
+        self._pairs = [
+            (int(b0), int(b1), np.nonzero((pairs[:, 0] == b0) & (pairs[:, 1] == b1))[0])
+            for b0, b1 in np.unique(pairs, axis=0)
+        ]
+        self._mixed_w = info[used, 2].astype(np.float64)
+        self._rows = np.arange(tri.shape[0])
 
-    def select(self, positions: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(surface, outline) boolean masks over the triangles for head-frame `positions` (V, 3) seen
-        from `camera` (the eye's position in the head frame)."""
-        tri = self.triangles
-        p0 = positions[tri[:, 0]]
-        normal = _cross(positions[tri[:, 1]] - p0, positions[tri[:, 2]] - p0)
-        to_eye = camera - p0
-        dot = np.einsum("ij,ij->i", normal, to_eye)
-        slack = FACING_EPS * np.sqrt(np.einsum("ij,ij->i", normal, normal) * np.einsum("ij,ij->i", to_eye, to_eye))
-        front = dot > -slack  # counter-clockwise on screen: what back-face culling keeps
-        back = dot < slack
-        # Vertices shared by a front and a back face lie on the silhouette; keep two rings around them.
-        front_v, back_v = self._mark, self._mark2
-        front_v[:] = False
-        back_v[:] = False
-        front_v[tri[front]] = True
-        back_v[tri[back]] = True
-        front_v &= back_v
-        ring = front_v[tri].any(1)
-        back_v[:] = False
-        back_v[tri[ring]] = True
-        return front, back_v[tri].any(1)
+    def front(self, bones: np.ndarray, eye: np.ndarray) -> np.ndarray:
+        """Which triangles face `eye` (the camera's position in the posed head frame)."""
+        rot = bones[:, :3, :3]
+        eye_in_bone = np.einsum("kji,kj->ki", rot, eye - bones[:, :3, 3])  # B^-1 e for each bone
+        s = (self.normal @ eye_in_bone.T)[self._rows, self.bone] - self.offset
+        posed = np.empty_like(self._mixed_rest)
+        for b0, b1, cols in self._pairs:
+            p = self._mixed_rest[:, cols]
+            a = rot[b0] @ p + bones[b0, :3, 3:4]
+            posed[:, cols] = a + self._mixed_w[cols] * (rot[b1] @ p + bones[b1, :3, 3:4] - a)
+        t0, t1, t2 = self._mixed_tri
+        q0 = posed[:, t0]
+        (ux, uy, uz), (vx, vy, vz) = posed[:, t1] - q0, posed[:, t2] - q0
+        dx, dy, dz = eye[:, None] - q0
+        s[self.mixed] = (uy * vz - uz * vy) * dx + (uz * vx - ux * vz) * dy + (ux * vy - uy * vx) * dz
+        return s > 0.0
+
+
+class Silhouette:
+    """The edges of a triangle set where a triangle facing the camera meets one facing away, or where
+    the mesh ends beside a facing one; each drawn as a quad pushed outward in the outline pass.
+
+    Adjacency is found once on vertices welded by position, so the collapsed poles and tube ends of
+    the parametric parts join up and their zero-area triangles drop out. A quad's inner corners are the
+    edge's own vertex rows, its outer corners their EXTRUDED copies (n_vertices further on), which the
+    vertex shader pushes out along the screen-space normal: the same band the inverted hull drew.
+    """
+
+    def __init__(self, positions: np.ndarray, triangles: np.ndarray, n_vertices: int) -> None:
+        tri = np.asarray(triangles, dtype=np.intp)
+        _, weld = np.unique(np.round(np.asarray(positions, dtype=np.float64) * 1e6), axis=0, return_inverse=True)
+        weld = weld.reshape(-1)
+        w = weld[tri]
+        ok = (w[:, 0] != w[:, 1]) & (w[:, 1] != w[:, 2]) & (w[:, 2] != w[:, 0])
+        ids = np.nonzero(ok)[0]
+        half_a = np.concatenate([w[ids, k] for k in range(3)])
+        half_b = np.concatenate([w[ids, (k + 1) % 3] for k in range(3)])
+        orig_a = np.concatenate([tri[ids, k] for k in range(3)])
+        orig_b = np.concatenate([tri[ids, (k + 1) % 3] for k in range(3)])
+        owner = np.concatenate([ids, ids, ids])
+        key = np.minimum(half_a, half_b) * (int(weld.max()) + 1) + np.maximum(half_a, half_b)
+        order = np.argsort(key, kind="stable")
+        key, owner, orig_a, orig_b = key[order], owner[order], orig_a[order], orig_b[order]
+        first = np.concatenate([[True], key[1:] != key[:-1]])
+        starts = np.nonzero(first)[0]
+        counts = np.diff(np.append(starts, key.size))
+        self.n_triangles = tri.shape[0]
+        self.t0 = owner[starts]
+        # The second triangle on the edge, or n_triangles (never facing) where the mesh ends there.
+        self.t1 = np.where(counts >= 2, owner[np.minimum(starts + 1, key.size - 1)], self.n_triangles)
+        a, b = orig_a[starts].astype(np.uint32), orig_b[starts].astype(np.uint32)
+        n = np.uint32(n_vertices)
+        self.quads = np.stack([a, b, b + n, a, b + n, a + n], 1)
+        self._front = np.zeros(self.n_triangles + 1, dtype=bool)
+
+    def quads_for(self, front: np.ndarray) -> np.ndarray:
+        """Index rows (K, 6) of the silhouette quads, given which triangles face the camera."""
+        f = self._front
+        f[:-1] = front
+        return self.quads[f[self.t0] != f[self.t1]]
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -644,6 +698,11 @@ _BROW_TAPER = np.sin(np.pi * np.clip(0.02 + 0.96 * _T, 0, 1)) ** 0.45
 _LIP_TAPER = np.sqrt(np.clip(1.0 - _S**2, 0.0, 1.0)) * 0.85 + 0.15 * (1 - np.abs(_S))
 
 
+_BROW_SIDE = np.array([[1.0], [-1.0]])  # row 0: the agent's left brow, at +x
+_BROW_ARC = np.sin(np.pi * (0.15 + 0.85 * _T))
+_BROW_BASE = BROW_Y - 0.06 * _T**2
+
+
 def brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, np.ndarray]:
     """Centre lines (x, y) of the agent's left (+x, row 0) and right (row 1) brows, each (2, SEGMENTS).
 
@@ -651,17 +710,20 @@ def brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, 
     the brows down it also pulls the inner ends down (the anger V), with the brows up it lifts the inner
     end more than the outer (the oblique brow of worry, sadness and fear). knit (-) arches them apart.
     """
-    brow = np.array([[brow_l], [brow_r]])
-    side = np.array([[1.0], [-1.0]])
-    up, down = np.clip(brow, 0.0, None), np.clip(-brow, 0.0, None)
     k, arch_k = max(knit, 0.0), max(-knit, 0.0)
-    worry = np.minimum(up / 0.3, 1.0)
-    inner_dy = 0.15 * up - 0.08 * down + 0.1 * k * worry - 0.17 * k * (1 - worry)
-    outer_dy = 0.15 * up * (1 - 0.6 * k * worry) - 0.05 * down + 0.06 * k * (1 - worry)
-    arch = 0.045 + 0.05 * arch_k + 0.02 * up
+    # Per brow: arch height, inner end's lift, and the outer end's lift relative to it. Plain floats:
+    # this runs every frame, and numpy's per-call overhead dwarfs arithmetic on two values.
+    rows = []
+    for brow in (brow_l, brow_r):
+        up, down = max(brow, 0.0), max(-brow, 0.0)
+        worry = min(up / 0.3, 1.0)
+        inner_dy = 0.15 * up - 0.08 * down + 0.1 * k * worry - 0.17 * k * (1 - worry)
+        outer_dy = 0.15 * up * (1 - 0.6 * k * worry) - 0.05 * down + 0.06 * k * (1 - worry)
+        rows.append((0.045 + 0.05 * arch_k + 0.02 * up, inner_dy, outer_dy - inner_dy))
+    c = np.array(rows)
     inner_x = BROW_INNER - 0.05 * k + 0.03 * arch_k
-    x = side * (inner_x + (BROW_OUTER - inner_x) * _T)
-    y = BROW_Y + arch * np.sin(np.pi * (0.15 + 0.85 * _T)) + inner_dy + (outer_dy - inner_dy) * _T - 0.06 * _T**2
+    x = _BROW_SIDE * (inner_x + (BROW_OUTER - inner_x) * _T)
+    y = _BROW_BASE + c[:, 0:1] * _BROW_ARC + c[:, 1:2] + c[:, 2:3] * _T
     return x, y
 
 
@@ -679,24 +741,31 @@ class MouthShape:
     jaw_deg: float
 
 
+_MOUTH_RIGHT = _S >= 0  # +x: the agent's left side
+_MOUTH_A = np.abs(_S)
+_MOUTH_CURVE = 0.13 * _MOUTH_A**1.8
+_MOUTH_ROUND = 1.0 - _MOUTH_A**2
+_MOUTH_BUMP = np.exp(-(((_MOUTH_A - 0.45) / 0.28) ** 2))
+
+
 def mouth_shape(f: np.ndarray) -> MouthShape:
     ah, oo, ee, mm, ff = (max(_f(f, n), 0.0) for n in ("say_ah", "say_oo", "say_ee", "say_mm", "say_ff"))
-    right = _S >= 0  # +x: the agent's left side
-    sm = np.where(right, _f(f, "smile_l"), _f(f, "smile_r"))
-    sn = np.where(right, max(_f(f, "sneer_l"), 0.0), max(_f(f, "sneer_r"), 0.0))
-    a = np.abs(_S)
-    # Corner half-width: spread widens, rounding narrows a lot, a smile pulls the corners out.
-    half = MOUTH_HALF_WIDTH * (
-        1.0 + 0.35 * ee + 0.22 * np.clip(sm, 0, None) - 0.5 * oo - 0.12 * ff + 0.04 * mm - 0.05 * np.clip(-sm, 0, None)
-    )
+    smile_l, smile_r = _f(f, "smile_l"), _f(f, "smile_r")
+    sm = np.where(_MOUTH_RIGHT, smile_l, smile_r)
+    sn = np.where(_MOUTH_RIGHT, max(_f(f, "sneer_l"), 0.0), max(_f(f, "sneer_r"), 0.0))
+    # Corner half-width: spread widens, rounding narrows a lot, a smile pulls the corners out (a frown
+    # pulls them in a little). The smile is one value per side, so this is too.
+    pull_l = 0.22 * smile_l if smile_l > 0 else 0.05 * smile_l
+    pull_r = 0.22 * smile_r if smile_r > 0 else 0.05 * smile_r
+    spread = 1.0 + 0.35 * ee - 0.5 * oo - 0.12 * ff + 0.04 * mm
+    half = MOUTH_HALF_WIDTH * (spread + np.where(_MOUTH_RIGHT, pull_l, pull_r))
     # Corners up for a smile, down for a frown; flatter in the middle, like a real mouth.
-    centre_line = MOUTH_Y + 0.13 * sm * a**1.8
+    centre_line = MOUTH_Y + sm * _MOUTH_CURVE
     press = 1.0 - 0.9 * mm
     opening = press * (0.05 * oo + 0.022 * ee + 0.018 * ff + 0.012 * ah)
-    profile = (1.0 - a**2) ** (1.0 - 0.5 * min(oo, 1.0))
-    bump = np.exp(-(((a - 0.45) / 0.28) ** 2))
-    upper = centre_line + 0.45 * opening * profile + 0.09 * sn * bump * press + 0.02 * sn * a
-    lower = np.minimum(centre_line - 0.55 * opening * profile + 0.035 * ff * profile, upper)
+    profile = _MOUTH_ROUND ** (1.0 - 0.5 * min(oo, 1.0))
+    upper = centre_line + (0.45 * opening) * profile + sn * (0.09 * press * _MOUTH_BUMP + 0.02 * _MOUTH_A)
+    lower = np.minimum(centre_line + (0.035 * ff - 0.55 * opening) * profile, upper)
     thin = 1.0 - 0.45 * mm + 0.2 * oo - 0.2 * ee
     return MouthShape(
         x=_S * half,
@@ -811,6 +880,22 @@ def lid_elevations(blink: float, lids: float, pitch_deg: float) -> tuple[float, 
     return upper, lower
 
 
+def _rx(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _ry(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _set_about(out: np.ndarray, pivot: np.ndarray, rotation: np.ndarray) -> None:
+    """Write the 4x4 rotation (3x3) about `pivot` into `out`, whose last row is already (0, 0, 0, 1)."""
+    out[:3, :3] = rotation
+    out[:3, 3] = pivot - rotation @ pivot
+
+
 class FacePoser:
     """Turns a flexor vector into a Pose; holds the reusable buffers for the dynamic vertices."""
 
@@ -823,24 +908,26 @@ class FacePoser:
     def pose(self, flexors: np.ndarray) -> Pose:
         f = clean_flexors(flexors)
         u = self.units
-        bones = np.empty((N_BONES, 4, 4))
-        bones[BONE_HEAD] = np.eye(4)
+        # Every bone is a rotation about a pivot, written straight into one array: this runs every frame,
+        # and a dozen small matrix products cost more in numpy's call overhead than in arithmetic.
+        bones = np.zeros((N_BONES, 4, 4))
+        bones[:, 3, 3] = 1.0
+        bones[BONE_HEAD, 0, 0] = bones[BONE_HEAD, 1, 1] = bones[BONE_HEAD, 2, 2] = 1.0
         shape = mouth_shape(f)
         # Rotating about +x by a positive angle swings the chin down and back.
-        bones[BONE_JAW] = about(JAW_PIVOT, rot_x(shape.jaw_deg))
+        _set_about(bones[BONE_JAW], JAW_PIVOT, _rx(shape.jaw_deg))
         lx, ly = _f(f, "look_x"), _f(f, "look_y")
-        eye_rot = eye_rotation(lx, ly, u)
+        eye_rot = _ry(-lx * u.look_x) @ _rx(-ly * u.look_y)
         pupils = np.empty((2, 3))
         model = head_model(f, u)
         for k, (side, suffix) in enumerate(((1, "l"), (-1, "r"))):
             c = self._centres[side]
-            eye_bone = about(c, eye_rot)
-            bones[BONE_EYE_L if side > 0 else BONE_EYE_R] = eye_bone
+            _set_about(bones[BONE_EYE_L if side > 0 else BONE_EYE_R], c, eye_rot)
             up, low = lid_elevations(_f(f, "blink_" + suffix), _f(f, "lids_" + suffix), ly * u.look_y)
-            bones[BONE_ULID_L if side > 0 else BONE_ULID_R] = about(c, rot_x(-up))
-            bones[BONE_LLID_L if side > 0 else BONE_LLID_R] = about(c, rot_x(-low))
-            pupil = eye_bone @ np.array([c[0], c[1], c[2] + EYE_RADIUS, 1.0])
-            pupils[k] = (model @ pupil)[:3]
+            _set_about(bones[BONE_ULID_L if side > 0 else BONE_ULID_R], c, _rx(-up))
+            _set_about(bones[BONE_LLID_L if side > 0 else BONE_LLID_R], c, _rx(-low))
+            pupil = c + EYE_RADIUS * eye_rot[:, 2]  # the eye's forward pole, rotated about its centre
+            pupils[k] = model[:3, :3] @ pupil + model[:3, 3]
         build_dynamic(f, shape, self.layout, self._dynamic)
         return Pose(bones=bones, model=model, dynamic=self._dynamic, pupils=pupils)
 

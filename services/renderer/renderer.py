@@ -1,8 +1,9 @@
 """The face renderer: draws one flexor frame with cel shading and outlines into any framebuffer.
 
 All GPU objects (programs, buffers, vertex arrays, the offscreen target) are made once in __init__;
-a frame writes a handful of uniforms and one small vertex buffer (brows and mouth), so the same
-Renderer can draw every frame of a window, a headless test or a video.
+a frame writes a handful of uniforms, one small vertex buffer (brows and mouth) and the outline quads
+along the static parts' silhouettes, so the same Renderer can draw every frame of a window, a
+headless test or a video.
 """
 
 from __future__ import annotations
@@ -24,10 +25,11 @@ from services.renderer.mesh import (
     PUPIL_ANGLE,
     FacePoser,
     Pose,
-    TriangleSelector,
+    RigidFacing,
+    Silhouette,
     build_static_mesh,
+    extruded_copy,
     eye_centre,
-    skin_positions,
 )
 from services.renderer.shaders import (
     EYE_FRAGMENT,
@@ -44,7 +46,7 @@ MAX_TRAJECTORY_POINTS = 600  # a longer overlay_points keeps its most recent poi
 REFERENCE_HEIGHT = 480.0  # outline and overlay widths are given in pixels at this image height
 _OVERLAY_FLOATS = 5  # x, y, r, g, b
 _FRAME_BLOCK = 0  # uniform-block binding point of the per-frame matrices
-SURFACE, OUTLINE = "surface", "outline"  # the two triangle sets of a FrameIndices
+SURFACE, OUTLINE = "surface", "outline"  # the two index sets of a FrameIndices
 
 
 @dataclass
@@ -114,16 +116,16 @@ class Renderer:
 
         static = build_static_mesh(self.config.mesh_detail)
         self.static = static
-        self._static_rest = static.vertices[:, 0:3].astype(np.float64)
-        self._static_info = static.vertices[:, 10:13]
-        self.static_vbo = ctx.buffer(static.vertices.tobytes())
+        self.static_facing = RigidFacing(static.vertices, static.indices.reshape(-1, 3))
+        self.static_vbo = ctx.buffer(extruded_copy(static.vertices).tobytes())
         sample = self.poser.pose(np.zeros(N_FLEXORS))
         dyn_indices, dyn_ranges = self.poser.layout.indices(sample.dynamic)
-        self.dynamic_vbo = ctx.buffer(reserve=sample.dynamic.nbytes, dynamic=True)
-        # Index buffers are rewritten each frame with only the triangles that can show (see select()).
-        self.meshes = {
-            "static": FrameIndices(ctx, static.indices, static.ranges, static.vertices.shape[0]),
-            "dynamic": FrameIndices(ctx, dyn_indices, dyn_ranges, sample.dynamic.shape[0]),
+        self._dynamic_rows = extruded_copy(sample.dynamic)  # rewritten each frame, both halves
+        self.dynamic_vbo = ctx.buffer(reserve=self._dynamic_rows.nbytes, dynamic=True)
+        # The static outline quads are chosen each frame; the dynamic parts keep an inverted hull.
+        self.meshes: dict[str, FrameIndices | HullIndices] = {
+            "static": FrameIndices(ctx, static.indices, static.ranges, static.vertices, ("face", "eyes", "lids")),
+            "dynamic": HullIndices(ctx, dyn_indices, dyn_ranges, sample.dynamic.shape[0], ("brows", "lips")),
         }
         self._vaos: dict[tuple[str, str], moderngl.VertexArray] = {}
         for mesh_name, vbo in (("static", self.static_vbo), ("dynamic", self.dynamic_vbo)):
@@ -169,6 +171,7 @@ class Renderer:
             "u_cos_iris": math.cos(IRIS_ANGLE),
             "u_cos_iris_rim": math.cos(IRIS_ANGLE - 0.12),
             "u_cos_pupil": math.cos(PUPIL_ANGLE),
+            "u_glint": tuple(_unit(light / np.linalg.norm(light) + np.array([0.0, 0.0, 1.6]))),
         }
         for prog in self._programs:
             for name, value in constants.items():
@@ -271,44 +274,54 @@ class Renderer:
         frame[N_BONES + 1] = proj
         self.frame_ubo.write(_gl(frame))
         self.frame_ubo.bind_to_uniform_block(_FRAME_BLOCK)
-        self.dynamic_vbo.write(pose.dynamic)
         # The eye in the head frame (modelview is a rigid motion): where every facing test looks from.
         eye = -modelview[:3, :3].T @ modelview[:3, 3]
-        self.meshes["static"].update(skin_positions(self._static_rest, self._static_info, pose.bones), eye)
-        dyn = pose.dynamic
-        self.meshes["dynamic"].update(skin_positions(dyn[:, 0:3].astype(np.float64), dyn[:, 10:13], pose.bones), eye)
+        self.meshes["static"].update(self.static_facing.front(pose.bones, eye))
+        dyn, rows = pose.dynamic, self._dynamic_rows
+        n = dyn.shape[0]
+        rows[:n] = dyn
+        rows[n:, :9] = dyn[:, :9]  # the extruded copies keep their marked material column
+        rows[n:, 10:] = dyn[:, 10:]
+        self.dynamic_vbo.write(rows)
         suffix = "_3d" if toggles.surface_3d else ""
-        self.flat_prog["u_viewport"].value = (float(width), float(height))
+        flat = self.flat_prog
+        flat["u_viewport"].value = (float(width), float(height))
 
         ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         ctx.wireframe = False
         ctx.cull_face = "back"
-        surface_static = ["decals", "face"] + (["lids"] if toggles.eye_cover else [])
         dynamic_groups = (["brows"] if toggles.eyebrows else []) + ["lips", "inner"]
-        outlined_dynamic = [g for g in dynamic_groups if g != "inner"]
-        # Front to back: what lies on the face first, so the head's hidden pixels fail the depth test early.
+        # Front to back, so that hidden pixels fail the depth test before they are shaded: what lies on
+        # the face, then the lids (in front of the eyes, whose shader is the costliest), the eyes, the head.
         self._draw("dynamic", "surface" + suffix, dynamic_groups)
+        if toggles.eye_cover:
+            self._draw("static", "surface" + suffix, ["lids"])
         self._draw("static", "eye" + suffix, ["eyes"])
-        self._draw("static", "surface" + suffix, surface_static)
+        self._draw("static", "surface" + suffix, ["decals", "nose", "face"])
 
-        # Inverted hull: back faces pushed out along their normals show only around silhouettes.
-        flat = self.flat_prog
+        # Outlines, a fixed number of pixels wide; the depth test hides what lies behind nearer surfaces.
         outline_px = self.config.outline_px * height / REFERENCE_HEIGHT
         if outline_px > 0:
-            ctx.cull_face = "front"
             flat["u_outline"].value = outline_px
             flat["u_flat"].value = self.config.colors["outline"]
-            # Closed lids hide the eyeballs' silhouettes: outline the eyes only when the lids are off.
+            # The static parts: a quad along each silhouette edge, pushed outward; they wind either way,
+            # so nothing is culled. Closed lids hide the eyeballs' silhouettes: outline the eyes only
+            # when the lids are off.
+            ctx.disable(moderngl.CULL_FACE)
             self._draw("static", "flat", ["face"] + (["lids"] if toggles.eye_cover else ["eyes"]), OUTLINE)
-            self._draw("dynamic", "flat", outlined_dynamic, OUTLINE)
-            flat["u_outline"].value = 0.0
+            ctx.enable(moderngl.CULL_FACE)
+            # The small dynamic parts: an inverted hull, their back faces pushed outward, which show only
+            # around the silhouettes.
+            ctx.cull_face = "front"
+            self._draw("dynamic", "flat", [g for g in dynamic_groups if g != "inner"], OUTLINE)
             ctx.cull_face = "back"
+            flat["u_outline"].value = 0.0
 
         if toggles.wireframe:
             ctx.wireframe = True
             flat["u_flat"].value = self.config.colors["wireframe"]
             flat["u_depth_bias"].value = 0.002
-            self._draw("static", "flat", surface_static + ["eyes"])
+            self._draw("static", "flat", ["decals", "nose", "face", "eyes"] + (["lids"] if toggles.eye_cover else []))
             self._draw("dynamic", "flat", dynamic_groups)
             ctx.wireframe = False
             flat["u_depth_bias"].value = 0.0
@@ -336,11 +349,14 @@ class Renderer:
         overlay_points: np.ndarray | None,
         height: int,
     ) -> np.ndarray | None:
+        want_trail = toggles.trajectory and overlay_points is not None
+        if not (want_trail or toggles.eye_centre):
+            return None
         pieces: list[np.ndarray] = []
         px = 2.0 / max(height, 1)  # one pixel in NDC, vertically
         aspect = view_proj[1, 1] / view_proj[0, 0]
         scale = height / REFERENCE_HEIGHT
-        if toggles.trajectory and overlay_points is not None:
+        if want_trail:
             pts = np.asarray(overlay_points, dtype=np.float64)
             if pts.ndim != 2 or pts.shape[1] != 2:
                 raise ValueError(f"overlay_points must be rows of (look_x, look_y), got shape {pts.shape}")
@@ -368,32 +384,82 @@ class Renderer:
 
 
 class FrameIndices:
-    """One mesh's index buffer, rewritten each frame: the triangles facing the camera, then the band
-    around the silhouette that the outline pass needs (mesh.TriangleSelector), each by named group."""
+    """The static mesh's index buffer: its triangles by named group, which never change, followed by
+    the outline quads of the silhouette edges, rewritten each frame (mesh.Silhouette)."""
 
     def __init__(
-        self, ctx: moderngl.Context, indices: np.ndarray, ranges: dict[str, tuple[int, int]], n_vertices: int
+        self,
+        ctx: moderngl.Context,
+        indices: np.ndarray,
+        ranges: dict[str, tuple[int, int]],
+        vertices: np.ndarray,
+        outlined: tuple[str, ...],
     ) -> None:
-        self.triangles = np.ascontiguousarray(indices, dtype=np.uint32).reshape(-1, 3)
-        self.selector = TriangleSelector(self.triangles, n_vertices)
-        # Group bounds in triangles, in index order; a group's triangles stay in their original order.
-        self.groups = sorted((first // 3, (first + count) // 3, name) for name, (first, count) in ranges.items())
-        self.ibo = ctx.buffer(reserve=2 * self.triangles.nbytes, dynamic=True)
-        self.ranges: dict[tuple[str, str], tuple[int, int]] = {}
-        self.update_masks(np.ones(len(self.triangles), dtype=bool), np.ones(len(self.triangles), dtype=bool))
+        indices = np.ascontiguousarray(indices, dtype=np.uint32)
+        triangles = indices.reshape(-1, 3)
+        self.ranges: dict[tuple[str, str], tuple[int, int]] = {(SURFACE, name): r for name, r in ranges.items()}
+        # One table of the outlined groups' edges, group after group, with the triangles on each side
+        # numbered across the whole mesh (len(triangles) where the mesh ends: never facing).
+        t0, t1, quads, self._names, bounds = [], [], [], [], [0]
+        for name in outlined:
+            first, count = ranges[name]
+            start = first // 3
+            sil = Silhouette(vertices[:, 0:3], triangles[start : start + count // 3], vertices.shape[0])
+            t0.append(sil.t0 + start)
+            t1.append(np.where(sil.t1 == sil.n_triangles, len(triangles), sil.t1 + start))
+            quads.append(sil.quads)
+            self._names.append(name)
+            bounds.append(bounds[-1] + len(sil.quads))
+        self._t0, self._t1 = np.concatenate(t0), np.concatenate(t1)
+        self._quads = np.concatenate(quads)
+        self._ends = np.array(bounds[1:]) - 1  # each group's last edge
+        self._front = np.zeros(len(triangles) + 1, dtype=bool)
+        self._base = indices.size
+        self.ibo = ctx.buffer(reserve=indices.nbytes + self._quads.nbytes, dynamic=True)
+        self.ibo.write(indices)
+        self.update(np.zeros(len(triangles), dtype=bool))
 
-    def update(self, positions: np.ndarray, eye: np.ndarray) -> None:
-        """Select and upload the triangles for head-frame vertex `positions` seen from `eye`."""
-        self.update_masks(*self.selector.select(positions, eye))
+    def update(self, front: np.ndarray) -> None:
+        """Upload the outline quads for the edges between a triangle facing the camera and one not."""
+        f = self._front
+        f[:-1] = front
+        on = f[self._t0] != f[self._t1]
+        counts = np.diff(np.cumsum(on)[self._ends], prepend=0)
+        offset = self._base
+        for name, count in zip(self._names, counts.tolist(), strict=True):
+            self.ranges[OUTLINE, name] = (offset, 6 * count)
+            offset += 6 * count
+        quads = self._quads[on]
+        if quads.size:
+            self.ibo.write(quads, offset=4 * self._base)
 
-    def update_masks(self, surface: np.ndarray, outline: np.ndarray) -> None:
-        offset = 0
-        for kind, mask in ((SURFACE, surface), (OUTLINE, outline)):
-            before = np.concatenate([[0], np.cumsum(mask)])  # selected triangles before each one
-            for start, stop, name in self.groups:
-                self.ranges[kind, name] = (3 * (offset + int(before[start])), 3 * int(before[stop] - before[start]))
-            offset += int(before[-1])
-        self.ibo.write(np.concatenate([self.triangles[surface], self.triangles[outline]]))
+
+class HullIndices:
+    """A mesh whose index buffer never changes: every triangle for the surface pass (the GPU culls the
+    back faces), and for the outline the outlined groups' triangles on the EXTRUDED copies of their
+    vertices, an inverted hull."""
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        indices: np.ndarray,
+        ranges: dict[str, tuple[int, int]],
+        n_vertices: int,
+        outlined: tuple[str, ...],
+    ) -> None:
+        indices = np.ascontiguousarray(indices, dtype=np.uint32)
+        self.ranges: dict[tuple[str, str], tuple[int, int]] = {(SURFACE, name): r for name, r in ranges.items()}
+        parts, offset = [indices], indices.size
+        for name in outlined:
+            first, count = ranges[name]
+            parts.append(indices[first : first + count] + np.uint32(n_vertices))
+            self.ranges[OUTLINE, name] = (offset, count)
+            offset += count
+        self.ibo = ctx.buffer(np.concatenate(parts).tobytes())
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
 
 
 def _merge_ranges(ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:

@@ -1,4 +1,4 @@
-"""GLSL for the face: bone-blended vertices, cel or smooth shading, inverted-hull outlines, 2D overlays.
+"""GLSL for the face: bone-blended vertices, cel or smooth shading, extruded outline quads, 2D overlays.
 
 Software OpenGL (llvmpipe) runs every branch of a fragment shader for every pixel, so each kind of
 surface gets its own small program instead of one shader that branches on the material.
@@ -6,8 +6,11 @@ surface gets its own small program instead of one shader that branches on the ma
 
 from __future__ import annotations
 
+from services.renderer.mesh import EXTRUDED
+
 FACE_VERTEX = """
 #version 330
+#define EXTRUDED __EXTRUDED__  // mesh.EXTRUDED: added to the material of an outline quad's outer corners
 layout(std140) uniform Frame {  // written once per frame, shared by every program
     mat4 u_bones[8];
     mat4 u_modelview;   // head frame -> camera
@@ -15,7 +18,7 @@ layout(std140) uniform Frame {  // written once per frame, shared by every progr
 };
 uniform vec3 u_palette[10]; // per material, mesh.MATERIALS order
 uniform vec3 u_light_v;     // toward the key light, camera space, unit
-uniform float u_outline;    // > 0: outline pass, width in pixels
+uniform float u_outline;    // outline width in pixels (the outline pass)
 uniform vec2 u_viewport;
 uniform float u_depth_bias; // pulls the wireframe pass in front of the surface it traces
 
@@ -37,8 +40,9 @@ void main() {
     vec4 p = mv * (bone * vec4(in_pos, 1.0));
     vec3 n = normalize(mat3(mv) * (mat3(bone) * in_normal));
     vec4 clip = u_proj * p;
-    if (u_outline > 0.0) {
-        // Extrude along the screen-space normal by a fixed number of pixels, whatever the distance.
+    if (in_info.x > EXTRUDED - 0.5) {
+        // An outline quad's outer corner: pushed along the screen-space normal by a fixed number of
+        // pixels, whatever the distance.
         vec2 dir = (u_proj * vec4(n, 0.0)).xy;
         float len = length(dir);
         if (len > 1e-6) {
@@ -47,7 +51,7 @@ void main() {
     }
     clip.z -= u_depth_bias * clip.w;
     gl_Position = clip;
-    int mat = int(in_info.x + 0.5);
+    int mat = int(in_info.x + 0.5) % int(EXTRUDED);  // an extruded copy keeps its material
     v_normal = n;
     v_aux = in_aux;
     v_color = u_palette[mat];
@@ -55,7 +59,7 @@ void main() {
     // interpolated float on every pixel.
     v_ndl = dot(n, u_light_v);
 }
-"""
+""".replace("__EXTRUDED__", f"{EXTRUDED:.1f}")
 
 _SHADE = """
 uniform vec3 u_light;        // camera space, unit
@@ -111,6 +115,7 @@ uniform vec3 u_pupil;
 uniform float u_cos_iris;
 uniform float u_cos_iris_rim;
 uniform float u_cos_pupil;
+uniform vec3 u_glint;  // unit, between the key light and the viewer: where the catch-light sits
 in vec3 v_normal;
 in vec3 v_aux;
 out vec4 f_color;
@@ -125,7 +130,7 @@ void main() {
     vec3 n = normalize(v_normal);
     vec3 color = shade(base, n);
     // A catch-light toward the key light, fixed on screen: the glint that makes cartoon eyes look alive.
-    float glint = step(0.985, dot(n, normalize(u_light + vec3(0.0, 0.0, 1.6))));
+    float glint = step(0.985, dot(n, u_glint));
     f_color = vec4(mix(color, vec3(1.0), glint), 1.0);
 }
 """
