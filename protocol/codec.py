@@ -102,9 +102,8 @@ def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
     if not plan.names.issuperset(raw):
         extra = sorted(str(k) for k in raw if k not in plan.names)
         raise ProtocolError("extra_field", f"not a field of '{cls.TYPE}'", extra[0])
-    values = dict(plan.defaults)
-    for name, factory in plan.factories:
-        values[name] = factory()
+    values: dict[str, Any] = {}  # in field order, so the instance reads like one built normally
+    defaults = plan.defaults
     name = ""
     try:
         for name, required, check in plan.checks:
@@ -112,6 +111,10 @@ def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
                 values[name] = check(raw[name])
             elif required:
                 raise ProtocolError("missing_field", f"required by '{cls.TYPE}' but missing", name)
+            elif name in defaults:
+                values[name] = defaults[name]
+            else:
+                values[name] = plan.factories[name]()  # containers: a new one per message
     except _Bad as bad:
         raise ProtocolError(bad.kind, bad.problem, name + bad.sub) from None
     # Every field is checked above, so the instance is built without re-running the frozen
@@ -136,7 +139,7 @@ class _Plan:
     checks: tuple[tuple[str, bool, Check], ...]
     names: frozenset[str]  # fields and envelope keys allowed on the wire
     defaults: dict[str, Any]  # plain defaults of optional fields
-    factories: tuple[tuple[str, Any], ...]  # container defaults, made fresh per message
+    factories: dict[str, Any]  # container defaults, made fresh per message
     cross_checked: bool  # the type checks fields against each other
 
 
@@ -155,8 +158,7 @@ def _plan(cls: type[Message]) -> _Plan:
             checks=tuple(checks),
             names=frozenset(spec.name for spec in field_specs(cls)) | frozenset(ENVELOPE_KEYS),
             defaults={f.name: f.default for f in fields if f.default is not dataclasses.MISSING},
-            factories=tuple((f.name, f.default_factory) for f in fields
-                            if f.default_factory is not dataclasses.MISSING),
+            factories={f.name: f.default_factory for f in fields if f.default_factory is not dataclasses.MISSING},
             cross_checked=cls.consistency_problem is not Message.consistency_problem)
     return plan
 
