@@ -95,10 +95,9 @@ class Subscriber:
         self.socket = ctx.socket(zmq.SUB)
         self.socket.setsockopt(zmq.RCVHWM, config.hwm)
         self.socket.setsockopt(zmq.LINGER, 0)
-        self.socket.setsockopt(zmq.MAXMSGSIZE, self._max_bytes + 1024)
         self._probe = ""
         # The last-value cache re-sends a state to every subscriber of its topic when someone new
-        # subscribes; an exact repeat (same source and sequence number) carries nothing new.
+        # subscribes; a byte-identical repeat carries nothing new.
         self._last_state: dict[str, bytes] = {}
         for p in prefixes:
             self.socket.setsockopt(zmq.SUBSCRIBE, p.encode())
@@ -152,7 +151,12 @@ class Subscriber:
         return out
 
     def _read(self) -> Received | None:
-        frames = self.socket.recv_multipart(zmq.NOBLOCK)
+        return self.accept(self.socket.recv_multipart(zmq.NOBLOCK))
+
+    def accept(self, frames: list[bytes]) -> Received | None:
+        """Decode frames read off this socket; None for what a subscriber skips: another subscriber's
+        readiness probe, or a state the last-value cache re-sent unchanged. For callers that read the
+        socket themselves (in batches) and must skip the same."""
         got = parse_frames(frames, self._max_bytes)
         msg = got.message
         if isinstance(msg, Hello) and got.topic != self._probe:

@@ -55,8 +55,13 @@ class AgentClient:
         self.ctx = ctx or zmq.Context()
         self.pub = Publisher(self.ctx, self.config, source or f"client-{secrets.token_hex(3)}")
         self.sub = Subscriber(self.ctx, self.config, [f"state.{agent}.", f"event.{agent}.", f"error.{agent}."])
-        self.pub.wait_ready(timeout_s)
-        self._inbox: deque[Message] = deque(m.message for m in self.sub.wait_ready(timeout_s) if m.message)
+        try:
+            self.pub.wait_ready(timeout_s)
+            early = self.sub.wait_ready(timeout_s)
+        except BaseException:  # no broker: give the sockets (and our own context) back before raising
+            self.close()
+            raise
+        self._inbox: deque[Message] = deque(m.message for m in early if m.message)
         self.state: dict[str, Message] = {}
         for msg in self._inbox:
             self._note(msg)

@@ -23,7 +23,12 @@ from protocol.messages import ALL_AGENTS, MESSAGE_TYPES, PROTOCOL_VERSION, Messa
 
 DEFAULT_MAX_BYTES = 4 * 1024 * 1024
 ENVELOPE_KEYS = ("v", "type")
-_AGENT_ID = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
+_AGENT_ID = re.compile(r"[A-Za-z0-9_-]{1,32}")
+
+
+def is_agent_id(text: str) -> bool:
+    """Whether `text` is a valid agent id: 1-32 letters, digits, '_' or '-', or '*' (no single agent)."""
+    return text == ALL_AGENTS or _AGENT_ID.fullmatch(text) is not None
 
 
 class ProtocolError(ValueError):
@@ -166,7 +171,7 @@ def _plan(cls: type[Message]) -> _Plan:
 def _agent_check(check_str: Check) -> Check:
     def check(v: Any) -> Any:
         v = check_str(v)
-        if v != ALL_AGENTS and not _AGENT_ID.match(v):
+        if v != ALL_AGENTS and not _AGENT_ID.fullmatch(v):
             raise _Bad("out_of_range", f"agent id {v!r} must be 1-32 letters, digits, '_' or '-'")
         return v
     return check

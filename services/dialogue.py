@@ -16,6 +16,7 @@ and makes it listen.
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -70,6 +71,7 @@ class AgentState:
     gaze_target: GazeTargetState
     role_before_speech: RoleState | None = None
     pending: dict[str, PendingSay] = field(default_factory=dict)
+    ended: deque[str] = field(default_factory=lambda: deque(maxlen=1024))  # recent requests that ended here
 
     def current(self) -> tuple[Message, ...]:
         return (self.role, self.emotion, self.head, self.eyes, self.gaze_target)
@@ -133,6 +135,10 @@ class DialogueService(Service):
             state.head = adopted.get("head", state.head)  # type: ignore[assignment]
             state.eyes = adopted.get("eyes", state.eyes)  # type: ignore[assignment]
             state.gaze_target = adopted.get("gaze_target", state.gaze_target)  # type: ignore[assignment]
+            if state.role.role == "talking" and state.role.set_by == "speech":
+                # A previous instance was mid-speech; what the role was before is lost with it, so the
+                # end of that speech (reported by the audio service) returns the agent to the default.
+                state.role_before_speech = default_state(agent).role
             self.agents[agent] = state
             for msg in state.current():
                 if msg.TYPE not in adopted:
@@ -231,8 +237,8 @@ class DialogueService(Service):
         state = self._agent(cmd)
         if not cmd.speaking:
             return
-        if state.pending:
-            self.publish(Interrupt(agent=cmd.agent, reason="the user started speaking"), category="play")
+        # Always: the audio service may be playing requests a previous instance of this service handed it.
+        self.publish(Interrupt(agent=cmd.agent, reason="the user started speaking"), category="play")
         state.role_before_speech = None
         self._set_state(cmd.agent, RoleState(agent=cmd.agent, role="listening", speaker="user",
                                              set_by="command"))
@@ -253,8 +259,11 @@ class DialogueService(Service):
 
     def on_audio_terminal(self, ev: SpeechFinished | SpeechInterrupted | SpeechFailed) -> None:
         state = self._agent(ev)
-        if state.pending.pop(ev.request_id, None) is None:
-            return
+        if state.pending.pop(ev.request_id, None) is None and ev.request_id in state.ended:
+            return  # already ended here (failed by us when the audio side was lost), or a duplicate
+        # (one unknown here and not ended here was handed to the audio service by a previous instance of
+        # this service: its terminal event is still owed to the client)
+        state.ended.append(ev.request_id)
         self.publish(dataclasses.replace(ev, t_ns=0))
         self._after_speech(state)
 
@@ -284,12 +293,24 @@ class DialogueService(Service):
         if self.audio_last_beat_ns is None:
             self._fail_pending(lambda p: now_ns - p.queued_ns > self.say_start_timeout_ns,
                                "no audio service answered")
+            return
+        # Sent before the first heartbeat of the audio service now running: it may have subscribed after
+        # the request went out. Not started in time means it never arrived; make sure it never plays.
+        stray = [p for state in self.agents.values() for p in state.pending.values()
+                 if p.audio_started_ns is None and not p.started and now_ns - p.queued_ns > self.say_start_timeout_ns]
+        for p in stray:
+            self.publish(Interrupt(agent=p.agent, request_id=p.request_id, reason="no audio service answered"),
+                         category="play")
+        if stray:
+            ids = {id(p) for p in stray}
+            self._fail_pending(lambda p: id(p) in ids, "no audio service answered")
 
     def _fail_pending(self, which: Any, reason: str) -> None:
         for state in self.agents.values():
             doomed = [p for p in state.pending.values() if which(p)]
             for p in doomed:
                 del state.pending[p.request_id]
+                state.ended.append(p.request_id)
                 self.publish(SpeechFailed(agent=p.agent, request_id=p.request_id, reason=reason))
             if doomed:
                 self._after_speech(state)

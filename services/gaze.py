@@ -8,6 +8,9 @@ own frame times. A role change takes effect in the engine at once, so the next t
 
 from __future__ import annotations
 
+import argparse
+import shlex
+import sys
 from typing import Any
 
 import numpy as np
@@ -40,10 +43,17 @@ class GazeService(Service):
 
     @classmethod
     def from_args(cls, config: BusConfig, argv: list[str], **kwargs: Any) -> GazeService:
-        seed = None
-        if "--seed" in argv:
-            seed = int(argv[argv.index("--seed") + 1])
-        return cls(config, seed=seed, **kwargs)
+        parser = argparse.ArgumentParser(prog="python -m services.run gaze", add_help=False,
+                                         exit_on_error=False)
+        parser.add_argument("--seed", type=int, default=None, help="seed of the eyes and blinks")
+        try:
+            args, unknown = parser.parse_known_args(argv)
+            if unknown:
+                raise ValueError(f"unknown gaze arguments: {shlex.join(unknown)}")
+        except (argparse.ArgumentError, ValueError) as exc:
+            print(f"[gaze] ERROR {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+        return cls(config, seed=args.seed, **kwargs)
 
     def subscriptions(self) -> list[str]:
         return [f"state.{a}." for a in self.agent_ids]

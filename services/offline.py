@@ -107,6 +107,7 @@ class TimelineAnimator:
         head = load_toml("flexor_units")["head"]
         self.head_deg = (float(head["turn_deg"]), float(head["nod_deg"]))
         self.head = [0.0, 0.0, 0.0]
+        self.target = [0.0, 0.0]  # gaze target yaw, pitch (degrees): a cue may leave an axis alone
         self.face = FaceModel(seed=FACE_IDLE_SEED, idle_noise=True)
         self.gaze = GazeEngine(1, settings.seed, start_ns=0)
         if settings.eyes is not None:
@@ -140,7 +141,10 @@ class TimelineAnimator:
             if cue.mode is not None and self.settings.eyes is None:
                 self.gaze.set_mode(0, cue.mode, t_ns)
             if cue.yaw_deg is not None or cue.pitch_deg is not None:
-                self.gaze.set_target(0, cue.yaw_deg or 0.0, cue.pitch_deg or 0.0, t_ns)
+                for axis, value in enumerate((cue.yaw_deg, cue.pitch_deg)):
+                    if value is not None:
+                        self.target[axis] = value
+                self.gaze.set_target(0, *self.target, t_ns)
 
     def _mouth_at(self, t_s: float) -> dict[str, float] | None:
         for u in self.utterances:

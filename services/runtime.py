@@ -21,7 +21,7 @@ import zmq
 
 from agent.clock import Clock, MonotonicClock
 from protocol.bus import Publisher, Received, Subscriber
-from protocol.codec import ProtocolError
+from protocol.codec import ProtocolError, is_agent_id
 from protocol.endpoints import BusConfig
 from protocol.messages import ALL_AGENTS, Error, Heartbeat, Message
 
@@ -183,9 +183,9 @@ class Service:
             return
         if agent == ALL_AGENTS and topic.count(".") == 2:
             candidate = topic.split(".")[1]
-            agent = candidate if candidate.replace("-", "").replace("_", "").isalnum() else ALL_AGENTS
-        self.pub.publish(Error(agent=agent[:32], reason=reason[:2000], kind=kind[:64], topic=topic[:256],
-                               request_id=request_id[:64], service=self.name))
+            agent = candidate if is_agent_id(candidate) else ALL_AGENTS
+        self.pub.publish(Error(agent=agent if is_agent_id(agent) else ALL_AGENTS, reason=reason[:2000],
+                               kind=kind[:64], topic=topic[:256], request_id=request_id[:64], service=self.name))
 
     def publish(self, msg: Message, category: str | None = None) -> Message:
         assert self.pub is not None

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterator
 
 import pytest
 import zmq
 
-from protocol.bus import Publisher, Subscriber
+from protocol.bus import BusTimeout, Publisher, Subscriber
 from protocol.client import AgentClient, CommandRejected
 from protocol.messages import (
     ALL_AGENTS,
@@ -24,6 +25,7 @@ from protocol.messages import (
     SpeechStarted,
 )
 from services.dialogue import DialogueService
+from services.runtime import wait_until
 from services.testing import BrokerThread, ServiceThread, private_bus_config
 
 
@@ -208,5 +210,97 @@ def test_barge_in_interrupts_and_makes_the_agent_listen(bus, client: AgentClient
         assert isinstance(stop, Interrupt) and "user" in stop.reason
         role = client.expect_state(RoleState, lambda m: m.role == "listening")
         assert role.speaker == "user"
+    finally:
+        audio.close()
+
+
+def test_a_say_sent_before_the_audio_service_came_up_still_ends_once() -> None:
+    # The audio service subscribed after the request went out, so it never saw it: the request must
+    # not stay pending for ever just because that service is alive now.
+    with private_bus_config(extra="[dialogue]\nsay_start_timeout_s = 0.4\n") as config, BrokerThread(config):
+        service = DialogueService(config)
+        with ServiceThread(service), AgentClient(config, agent="ada") as client:
+            rid = client.say(audio_path="/a.wav")
+            assert wait_until(lambda: rid in service.agents["ada"].pending, 5.0)
+            audio = FakeAudio(config)
+            try:
+                ended = None
+                deadline = time.monotonic() + 5.0
+                while ended is None and time.monotonic() < deadline:
+                    audio.beat()  # alive all along, so it is not the "stopped answering" path
+                    try:
+                        ended = client.wait_for_speech(rid, 0.1)
+                    except BusTimeout:
+                        pass
+                assert isinstance(ended, SpeechFailed) and "no audio service" in ended.reason
+                stop = audio.next_request()  # the audio side is told to drop it, should it have it after all
+                assert isinstance(stop, Interrupt) and stop.request_id == rid
+                with pytest.raises(BusTimeout):
+                    client.wait_for_speech(rid, 0.3)  # exactly one terminal event
+            finally:
+                audio.close()
+
+
+def test_eca_send_reports_the_state_its_command_caused_not_a_cached_one(
+        bus, dialogue, capsys: pytest.CaptureFixture[str]) -> None:
+    from services.cli import main
+
+    where = ["send", "--config", str(bus.config_path), "--instance", bus.instance]
+    assert main([*where, "emotion", "gleeful"]) == 1  # the cached "natural 1.0" is no answer to it
+    assert "unknown emotion 'gleeful'" in capsys.readouterr().err
+    assert main([*where, "emotion", "Half_Angry"]) == 0
+    assert "name='half-angry'" in capsys.readouterr().out
+    assert main([*where, "gaze", "--pitch", "10"]) == 0
+    assert "pitch_deg=10.0" in capsys.readouterr().out
+
+
+def test_garbage_under_a_non_ascii_agent_is_reported_under_star_and_the_service_lives(
+        bus, client: AgentClient) -> None:
+    ctx = zmq.Context()
+    raw = Publisher(ctx, bus, "fuzz")
+    errors = Subscriber(ctx, bus, ["error.*."])
+    try:
+        raw.wait_ready()
+        errors.wait_ready()
+        raw.send_raw("cmd.é.say".encode(), b"\xff\xff")  # 'é' is alphanumeric, but no agent id
+        got = errors.recv(5.0)
+        assert got is not None and isinstance(got.message, Error), got
+        assert got.message.kind == "not_msgpack" and got.message.topic == "cmd.é.say"
+        client.set_emotion("surprised")
+        assert client.expect_state(EmotionState, lambda m: m.name == "surprised").name == "surprised"
+    finally:
+        raw.close()
+        errors.close()
+        ctx.term()
+
+
+def test_an_agent_id_with_a_trailing_newline_is_not_an_agent_id() -> None:
+    from protocol.codec import ProtocolError, encode
+    from protocol.messages import SetEmotion
+
+    with pytest.raises(ProtocolError, match="agent id"):
+        encode(SetEmotion(agent="ada\n", name="happy"))
+
+
+def test_a_restarted_dialogue_service_still_ends_the_speech_its_predecessor_started(bus) -> None:
+    audio = FakeAudio(bus)
+    try:
+        with AgentClient(bus, agent="ada") as client:
+            with ServiceThread(DialogueService(bus)):
+                audio.beat()
+                rid = client.say(audio_path="/a.wav")
+                audio.next_request()
+                audio.report(SpeechStarted(agent="ada", request_id=rid))
+                client.expect_state(RoleState, lambda m: m.role == "talking" and m.set_by == "speech")
+            with ServiceThread(DialogueService(bus)) as second:  # crashed and restarted mid-utterance
+                assert second.service.agents["ada"].role.role == "talking"  # adopted from the cache
+                audio.beat()
+                audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=2.0))
+                done = client.wait_for_speech(rid, 5.0)
+                assert isinstance(done, SpeechFinished) and done.played_s == 2.0
+                client.expect_state(RoleState, lambda m: m.role == "listening" and m.set_by == "speech")
+                client.user_speaking(True)  # barge-in reaches the audio side whatever this instance knows
+                stop = audio.next_request()
+                assert isinstance(stop, Interrupt) and stop.request_id == ""
     finally:
         audio.close()

@@ -146,3 +146,44 @@ def test_play_refuses_a_bad_script_and_sends_nothing(bus, tmp_path: Path, capsys
     bad.write_text("header\nelement transition 2\nproperty int duration\nend_header\n1\n")
     assert eca(["play", str(bad), "--config", str(bus.config_path), "--instance", bus.instance, "--no-voice"]) == 1
     assert "bad.txt" in capsys.readouterr().err
+
+
+def test_a_gaze_cue_that_leaves_an_axis_alone_keeps_it_offline_as_live() -> None:
+    from agent.script import Timeline
+    from services.offline import RenderSettings, TimelineAnimator
+
+    cues = (GazeCue(0.0, "ada", None, 10.0, 5.0), GazeCue(0.5, "ada", None, -10.0, None),
+            GazeCue(1.0, "ada", None, None, -3.0))
+    live = CueTranslator("ada")
+    sent = [m for cue in cues for m in live.commands(cue)]
+    assert [(m.yaw_deg, m.pitch_deg) for m in sent] == [(10.0, 5.0), (-10.0, 5.0), (-10.0, -3.0)]
+    animator = TimelineAnimator(Timeline((), cues, 1.5, ("ada",)), "ada", RenderSettings(), [])
+    targets: list[tuple[float, float]] = []
+    real = animator.gaze.set_target
+    animator.gaze.set_target = lambda i, yaw, pitch, t_ns: (targets.append((yaw, pitch)), real(i, yaw, pitch, t_ns))
+    animator.frame_at(1.5)
+    assert targets == [(m.yaw_deg, m.pitch_deg) for m in sent]
+
+
+def test_play_refuses_a_cue_the_protocol_would_refuse_before_sending_anything(bus, tmp_path: Path,
+                                                                                capsys) -> None:
+    import shutil
+
+    shutil.copy(Path(__file__).parent / "data" / "scripts" / "clip.wav", tmp_path / "clip.wav")
+    script = tmp_path / "long-id.xml"
+    script.write_text('<dialogue agent="ada" partner="user">\n'
+                      '  <turn speaker="user" duration="0.5">Hello there.</turn>\n'
+                      f'  <turn speaker="ada" audio="clip.wav" id="{"x" * 80}">Hi.</turn>\n'
+                      '</dialogue>\n')
+    ctx = zmq.Context()
+    sub = Subscriber(ctx, bus, ["cmd."])
+    try:
+        sub.wait_ready()
+        assert eca(["play", str(script), "--config", str(bus.config_path), "--instance", bus.instance,
+                    "--no-voice"]) == 1
+        assert sub.recv(0.3) is None  # not even the cues before the bad one
+        err = capsys.readouterr().err
+        assert "say cue at 0.80 s" in err and "request_id" in err
+    finally:
+        sub.close()
+        ctx.term()

@@ -216,6 +216,17 @@ class LiveScene:
         utt.end_sample = min(utt.end_sample, max(0.0, played_s) * utt.sample_rate)
         utt.last_update_ns = max(utt.last_update_ns, int(t_ns))
 
+    def speech_failed(self, request_id: str, t_ns: int) -> None:
+        """Failed (the audio service died or restarted, say): no played_s and no mouth reset will come, so
+        the mouth closes from the last moment the voice was known to play (its latest clock anchor)."""
+        self._starts.pop(request_id, None)
+        utt = self._utterances.get(request_id)
+        if utt is None:
+            return
+        last_heard = utt.anchors[-1][0] if utt.anchors else int(t_ns)
+        utt.closed_from_ns = min(utt.closed_from_ns, int(t_ns), last_heard)
+        utt.last_update_ns = max(utt.last_update_ns, int(t_ns))
+
     def add_clock_anchor(self, request_id: str, sample_index: int, sample_rate: int, dac_time_ns: int) -> None:
         utt = self._utterance(request_id, sample_rate)
         assert utt is not None

@@ -9,7 +9,7 @@ import time
 from agent.script import ScriptError, build_timeline
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient
-from protocol.codec import ProtocolError
+from protocol.codec import ProtocolError, encode
 from protocol.endpoints import BusConfigError, load_bus_config
 from services.playback import CueTranslator, VoiceCache, prepare_voices
 from services.tts import SpeechSynthesisError, espeak_available
@@ -42,16 +42,29 @@ def run(args: argparse.Namespace) -> int:
     except (ScriptError, BusConfigError, SpeechSynthesisError) as exc:
         print(f"eca play: {exc}", file=sys.stderr)
         return 1
+    # Every command is made and checked before the first is sent: a cue the protocol refuses (an id or a
+    # text over its limit) must stop the script before it starts, not half-way through.
     translator = CueTranslator(args.agent, voices)
+    plan = []
+    for cue in timeline.cues:
+        try:
+            commands = translator.commands(cue)
+            for msg in commands:
+                encode(msg, config.max_message_bytes)
+        except ProtocolError as exc:
+            print(f"eca play: the {type(cue).__name__[:-3].lower()} cue at {cue.t_s:.2f} s cannot be sent: {exc}",
+                  file=sys.stderr)
+            return 1
+        plan.append((cue, commands))
     try:
         with AgentClient(config, agent=args.agent, source="eca-play") as client:
             print(f"playing {len(timeline.cues)} cues, {timeline.length_s:.1f} s", flush=True)
             start = time.monotonic()
-            for cue in timeline.cues:
+            for cue, commands in plan:
                 due = start + cue.t_s / args.speed
                 while (left := due - time.monotonic()) > 0:
                     time.sleep(min(left, 0.05))
-                for msg in translator.commands(cue):
+                for msg in commands:
                     client.send(msg)
                 print(f"{cue.t_s:7.2f} s  {type(cue).__name__[:-3].lower():8s} {_describe(cue)}", flush=True)
             end = start + timeline.length_s / args.speed

@@ -38,6 +38,11 @@ def run_record(args: argparse.Namespace) -> int:
     except BusConfigError as exc:
         print(f"eca record: {exc}", file=sys.stderr)
         return 2
+    try:
+        writer = RecordingWriter(args.file, config.instance, time.monotonic_ns())
+    except OSError as exc:
+        print(f"eca record: cannot write {args.file}: {exc.strerror}", file=sys.stderr)
+        return 2
     ctx = zmq.Context()
     sock = ctx.socket(zmq.SUB)
     sock.setsockopt(zmq.RCVHWM, config.hwm)
@@ -45,7 +50,6 @@ def run_record(args: argparse.Namespace) -> int:
     for prefix in args.topic or [""]:
         sock.setsockopt(zmq.SUBSCRIBE, prefix.encode())
     sock.connect(config.backend)
-    writer = RecordingWriter(args.file, config.instance, time.monotonic_ns())
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     print(f"recording {config.backend} into {args.file}", flush=True)
     try:

@@ -11,6 +11,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from agent.face.emotions import canonical_emotion_name
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient, CommandRejected
 from protocol.codec import ProtocolError
@@ -79,10 +80,12 @@ def _send(client: AgentClient, args: argparse.Namespace) -> Message | None:
     t = args.timeout
     if args.kind == "role":
         client.set_role(args.role, args.speaker)
-        return client.expect_state(RoleState, lambda m: m.role == args.role, t)
+        return client.expect_state(RoleState, lambda m: (m.role, m.speaker) == (args.role, args.speaker), t)
     if args.kind == "emotion":
         client.set_emotion(args.name, args.intensity, args.transition)
-        return client.expect_state(EmotionState, lambda m: m.intensity == args.intensity, t)
+        # the whole answer: a cached state that merely shares the intensity must not pass for it
+        asked = (canonical_emotion_name(args.name), args.intensity, args.transition)
+        return client.expect_state(EmotionState, lambda m: (m.name, m.intensity, m.transition_s) == asked, t)
     if args.kind == "head":
         client.move_head(args.turn, args.nod, args.tilt, args.duration)
         return client.expect_state(HeadState, lambda m: (m.turn, m.nod, m.tilt) == (args.turn, args.nod, args.tilt), t)
@@ -91,7 +94,8 @@ def _send(client: AgentClient, args: argparse.Namespace) -> Message | None:
         return client.expect_state(EyesState, lambda m: m.mode == args.mode, t)
     if args.kind == "gaze":
         client.set_gaze_target(args.yaw, args.pitch, args.target)
-        return client.expect_state(GazeTargetState, lambda m: m.yaw_deg == args.yaw, t)
+        return client.expect_state(
+            GazeTargetState, lambda m: (m.yaw_deg, m.pitch_deg, m.target) == (args.yaw, args.pitch, args.target), t)
     if args.kind == "say":
         path = args.file
         if args.text is not None:

@@ -36,7 +36,6 @@ import zmq
 from agent.face.flexors import FLEXOR_INDEX
 from agent.face.frame import FlexorFrame
 from agent.face.scene import LiveScene
-from protocol.bus import Received, parse_frames
 from protocol.endpoints import BusConfig
 from protocol.messages import (
     ClockAnchor,
@@ -50,6 +49,7 @@ from protocol.messages import (
     MouthKeys,
     RoleState,
     Saccade,
+    SpeechFailed,
     SpeechFinished,
     SpeechInterrupted,
     SpeechStarted,
@@ -228,7 +228,6 @@ class RendererService(Service):
         self.sinks: list[FrameSink] = []
         self._t0_ns = 0
         self._progress: Any = None
-        self._last_state: dict[str, tuple[str, int]] = {}
         for cls, fn in (
             (RoleState, self.on_role),
             (EmotionState, self.on_emotion),
@@ -242,6 +241,7 @@ class RendererService(Service):
             (SpeechStarted, self.on_speech_started),
             (SpeechFinished, self.on_speech_ended),
             (SpeechInterrupted, self.on_speech_ended),
+            (SpeechFailed, self.on_speech_failed),
         ):
             self.handle(cls, fn)
 
@@ -318,6 +318,9 @@ class RendererService(Service):
 
     def on_speech_ended(self, m: SpeechFinished | SpeechInterrupted) -> None:
         self._guard(self._scene(m).speech_ended, m.request_id, m.played_s, m.t_ns)
+
+    def on_speech_failed(self, m: SpeechFailed) -> None:
+        self._guard(self._scene(m).speech_failed, m.request_id, m.t_ns)
 
     # --- GL set-up -----------------------------------------------------------------------------
 
@@ -415,7 +418,7 @@ class RendererService(Service):
         Eye-state samples are only ever interpolated near the newest ones, so of each agent's samples in
         one batch only the newest KEEP_EYE_SAMPLES are decoded: a flood of samples costs a socket read
         each, not a decode. Everything else (states, events, mouth keys, clock anchors) is handled in
-        order; a state repeated by the last-value cache (same source and sequence number) is ignored.
+        order; a state the last-value cache re-sent unchanged (byte for byte) is ignored.
         """
         assert self.sub is not None
         sock = self.sub.socket
@@ -432,21 +435,10 @@ class RendererService(Service):
         for frames, wanted in zip(raw, keep, strict=True):
             if not wanted:
                 continue
-            got = parse_frames(frames, self.config.max_message_bytes)
-            msg = got.message
-            if msg is not None and msg.CATEGORY == "state":
-                key = (msg.source, msg.seq)
-                if self._last_state.get(got.topic) == key:
-                    continue
-                self._last_state[got.topic] = key
-            self.dispatch(got)
+            got = self.sub.accept(frames)
+            if got is not None:
+                self.dispatch(got)
         return len(raw)
-
-    def dispatch(self, got: Received) -> None:
-        msg = got.message
-        if msg is not None and msg.CATEGORY == "state":
-            self._last_state[got.topic] = (msg.source, msg.seq)
-        super().dispatch(got)
 
     def _advance_slot(self) -> None:
         nxt = self.slot + 1
