@@ -111,3 +111,15 @@ def test_barge_in_stops_the_voice_and_makes_the_agent_listen(client: AgentClient
     assert isinstance(done, SpeechInterrupted) and "user" in done.reason
     role = client.expect_state(RoleState, lambda m: m.role == "listening" and m.speaker == "user")
     assert role.set_by == "command"
+
+
+def test_an_unexpected_player_error_still_ends_the_request(client: AgentClient, monkeypatch) -> None:
+    from services.audio.player import Player
+
+    def broken(self, utterance_id, samples, sample_rate):  # noqa: ANN001, ARG001
+        raise RuntimeError("device went away")
+
+    monkeypatch.setattr(Player, "say_pcm", broken)
+    rid = client.say(pcm=tone(0.2), sample_rate=RATE)
+    failed = client.wait_for_speech(rid, 10.0)
+    assert isinstance(failed, SpeechFailed) and "device went away" in failed.reason

@@ -80,6 +80,10 @@ class AudioService(Service):
                 player.say_stream(msg.request_id, msg.sample_rate)
         except ValueError as exc:
             raise Rejected(str(exc), msg.request_id) from None
+        except Exception as exc:  # anything else still ends the request, so the client is not left waiting
+            self.log.exception("cannot start %s", msg.request_id)
+            reason = f"the audio service could not play it: {type(exc).__name__}: {exc}"
+            self.publish(SpeechFailedMsg(agent=msg.agent, request_id=msg.request_id, reason=reason[:500]), "audio")
 
     def on_chunk(self, msg: SpeechChunk) -> None:
         player = self._player(msg)
