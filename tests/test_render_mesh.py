@@ -14,6 +14,9 @@ from services.renderer.mesh import (
     EXTRUDED,
     EYE_RADIUS,
     RING,
+    SEGMENTS,
+    TUBE_CODE,
+    TUBE_POINTS,
     FacePoser,
     RigidFacing,
     Silhouette,
@@ -25,6 +28,7 @@ from services.renderer.mesh import (
     lid_elevations,
     mouth_shape,
     skin,
+    tube_template,
 )
 
 
@@ -73,6 +77,41 @@ def test_dynamic_geometry_is_finite_and_stable_in_size(poser: FacePoser) -> None
         assert np.isfinite(pose.dynamic).all()
         sizes.add(pose.dynamic.shape)
     assert sizes == {(poser.layout.n_vertices, 13)}
+
+
+def _shader_tubes(template: np.ndarray, curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What FACE_VERTEX does with a tube vertex (shaders.py), in numpy: positions, normals, jaw weights."""
+    k = np.rint(template[:, 0]).astype(int)
+    j = k % SEGMENTS
+    cos, sin = template[:, 1:2], template[:, 2:3]
+    c, o, e = curves[k, 0], curves[k, 1], curves[k, 2]
+    tangent = curves[np.where(j == SEGMENTS - 1, k, k + 1), 0, :3] - curves[np.where(j == 0, k, k - 1), 0, :3]
+    side = np.cross(o[:, :3], tangent)
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    pos = c[:, :3] + cos * c[:, 3:4] * side + sin * o[:, 3:4] * o[:, :3]
+    normal = cos * e[:, 1:2] * side + sin * o[:, :3]
+    return pos, normal / np.linalg.norm(normal, axis=1, keepdims=True), e[:, 0]
+
+
+def test_tubes_built_from_centre_lines_match_the_numpy_tubes(poser: FacePoser) -> None:
+    """The renderer uploads only the tubes' centre lines; the vertex shader must rebuild what build_dynamic
+    builds in numpy, jaw weights included."""
+    lay = poser.layout
+    template = tube_template(lay)
+    tubes = template[lay.tube_block]
+    assert (tubes[:, 9] >= TUBE_CODE).all() and (template[lay.strip_block, 9] < EXTRUDED).all()
+    rng = np.random.default_rng(3)
+    for f in [flexors(), flexors(say_ah=1.0, smile_l=1.0, brow_r=-1.0)] + [
+        rng.uniform(-1, 1, N_FLEXORS) for _ in range(5)
+    ]:
+        full = poser.pose(f).dynamic.copy()
+        curves = np.zeros((TUBE_POINTS, 3, 4), dtype=np.float32)
+        fast = poser.build_dynamic(poser.pose(f, dynamic=False), curves)
+        pos, normal, weight = _shader_tubes(tubes.astype(np.float64), curves.astype(np.float64))
+        np.testing.assert_allclose(pos, full[lay.tube_block, 0:3], atol=1e-5)
+        np.testing.assert_allclose(normal, full[lay.tube_block, 3:6], atol=1e-4)
+        np.testing.assert_allclose(weight, full[lay.tube_block, 12], atol=1e-6)
+        np.testing.assert_array_equal(fast[lay.strip_block], full[lay.strip_block])
 
 
 def test_nan_is_relaxed_and_values_are_clipped() -> None:

@@ -13,9 +13,11 @@ The face is split in two vertex sets:
   rigid "bones" (jaw, eyes, lids) blended per vertex in the vertex shader, so a frame uploads only a
   few matrices;
 - dynamic: brows and mouth (lips, cavity, teeth, tongue), whose shapes depend on several flexors at
-  once in non-linear ways. They are small (about 700 vertices), rebuilt in numpy each frame and
-  uploaded to one dynamic buffer. The lower lip, the tongue and the lower edge of the mouth cavity
-  also ride on the jaw bone, so the jaw and the lips can never disagree.
+  once in non-linear ways. They are small (about 350 vertices), rebuilt in numpy each frame
+  (build_dynamic). The renderer uploads only the centre lines of the brow and lip tubes, from which
+  its vertex shader builds them (tube_curves), and the mouth's inner strips. The lower lip, the
+  tongue and the lower edge of the mouth cavity also ride on the jaw bone, so the jaw and the lips
+  can never disagree.
 """
 
 from __future__ import annotations
@@ -597,6 +599,43 @@ def _tubes(
     return pos, normal
 
 
+TUBE_POINTS = len(TUBES) * SEGMENTS  # centre-line points of all tubes, tube after tube
+TUBE_CODE = 2 * EXTRUDED  # added to the material of a tube vertex the vertex shader builds (tube_template)
+
+
+def tube_curves(
+    centre: np.ndarray,
+    out: np.ndarray,
+    half_h: np.ndarray,
+    half_d: np.ndarray,
+    jaw_weight: np.ndarray,
+    curves: np.ndarray,
+) -> None:
+    """What the vertex shader needs to build the tubes of _tubes, per centre-line point: rows of
+    (centre, half_h), (surface normal, half_d), (jaw weight, section aspect, 0, 0), in `curves`
+    (TUBE_POINTS, 3, 4). Only the lower lip (the last tube) rides on the jaw."""
+    c = curves.reshape(len(TUBES), SEGMENTS, 3, 4)
+    c[:, :, 0, 0:3] = centre
+    c[:, :, 0, 3] = half_h
+    c[:, :, 1, 0:3] = out
+    c[:, :, 1, 3] = half_d
+    c[:, :, 2, 0] = 0.0
+    c[-1, :, 2, 0] = jaw_weight
+    c[:, :, 2, 1] = (half_d.sum(1) / np.maximum(half_h.sum(1), 1e-9))[:, None]
+
+
+def tube_template(layout: DynamicLayout) -> np.ndarray:
+    """layout.template() with each tube vertex marked for the vertex shader: position (centre-line
+    point, cosine, sine of its place around the section) and TUBE_CODE added to its material."""
+    out = layout.template()
+    k = np.arange(TUBE_POINTS)
+    out[layout.tube_block, 0] = np.repeat(k, RING)
+    out[layout.tube_block, 1] = np.tile(_RING_COS[:, 0], TUBE_POINTS)
+    out[layout.tube_block, 2] = np.tile(_RING_SIN[:, 0], TUBE_POINTS)
+    out[layout.tube_block, 9] += TUBE_CODE
+    return out
+
+
 def _on_face(x: np.ndarray, y: np.ndarray, lift: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     """Points on the front of the head at (x, y), moved `lift` along the surface normal, and that normal.
 
@@ -689,7 +728,9 @@ def clean_flexors(flexors: np.ndarray) -> np.ndarray:
     values = np.asarray(getattr(flexors, "values", flexors), dtype=np.float64)
     if values.shape != (N_FLEXORS,):
         raise ValueError(f"a flexor vector needs shape ({N_FLEXORS},), got {values.shape}")
-    return np.clip(np.nan_to_num(values, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+    out = np.clip(values, -1.0, 1.0)  # a new array; infinities land on the bounds, NaN stays NaN
+    out[np.isnan(out)] = 0.0
+    return out
 
 
 _T = np.linspace(0.0, 1.0, SEGMENTS)  # along a brow: 0 = inner end, 1 = outer end
@@ -785,8 +826,15 @@ _BROW_HALF_H = 0.048 * _BROW_TAPER * (1.0 - 0.35 * _T)
 _BROW_HALF_D = 0.022 * _BROW_TAPER
 
 
-def build_dynamic(f: np.ndarray, shape: MouthShape, layout: DynamicLayout, out: np.ndarray) -> None:
-    """Write brows, lips, cavity, teeth and tongue for flexors `f` into `out` (layout.template() rows)."""
+def build_dynamic(
+    f: np.ndarray, shape: MouthShape, layout: DynamicLayout, out: np.ndarray, curves: np.ndarray | None = None
+) -> None:
+    """Write brows, lips, cavity, teeth and tongue for flexors `f` into `out` (layout.template() rows).
+
+    With `curves` ((TUBE_POINTS, 3, 4) float32, see tube_curves) the tubes are not built here: their
+    centre lines go into `curves` for the vertex shader to build them, and only the mouth's strips are
+    written into `out`.
+    """
     bx, by = brow_curves(_f(f, "brow_l"), _f(f, "brow_r"), _f(f, "brows_knit"))
     lip_h_u = shape.thick_u * _LIP_TAPER
     lip_h_l = shape.thick_l * _LIP_TAPER
@@ -819,14 +867,17 @@ def build_dynamic(f: np.ndarray, shape: MouthShape, layout: DynamicLayout, out: 
     half_d[0:2] = _BROW_HALF_D
     half_h[2], half_h[3] = lip_h_u, lip_h_l
     half_d[2], half_d[3] = 0.6 * lip_h_u + 0.004, 0.6 * lip_h_l + 0.004
-    pos, nrm = _tubes(p[:4], n[:4], half_h, half_d)
     tb, sb = layout.tube_block, layout.strip_block
-    out[tb, 0:3] = pos.reshape(-1, 3)
-    out[tb, 3:6] = nrm.reshape(-1, 3)
-    out[sb, 0:3] = p[4:].reshape(-1, 3)
-    # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
     w = shape.jaw_weight
-    out[layout.slices["lip_l"], 12] = np.repeat(w, RING)
+    if curves is None:
+        pos, nrm = _tubes(p[:4], n[:4], half_h, half_d)
+        out[tb, 0:3] = pos.reshape(-1, 3)
+        out[tb, 3:6] = nrm.reshape(-1, 3)
+        # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
+        out[layout.slices["lip_l"], 12] = np.repeat(w, RING)
+    else:
+        tube_curves(p[:4], n[:4], half_h, half_d, w, curves)
+    out[sb, 0:3] = p[4:].reshape(-1, 3)
     cavity = layout.slices["cavity"]
     out[cavity.start + SEGMENTS : cavity.stop, 12] = w
     tongue = layout.slices["tongue"]
@@ -840,8 +891,10 @@ class Pose:
 
     bones: np.ndarray  # (N_BONES, 4, 4) float64, head frame
     model: np.ndarray  # (4, 4) head frame -> world
-    dynamic: np.ndarray  # (layout.n_vertices, 13) float32
+    dynamic: np.ndarray  # (layout.n_vertices, 13) float32; see FacePoser.pose and build_dynamic for what is current
     pupils: np.ndarray  # (2, 3) world positions of the agent's left (+x) and right pupil centres
+    flexors: np.ndarray | None = None  # the cleaned flexors the pose was made from
+    mouth: MouthShape | None = None
 
 
 @dataclass(frozen=True)
@@ -905,7 +958,9 @@ class FacePoser:
         self._dynamic = self.layout.template()
         self._centres = {1: eye_centre(1), -1: eye_centre(-1)}
 
-    def pose(self, flexors: np.ndarray) -> Pose:
+    def pose(self, flexors: np.ndarray, dynamic: bool = True) -> Pose:
+        """The pose for `flexors`. With dynamic=False the brows and mouth are left for build_dynamic(),
+        which a renderer can ask for only what its vertex shader needs."""
         f = clean_flexors(flexors)
         u = self.units
         # Every bone is a rotation about a pivot, written straight into one array: this runs every frame,
@@ -928,8 +983,17 @@ class FacePoser:
             _set_about(bones[BONE_LLID_L if side > 0 else BONE_LLID_R], c, _rx(-low))
             pupil = c + EYE_RADIUS * eye_rot[:, 2]  # the eye's forward pole, rotated about its centre
             pupils[k] = model[:3, :3] @ pupil + model[:3, 3]
-        build_dynamic(f, shape, self.layout, self._dynamic)
-        return Pose(bones=bones, model=model, dynamic=self._dynamic, pupils=pupils)
+        pose = Pose(bones=bones, model=model, dynamic=self._dynamic, pupils=pupils, flexors=f, mouth=shape)
+        if dynamic:
+            self.build_dynamic(pose)
+        return pose
+
+    def build_dynamic(self, pose: Pose, curves: np.ndarray | None = None) -> np.ndarray:
+        """Write the brows and mouth of `pose` into its dynamic vertices (pose(..., dynamic=False) skips
+        it); with `curves`, only the strips, and the tubes' centre lines into `curves` (build_dynamic)."""
+        assert pose.flexors is not None and pose.mouth is not None
+        build_dynamic(pose.flexors, pose.mouth, self.layout, pose.dynamic, curves)
+        return pose.dynamic
 
     def gaze_points(self, gaze: np.ndarray, model: np.ndarray) -> np.ndarray:
         """World positions of both pupil centres for each (look_x, look_y) row: shape (2, N, 3)."""

@@ -1,8 +1,9 @@
 """The face renderer: draws one flexor frame with cel shading and outlines into any framebuffer.
 
 All GPU objects (programs, buffers, vertex arrays, the offscreen target) are made once in __init__;
-a frame writes a handful of uniforms, one small vertex buffer (brows and mouth) and the outline quads
-along the static parts' silhouettes, so the same Renderer can draw every frame of a window, a
+a frame writes a handful of uniforms, the centre lines of the brows and lips (the vertex shader builds
+their tubes), the mouth's few inner vertices and the outline quads along the static parts'
+silhouettes, so the same Renderer can draw every frame of a window, a
 headless test or a video.
 """
 
@@ -23,6 +24,7 @@ from services.renderer.mesh import (
     MATERIALS,
     N_BONES,
     PUPIL_ANGLE,
+    TUBE_POINTS,
     FacePoser,
     Pose,
     RigidFacing,
@@ -30,6 +32,7 @@ from services.renderer.mesh import (
     build_static_mesh,
     extruded_copy,
     eye_centre,
+    tube_template,
 )
 from services.renderer.shaders import (
     EYE_FRAGMENT,
@@ -45,7 +48,7 @@ VERTEX_FORMAT = ("3f 3f 3f 4f", "in_pos", "in_normal", "in_aux", "in_info")
 MAX_TRAJECTORY_POINTS = 600  # a longer overlay_points keeps its most recent points
 REFERENCE_HEIGHT = 480.0  # outline and overlay widths are given in pixels at this image height
 _OVERLAY_FLOATS = 5  # x, y, r, g, b
-_FRAME_BLOCK = 0  # uniform-block binding point of the per-frame matrices
+_FRAME_BLOCK, _TUBES_BLOCK = 0, 1  # uniform-block binding points of the per-frame matrices and tubes
 SURFACE, OUTLINE = "surface", "outline"  # the two index sets of a FrameIndices
 
 
@@ -71,11 +74,6 @@ def perspective(fov_deg: float, aspect: float, near: float, far: float) -> np.nd
             [0, 0, -1, 0],
         ]
     )
-
-
-def _gl(matrix: np.ndarray) -> bytes:
-    """A row-major numpy matrix as the column-major float32 bytes GLSL expects."""
-    return np.ascontiguousarray(np.asarray(matrix, dtype=np.float32).swapaxes(-1, -2)).tobytes()
 
 
 class Renderer:
@@ -110,9 +108,14 @@ class Renderer:
         self.overlay_prog = ctx.program(vertex_shader=OVERLAY_VERTEX, fragment_shader=OVERLAY_FRAGMENT)
         self._programs = tuple(self.programs.values())
         # Bones and camera go in one uniform block that every program reads: one write per frame.
-        self.frame_ubo = ctx.buffer(reserve=(N_BONES + 2) * 64, dynamic=True)
+        self._frame = np.zeros((N_BONES + 1, 4, 4), dtype=np.float32)
+        self.frame_ubo = ctx.buffer(reserve=self._frame.nbytes, dynamic=True)
+        # The brows' and lips' centre lines, from which the vertex shader builds them (mesh.tube_curves).
+        self._curves = np.zeros((TUBE_POINTS, 3, 4), dtype=np.float32)
+        self.tube_ubo = ctx.buffer(reserve=self._curves.nbytes, dynamic=True)
         for prog in self._programs:
             prog["Frame"].binding = _FRAME_BLOCK
+            prog["Tubes"].binding = _TUBES_BLOCK
 
         static = build_static_mesh(self.config.mesh_detail)
         self.static = static
@@ -120,22 +123,33 @@ class Renderer:
         self.static_vbo = ctx.buffer(extruded_copy(static.vertices).tobytes())
         sample = self.poser.pose(np.zeros(N_FLEXORS))
         dyn_indices, dyn_ranges = self.poser.layout.indices(sample.dynamic)
-        self._dynamic_rows = extruded_copy(sample.dynamic)  # rewritten each frame, both halves
-        self.dynamic_vbo = ctx.buffer(reserve=self._dynamic_rows.nbytes, dynamic=True)
+        # The tubes (brows, lips) are built in the vertex shader from their centre lines (the Tubes
+        # block), so of the dynamic vertices only the mouth's strips are rewritten each frame (their
+        # outline copies are never drawn).
+        self.dynamic_vbo = ctx.buffer(extruded_copy(tube_template(self.poser.layout)).tobytes(), dynamic=True)
+        strips = self.poser.layout.strip_block
+        self._strip_offset = strips.start * sample.dynamic.shape[1] * 4
         # The static outline quads are chosen each frame; the dynamic parts keep an inverted hull.
         self.meshes: dict[str, FrameIndices | HullIndices] = {
             "static": FrameIndices(ctx, static.indices, static.ranges, static.vertices, ("face", "eyes", "lids")),
             "dynamic": HullIndices(ctx, dyn_indices, dyn_ranges, sample.dynamic.shape[0], ("brows", "lips")),
         }
-        self._vaos: dict[tuple[str, str], moderngl.VertexArray] = {}
+        self._vaos: dict[tuple[str, str, str], moderngl.VertexArray] = {}  # (mesh, program, index set)
         for mesh_name, vbo in (("static", self.static_vbo), ("dynamic", self.dynamic_vbo)):
-            ibo = self.meshes[mesh_name].ibo
+            mesh = self.meshes[mesh_name]
             for prog_name, prog in self.programs.items():
                 if mesh_name == "dynamic" and prog_name.startswith("eye"):
                     continue
-                self._vaos[mesh_name, prog_name] = ctx.vertex_array(
-                    prog, [(vbo, *VERTEX_FORMAT)], index_buffer=ibo, index_element_size=4, skip_errors=True
-                )
+                for kind in (SURFACE, OUTLINE):
+                    if kind == OUTLINE and prog_name != "flat":
+                        continue
+                    self._vaos[mesh_name, prog_name, kind] = ctx.vertex_array(
+                        prog,
+                        [(vbo, *VERTEX_FORMAT)],
+                        index_buffer=mesh.ibos[kind],
+                        index_element_size=4,
+                        skip_errors=True,
+                    )
         # Overlay: two polylines (one per eye) as quads, plus two cross markers.
         self._overlay_capacity = (2 * (MAX_TRAJECTORY_POINTS - 1) + 4) * 6
         self.overlay_vbo = ctx.buffer(reserve=self._overlay_capacity * _OVERLAY_FLOATS * 4, dynamic=True)
@@ -191,9 +205,10 @@ class Renderer:
             *self._programs,
             self.overlay_prog,
             self.frame_ubo,
+            self.tube_ubo,
             self.static_vbo,
             self.dynamic_vbo,
-            *(mesh.ibo for mesh in self.meshes.values()),
+            *{id(ibo): ibo for mesh in self.meshes.values() for ibo in mesh.ibos.values()}.values(),
             self.overlay_vbo,
         ):
             obj.release()
@@ -258,7 +273,7 @@ class Renderer:
         """
         toggles = toggles or RenderToggles()
         fbo = target if target is not None else self.target
-        pose = self.poser.pose(flexors)
+        pose = self.poser.pose(flexors, dynamic=False)
         self.last_pose = pose
         ctx = self.ctx
         fbo.use()
@@ -268,21 +283,19 @@ class Renderer:
         fbo.clear(bg[0], bg[1], bg[2], 1.0, depth=1.0)
 
         modelview = view_m @ pose.model
-        frame = np.empty((N_BONES + 2, 4, 4), dtype=np.float32)
-        frame[:N_BONES] = pose.bones
-        frame[N_BONES] = modelview
-        frame[N_BONES + 1] = proj
-        self.frame_ubo.write(_gl(frame))
+        matrices = self._frame  # column-major, as GLSL reads them
+        matrices[:N_BONES] = (modelview @ pose.bones).swapaxes(-1, -2)
+        matrices[N_BONES] = proj.T
+        self.frame_ubo.write(matrices)
         self.frame_ubo.bind_to_uniform_block(_FRAME_BLOCK)
+        # The brows and mouth: the strips' vertices, and the tubes' centre lines for the vertex shader.
+        dyn = self.poser.build_dynamic(pose, self._curves)
+        self.dynamic_vbo.write(dyn[self.poser.layout.strip_block], offset=self._strip_offset)
+        self.tube_ubo.write(self._curves)
+        self.tube_ubo.bind_to_uniform_block(_TUBES_BLOCK)
         # The eye in the head frame (modelview is a rigid motion): where every facing test looks from.
         eye = -modelview[:3, :3].T @ modelview[:3, 3]
         self.meshes["static"].update(self.static_facing.front(pose.bones, eye))
-        dyn, rows = pose.dynamic, self._dynamic_rows
-        n = dyn.shape[0]
-        rows[:n] = dyn
-        rows[n:, :9] = dyn[:, :9]  # the extruded copies keep their marked material column
-        rows[n:, 10:] = dyn[:, 10:]
-        self.dynamic_vbo.write(rows)
         suffix = "_3d" if toggles.surface_3d else ""
         flat = self.flat_prog
         flat["u_viewport"].value = (float(width), float(height))
@@ -335,7 +348,7 @@ class Renderer:
         return fbo
 
     def _draw(self, mesh_name: str, prog_name: str, groups: list[str], kind: str = SURFACE) -> None:
-        vao = self._vaos[mesh_name, prog_name]
+        vao = self._vaos[mesh_name, prog_name, kind]
         ranges = self.meshes[mesh_name].ranges
         for first, count in _merge_ranges([ranges[kind, g] for g in groups]):
             if count:
@@ -412,11 +425,13 @@ class FrameIndices:
             bounds.append(bounds[-1] + len(sil.quads))
         self._t0, self._t1 = np.concatenate(t0), np.concatenate(t1)
         self._quads = np.concatenate(quads)
-        self._ends = np.array(bounds[1:]) - 1  # each group's last edge
+        self._starts = np.array(bounds[:-1])  # each group's first edge
         self._front = np.zeros(len(triangles) + 1, dtype=bool)
-        self._base = indices.size
-        self.ibo = ctx.buffer(reserve=indices.nbytes + self._quads.nbytes, dynamic=True)
-        self.ibo.write(indices)
+        # The outline quads, rewritten each frame, have a buffer of their own.
+        self.ibos = {
+            SURFACE: ctx.buffer(indices.tobytes()),
+            OUTLINE: ctx.buffer(reserve=self._quads.nbytes, dynamic=True),
+        }
         self.update(np.zeros(len(triangles), dtype=bool))
 
     def update(self, front: np.ndarray) -> None:
@@ -424,14 +439,14 @@ class FrameIndices:
         f = self._front
         f[:-1] = front
         on = f[self._t0] != f[self._t1]
-        counts = np.diff(np.cumsum(on)[self._ends], prepend=0)
-        offset = self._base
+        counts = np.add.reduceat(on.view(np.uint8), self._starts, dtype=np.intp)
+        offset = 0
         for name, count in zip(self._names, counts.tolist(), strict=True):
             self.ranges[OUTLINE, name] = (offset, 6 * count)
             offset += 6 * count
         quads = self._quads[on]
         if quads.size:
-            self.ibo.write(quads, offset=4 * self._base)
+            self.ibos[OUTLINE].write(quads)
 
 
 class HullIndices:
@@ -455,7 +470,8 @@ class HullIndices:
             parts.append(indices[first : first + count] + np.uint32(n_vertices))
             self.ranges[OUTLINE, name] = (offset, count)
             offset += count
-        self.ibo = ctx.buffer(np.concatenate(parts).tobytes())
+        ibo = ctx.buffer(np.concatenate(parts).tobytes())
+        self.ibos = {SURFACE: ibo, OUTLINE: ibo}
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -6,15 +6,20 @@ surface gets its own small program instead of one shader that branches on the ma
 
 from __future__ import annotations
 
-from services.renderer.mesh import EXTRUDED
+from services.renderer.mesh import EXTRUDED, N_BONES, SEGMENTS, TUBE_POINTS
 
 FACE_VERTEX = """
 #version 330
 #define EXTRUDED __EXTRUDED__  // mesh.EXTRUDED: added to the material of an outline quad's outer corners
+#define SEGMENTS __SEGMENTS__  // mesh.SEGMENTS: centre-line points per tube
 layout(std140) uniform Frame {  // written once per frame, shared by every program
-    mat4 u_bones[8];
-    mat4 u_modelview;   // head frame -> camera
+    mat4 u_bones[__N_BONES__];  // rest head frame -> camera, per bone (the head's modelview times the bone)
     mat4 u_proj;
+};
+layout(std140) uniform Tubes {  // written once per frame: the brows and lips
+    // Per tube centre-line point (mesh.tube_curves): (centre, half height), (surface normal, half depth),
+    // (jaw weight, section aspect, -, -).
+    vec4 u_curves[3 * __TUBE_POINTS__];
 };
 uniform vec3 u_palette[10]; // per material, mesh.MATERIALS order
 uniform vec3 u_light_v;     // toward the key light, camera space, unit
@@ -22,10 +27,10 @@ uniform float u_outline;    // outline width in pixels (the outline pass)
 uniform vec2 u_viewport;
 uniform float u_depth_bias; // pulls the wireframe pass in front of the surface it traces
 
-in vec3 in_pos;
+in vec3 in_pos;             // a tube vertex: (centre-line point, cos, sin around the section)
 in vec3 in_normal;
 in vec3 in_aux;
-in vec4 in_info;            // material, bone0, bone1, weight of bone1
+in vec4 in_info;            // material (+ EXTRUDED, + 2 EXTRUDED for a tube), bone0, bone1, weight of bone1
 
 out vec3 v_normal;          // camera space
 out vec3 v_aux;             // eye: rest direction
@@ -33,14 +38,31 @@ out float v_ndl;            // n.l for the cel bands
 flat out vec3 v_color;      // one colour per triangle (its last vertex's): no need to interpolate it
 
 void main() {
+    int code = int(in_info.x + 0.5);
+    vec3 pos = in_pos;
+    vec3 normal = in_normal;
+    float w = in_info.w;
+    if (code >= int(2.0 * EXTRUDED)) {
+        // A brow or lip: a tube of elliptic section around its centre line (mesh._tubes).
+        int k = int(in_pos.x + 0.5);
+        int j = k % SEGMENTS;
+        vec4 c = u_curves[3 * k];
+        vec4 o = u_curves[3 * k + 1];
+        vec4 e = u_curves[3 * k + 2];
+        vec3 tangent = u_curves[3 * (j == SEGMENTS - 1 ? k : k + 1)].xyz - u_curves[3 * (j == 0 ? k : k - 1)].xyz;
+        vec3 side = normalize(cross(o.xyz, tangent));
+        pos = c.xyz + (in_pos.y * c.w) * side + (in_pos.z * o.w) * o.xyz;
+        normal = normalize((in_pos.y * e.y) * side + in_pos.z * o.xyz);
+        w = e.x;
+    }
     int b0 = int(in_info.y + 0.5);
     int b1 = int(in_info.z + 0.5);
-    mat4 bone = u_bones[b0] * (1.0 - in_info.w) + u_bones[b1] * in_info.w;
-    mat4 mv = u_modelview;
-    vec4 p = mv * (bone * vec4(in_pos, 1.0));
-    vec3 n = normalize(mat3(mv) * (mat3(bone) * in_normal));
+    mat4 bone = u_bones[b0] * (1.0 - w) + u_bones[b1] * w;
+    vec4 p = bone * vec4(pos, 1.0);
+    vec3 n = normalize(mat3(bone) * normal);
     vec4 clip = u_proj * p;
-    if (in_info.x > EXTRUDED - 0.5) {
+    int mat = code % int(EXTRUDED);
+    if (code - mat == int(EXTRUDED) || code - mat == int(3.0 * EXTRUDED)) {
         // An outline quad's outer corner: pushed along the screen-space normal by a fixed number of
         // pixels, whatever the distance.
         vec2 dir = (u_proj * vec4(n, 0.0)).xy;
@@ -51,7 +73,6 @@ void main() {
     }
     clip.z -= u_depth_bias * clip.w;
     gl_Position = clip;
-    int mat = int(in_info.x + 0.5) % int(EXTRUDED);  // an extruded copy keeps its material
     v_normal = n;
     v_aux = in_aux;
     v_color = u_palette[mat];
@@ -59,7 +80,14 @@ void main() {
     // interpolated float on every pixel.
     v_ndl = dot(n, u_light_v);
 }
-""".replace("__EXTRUDED__", f"{EXTRUDED:.1f}")
+"""
+for _name, _value in (
+    ("__EXTRUDED__", f"{EXTRUDED:.1f}"),
+    ("__SEGMENTS__", str(SEGMENTS)),
+    ("__N_BONES__", str(N_BONES)),
+    ("__TUBE_POINTS__", str(TUBE_POINTS)),
+):
+    FACE_VERTEX = FACE_VERTEX.replace(_name, _value)
 
 _SHADE = """
 uniform vec3 u_light;        // camera space, unit
