@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from agent.gaze.blink import lid_closure
 from agent.gaze.engine import GazeEngine, SaccadeOnsets
 from agent.gaze.params import KINDS, GazeParams
 from agent.gaze.synth import eye_position_at
@@ -213,9 +214,12 @@ def test_eye_modes(params: GazeParams) -> None:
     engine.set_mode(1, "noise", 0)
     engine.set_mode(2, "saccade", 0)
     engine.set_target(0, 5.0, -2.0, 0)
-    ticks = [engine.tick(t) for t in range(S // 30, 20 * S, S // 30)]
-    yaw = np.array([t.yaw_deg for t in ticks])
-    lid = np.array([t.lid for t in ticks])
+    ticks, yaw, lid = [], [], []
+    for t in range(S // 30, 20 * S, S // 30):
+        ticks.append(engine.tick(t))
+        yaw.append(ticks[-1].yaw_deg.copy())  # a tick's arrays are views, valid until the next tick
+        lid.append(ticks[-1].lid.copy())
+    yaw, lid = np.array(yaw), np.array(lid)
     agents_with_onsets = set(np.concatenate([t.saccades.agent[t.saccades.onset_ns > 0] for t in ticks]).tolist())
     assert agents_with_onsets == {2, 3}
     assert np.all(yaw[:, 0] == 5.0) and np.all(lid[:, 0] == 0.0)
@@ -289,3 +293,53 @@ def test_disappointed_gaze_drops(params: GazeParams) -> None:
     natural, disappointed = share_down("natural"), share_down("disappointed")
     assert abs(natural - 0.2038) < 0.01  # the table's 20.38% downward
     assert disappointed > natural + 0.15
+
+
+def test_eye_state_follows_the_latest_onsets(params: GazeParams) -> None:
+    """The eye state a tick hands out (kept from tick to tick and rewritten only where it changes) is where
+    each agent's latest reported saccade puts the eye, and the lid its latest blink; through role changes,
+    head turns, long and short steps, and blinks cancelled by a mode switch."""
+    n = 120
+    engine = GazeEngine(n, seed=31, params=params, role="talking")
+    rng = np.random.default_rng(5)
+    onset = np.zeros(n, dtype=np.int64)
+    from_deg, to_deg, duration = np.zeros((n, 2)), np.zeros((n, 2)), np.ones(n)
+    last_blink = np.full(n, -(10**18))
+    static = np.arange(15)
+    t, lids_seen, cancelled = 0, 0, 0
+    for step in range(700):
+        event_t = t + 1
+        if step == 250:
+            engine.set_mode(static, "static", event_t)
+            last_blink[static] = -(10**18)  # blinks in progress are cancelled
+        if step == 450:
+            engine.set_mode(static, "saccade+blink", event_t)
+        if step % 40 == 20:
+            engine.set_role(rng.choice(n, 30, replace=False), ["listening", "talking", "silence"][step % 3], event_t)
+        if step % 60 == 30:
+            engine.set_head(rng.choice(n, 30, replace=False), rng.uniform(-40, 40), rng.uniform(-20, 20), event_t)
+        t += int(rng.choice([S // 240, S // 60, S // 60, S // 7, 3 * S // 2]))
+        tick = engine.tick(t)
+        s = tick.saccades
+        for k in range(len(s)):  # sorted by onset: the last one of an agent is its latest
+            a = s.agent[k]
+            onset[a], duration[a] = s.onset_ns[k], s.duration_s[k]
+            from_deg[a] = s.from_yaw_deg[k], s.from_pitch_deg[k]
+            to_deg[a] = s.to_yaw_deg[k], s.to_pitch_deg[k]
+        for a, b in zip(tick.blinks.agent, tick.blinks.onset_ns, strict=True):
+            last_blink[a] = b
+        expected = eye_position_at(t, onset, from_deg, to_deg, duration)
+        saccading = np.ones(n, dtype=bool)
+        if 250 <= step < 450:
+            saccading[static] = False
+            assert np.all(tick.yaw_deg[static] == 0.0) and np.all(tick.lid[static] == 0.0)
+        np.testing.assert_allclose(tick.yaw_deg[saccading], expected[saccading, 0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(tick.pitch_deg[saccading], expected[saccading, 1], rtol=0, atol=1e-9)
+        lid = lid_closure((t - last_blink) * 1e-9, params.blink)
+        np.testing.assert_allclose(tick.lid[saccading], lid[saccading], rtol=0, atol=1e-12)
+        lids_seen += np.count_nonzero(lid)
+        if step == 249:
+            cancelled = np.count_nonzero(tick.lid[static])  # blinks in progress at the switch to static
+    assert lids_seen > 1000 and cancelled > 0
+    with pytest.raises(ValueError):
+        tick.yaw_deg[0] = 1.0  # a tick hands out read-only views of the engine's eye state

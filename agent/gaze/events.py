@@ -76,7 +76,12 @@ class BlinkOnsets:
 
 @dataclass(frozen=True)
 class GazeTick:
-    """Eye state of every agent at `t_ns` (yaw/pitch in degrees, lid 0 open..1 closed) and new onsets."""
+    """Eye state of every agent at `t_ns` (yaw/pitch in degrees, lid 0 open..1 closed) and new onsets.
+
+    `yaw_deg`, `pitch_deg` and `lid` are read-only views of the engine's own eye state, which the engine
+    updates in place where it changes: they are valid until the engine's next `tick` or `add_agents`.
+    Copy them (`tick.yaw_deg.copy()`) to keep a tick's state past that. The onsets are the caller's own.
+    """
 
     t_ns: int
     yaw_deg: np.ndarray
