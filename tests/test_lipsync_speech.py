@@ -54,9 +54,9 @@ FRESH = (
     "we will meet at noon by the fountain",
 )
 
-FLOORS = {"open": 0.80, "rounded": 0.65, "spread": 0.72, "closed": 0.63, "fricative": 0.80}
-HELD_OUT_FLOORS = {"open": 0.72, "rounded": 0.58, "spread": 0.75, "closed": 0.45, "fricative": 0.80}
-FRESH_FLOORS = {"open": 0.57, "rounded": 0.68, "spread": 0.66, "closed": 0.44, "fricative": 0.77}
+FLOORS = {"open": 0.79, "rounded": 0.77, "spread": 0.73, "closed": 0.75, "fricative": 0.81}
+HELD_OUT_FLOORS = {"open": 0.72, "rounded": 0.70, "spread": 0.75, "closed": 0.56, "fricative": 0.80}
+FRESH_FLOORS = {"open": 0.59, "rounded": 0.75, "spread": 0.66, "closed": 0.60, "fricative": 0.76}
 
 
 def _synth(text: str) -> object:

@@ -37,8 +37,8 @@ class LipSyncConfig:
     fricative_width: float
     nasal_low_ratio: float
     nasal_width: float
-    nasal_dip_db: float
-    nasal_context_s: float
+    nasal_max_db: float
+    closure_context_s: float
     closure_hold_s: float
     closure_dip_db: float
     open_f1_hz: float

@@ -101,7 +101,7 @@ class LipSyncEstimator:
         self._f1 = math.nan
         self._f2 = math.nan
         self._blocks_since_speech = 1 << 30
-        self._recent_levels = [-200.0] * max(1, round(self.config.nasal_context_s / self.config.block_s))
+        self._recent_levels = [-200.0] * max(1, round(self.config.closure_context_s / self.config.block_s))
         self._jaw = 0.0
         self._shape = [0.0] * len(VISEMES)
 
@@ -172,12 +172,20 @@ class LipSyncEstimator:
         speech = _sigmoid((rel - cfg.speech_gate_db) / w) * _sigmoid((level - cfg.floor_dbfs) / w)
         audible = _sigmoid((rel - cfg.fricative_gate_db) / w) * _sigmoid((level - cfg.floor_dbfs) / w)
         fric = audible * _sigmoid((f.high_ratio - cfg.fricative_high_ratio) / cfg.fricative_width)
-        # A nasal murmur is a voiced dip below the sound just before it; a rounded vowel such as /u/ has
-        # the same low-frequency balance but is the loudest thing around.
+        # A nasal murmur (m, n) puts nearly all its power at the murmur's first resonance, 250-300 Hz,
+        # with little between it and F2; a back rounded vowel such as /u/ (F1 300-450 Hz) has a large
+        # share just above the cut-off, so the band balance tells them apart at any loudness. A front
+        # vowel with a very low F1 (/i/, 270 Hz) can share that balance, but keeps a sharp F2 above
+        # 1.8 kHz where the murmur's higher resonances are damped: such a block is no murmur. Nasal
+        # damping also keeps a murmur below the voice's peak level, so a loud steady hum is no closure.
         self._recent_levels[self._block_index % len(self._recent_levels)] = level
         local_rel = level - max(self._recent_levels)
         nasal = (speech * (1.0 - fric) * _sigmoid((f.low_ratio - cfg.nasal_low_ratio) / cfg.nasal_width)
-                 * _sigmoid((cfg.nasal_dip_db - local_rel) / w))
+                 * _sigmoid((cfg.nasal_max_db - rel) / w))
+        if nasal > 0.05:
+            f2 = self._features.formants()[1]
+            if not math.isnan(f2):
+                nasal *= 1.0 - _sigmoid((f2 - cfg.spread_f2_hz) / cfg.f2_width_hz)
         if speech > 0.5:
             self._blocks_since_speech = 0
         else:

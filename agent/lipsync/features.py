@@ -236,9 +236,11 @@ class FeatureExtractor:
                                     max_bandwidth_hz, contour_bandwidth_hz)
         # Raw history: the last window_len samples (plus one for pre-emphasis) end at the block's end.
         self._history = np.zeros(self.window_len + 1)
+        self._formants: tuple[float, float] | None = None
 
     def reset(self) -> None:
         self._history[:] = 0.0
+        self._formants = None
 
     def block(self, samples: np.ndarray) -> BlockFeatures:
         n = len(samples)
@@ -262,13 +264,20 @@ class FeatureExtractor:
         psd *= psd
         total, high, raw_low, raw_total = (self._band_sums @ psd).tolist()
         self._psd = psd
+        self._formants = None
         return BlockFeatures(level_db, zcr_hz, high / (total + _EPS), raw_low / (raw_total + _EPS))
 
     def formants(self) -> tuple[float, float]:
         """F1 and F2 (Hz, NaN when absent) of the window analysed by the last `block` call.
 
-        Separate from `block` because it costs most of the time and only vowel-like blocks need it.
+        Separate from `block` because it costs most of the time and only vowel-like and murmur-like
+        blocks need it; computed at most once per block.
         """
+        if self._formants is None:
+            self._formants = self._compute_formants()
+        return self._formants
+
+    def _compute_formants(self) -> tuple[float, float]:
         r = self._lag_basis @ self._psd[: self.lpc_bins + 1]
         if r[0] <= _EPS:
             return np.nan, np.nan
