@@ -65,7 +65,7 @@ def run_headless(args: argparse.Namespace) -> int:
 
 def run_live(args: argparse.Namespace) -> int:
     """`eca up` with the window, then the demo played into it over the bus."""
-    from services.testing import LineReader, eca_command, subprocess_env
+    from services.processes import LineReader, eca_command, subprocess_env
 
     def stop(*_: object) -> None:
         raise KeyboardInterrupt  # so the runtime below is stopped in order, not orphaned
