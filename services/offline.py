@@ -1,8 +1,8 @@
 """Deterministic offline rendering: a script's timeline through the same models on a virtual clock.
 
-No real time and no bus: the frames are computed at exact frame times k / fps, so the same seed and
-inputs give the same flexor frames, byte for byte in the CSV. The seed drives only the eyes and the
-blinks (the face's idle noise has its own fixed seed), so another seed changes nothing else.
+No real time and no bus: `agent.animator.TimelineAnimator` is sampled at exact frame times k / fps,
+so the same seed and inputs give the same flexor frames, byte for byte in the CSV. This module adds
+what needs files: the voices, the mixed audio track, the CSV and the MP4 mux.
 """
 
 from __future__ import annotations
@@ -15,18 +15,14 @@ from pathlib import Path
 import numpy as np
 import soundfile
 
-from agent.clock import nanoseconds
-from agent.config import load_toml
+from agent.animator import TimelineAnimator, Utterance
 from agent.face.flexors import FLEXOR_NAMES
-from agent.face.model import FaceModel
-from agent.gaze.engine import GazeEngine
-from agent.lipsync.estimator import MouthTrack, mouth_track
-from agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, SayCue, Timeline
+from agent.lipsync.estimator import mouth_track
+from agent.script import SayCue, Timeline
 from services.audio.resample import resample
 from services.playback import AGENT_VOICE, PARTNER_VOICE, VoiceCache
 
 AUDIO_RATE = 22_050  # espeak-ng's rate; other audio is resampled to it
-FACE_IDLE_SEED = 7  # fixed: the render seed changes eyes and blinks only
 
 
 @dataclass(frozen=True)
@@ -50,13 +46,6 @@ class RenderedTimeline:
     audio: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
 
 
-@dataclass
-class _Utterance:
-    start_s: float
-    samples: np.ndarray
-    track: MouthTrack | None  # the agent's own lines move its mouth
-
-
 def load_audio(path: str | Path) -> np.ndarray:
     """Mono float32 at AUDIO_RATE from any file soundfile reads."""
     data, rate = soundfile.read(str(path), dtype="float32", always_2d=True)
@@ -64,7 +53,7 @@ def load_audio(path: str | Path) -> np.ndarray:
     return resample(mono, int(rate), AUDIO_RATE).astype(np.float32) if rate != AUDIO_RATE else mono
 
 
-def gather_speech(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[_Utterance]:
+def gather_speech(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[Utterance]:
     out = []
     for cue in timeline.cues:
         if not isinstance(cue, SayCue):
@@ -79,11 +68,11 @@ def gather_speech(timeline: Timeline, agent: str, voices: VoiceCache | None) -> 
             continue
         samples = load_audio(path)
         track = mouth_track(samples, AUDIO_RATE) if cue.agent == agent else None
-        out.append(_Utterance(cue.t_s, samples, track))
+        out.append(Utterance(cue.t_s, samples, track))
     return out
 
 
-def mix(utterances: list[_Utterance], length_s: float) -> np.ndarray:
+def mix(utterances: list[Utterance], length_s: float) -> np.ndarray:
     n = int(np.ceil(length_s * AUDIO_RATE))
     for u in utterances:
         n = max(n, int(round(u.start_s * AUDIO_RATE)) + u.samples.size)
@@ -92,67 +81,6 @@ def mix(utterances: list[_Utterance], length_s: float) -> np.ndarray:
         start = int(round(u.start_s * AUDIO_RATE))
         track[start:start + u.samples.size] += u.samples
     return np.clip(track, -1.0, 1.0)
-
-
-class TimelineAnimator:
-    """The models for one agent, fed the timeline's cues at their exact times, sampled per frame."""
-
-    def __init__(self, timeline: Timeline, agent: str, settings: RenderSettings,
-                 utterances: list[_Utterance]) -> None:
-        self.agent = agent
-        self.settings = settings
-        self.cues = [c for c in timeline.cues if c.agent == agent and not isinstance(c, SayCue)]
-        self.next_cue = 0
-        self.utterances = [u for u in utterances if u.track is not None]
-        head = load_toml("flexor_units")["head"]
-        self.head_deg = (float(head["turn_deg"]), float(head["nod_deg"]))
-        self.head = [0.0, 0.0, 0.0]
-        self.target = [0.0, 0.0]  # gaze target yaw, pitch (degrees): a cue may leave an axis alone
-        self.face = FaceModel(seed=FACE_IDLE_SEED, idle_noise=True)
-        self.gaze = GazeEngine(1, settings.seed, start_ns=0)
-        if settings.eyes is not None:
-            self.gaze.set_mode(0, settings.eyes, 0)
-
-    def frame_at(self, t_s: float) -> tuple[np.ndarray, tuple[float, float, float]]:
-        t_ns = nanoseconds(t_s)
-        while self.next_cue < len(self.cues) and nanoseconds(self.cues[self.next_cue].t_s) <= t_ns:
-            cue = self.cues[self.next_cue]
-            self._apply(cue, max(nanoseconds(cue.t_s), self.gaze.now_ns))
-            self.next_cue += 1
-        tick = self.gaze.tick(t_ns)
-        yaw, pitch, lid = float(tick.yaw_deg[0]), float(tick.pitch_deg[0]), float(tick.lid[0])
-        self.face.set_eyes(yaw, pitch, lid)
-        self.face.set_mouth(self._mouth_at(t_s))
-        return self.face.frame_at(t_ns).values, (yaw, pitch, lid)
-
-    def _apply(self, cue: RoleCue | EmotionCue | HeadCue | GazeCue, t_ns: int) -> None:
-        if isinstance(cue, RoleCue):
-            self.gaze.set_role(0, cue.role, t_ns)
-        elif isinstance(cue, EmotionCue):
-            self.face.set_emotion(cue.name, cue.intensity, cue.transition_s, t_ns)
-            self.gaze.set_emotion(0, cue.name, cue.intensity, t_ns)
-        elif isinstance(cue, HeadCue):
-            for axis, value in enumerate((cue.turn, cue.nod, cue.tilt)):
-                if value is not None:
-                    self.head[axis] = value
-            self.face.move_head(*self.head, cue.duration_s, t_ns)
-            self.gaze.set_head(0, self.head[0] * self.head_deg[0], self.head[1] * self.head_deg[1], t_ns)
-        elif isinstance(cue, GazeCue):
-            if cue.mode is not None and self.settings.eyes is None:
-                self.gaze.set_mode(0, cue.mode, t_ns)
-            if cue.yaw_deg is not None or cue.pitch_deg is not None:
-                for axis, value in enumerate((cue.yaw_deg, cue.pitch_deg)):
-                    if value is not None:
-                        self.target[axis] = value
-                self.gaze.set_target(0, *self.target, t_ns)
-
-    def _mouth_at(self, t_s: float) -> dict[str, float] | None:
-        for u in self.utterances:
-            index = (t_s - u.start_s) * AUDIO_RATE
-            if 0 <= index < u.samples.size:
-                assert u.track is not None
-                return u.track.weights_at(index)
-        return None
 
 
 def write_flexor_csv(path: Path, t_s: np.ndarray, flexors: np.ndarray) -> None:
@@ -197,7 +125,8 @@ def animate(timeline: Timeline, agent: str, settings: RenderSettings, voices: Vo
     audio = mix(utterances, timeline.length_s)
     length_s = max(timeline.length_s, audio.size / AUDIO_RATE)
     n_frames = int(np.floor(length_s * settings.fps)) + 1
-    animator = TimelineAnimator(timeline, agent, settings, utterances)
+    animator = TimelineAnimator(timeline, agent, seed=settings.seed, eyes=settings.eyes, utterances=utterances,
+                                sample_rate=AUDIO_RATE)
     t_s = np.arange(n_frames) / settings.fps
     flexors = np.empty((n_frames, len(FLEXOR_NAMES)))
     eyes = np.empty((n_frames, 3))

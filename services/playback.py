@@ -50,8 +50,8 @@ class CueTranslator:
 
     agent: str
     voices: VoiceCache | None = None
-    head: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    gaze: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    head: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gaze: tuple[float, float] = (0.0, 0.0)
 
     def commands(self, cue: RoleCue | EmotionCue | HeadCue | GazeCue | SayCue) -> list[Message]:
         if cue.agent != self.agent:
@@ -62,19 +62,17 @@ class CueTranslator:
             return [SetEmotion(agent=self.agent, name=cue.name, intensity=cue.intensity,
                                transition_s=min(cue.transition_s, 30.0))]
         if isinstance(cue, HeadCue):
-            for axis, value in enumerate((cue.turn, cue.nod, cue.tilt)):
-                if value is not None:
-                    self.head[axis] = value
+            self.head = cue.targets(self.head)
             return [MoveHead(agent=self.agent, turn=self.head[0], nod=self.head[1], tilt=self.head[2],
                              duration_s=min(cue.duration_s, 30.0))]
         if isinstance(cue, GazeCue):
             out: list[Message] = []
             if cue.mode is not None:
                 out.append(SetEyes(agent=self.agent, mode=cue.mode))
-            if cue.yaw_deg is not None or cue.pitch_deg is not None:
-                self.gaze = [cue.yaw_deg if cue.yaw_deg is not None else self.gaze[0],
-                             cue.pitch_deg if cue.pitch_deg is not None else self.gaze[1]]
-                out.append(SetGazeTarget(agent=self.agent, yaw_deg=self.gaze[0], pitch_deg=self.gaze[1]))
+            target = cue.target(self.gaze)
+            if target is not None:
+                self.gaze = target
+                out.append(SetGazeTarget(agent=self.agent, yaw_deg=target[0], pitch_deg=target[1]))
             return out
         path = cue.audio_path
         if path is None:

@@ -149,15 +149,16 @@ def test_play_refuses_a_bad_script_and_sends_nothing(bus, tmp_path: Path, capsys
 
 
 def test_a_gaze_cue_that_leaves_an_axis_alone_keeps_it_offline_as_live() -> None:
+    from agent.animator import TimelineAnimator
     from agent.script import Timeline
-    from services.offline import RenderSettings, TimelineAnimator
 
     cues = (GazeCue(0.0, "ada", None, 10.0, 5.0), GazeCue(0.5, "ada", None, -10.0, None),
             GazeCue(1.0, "ada", None, None, -3.0))
     live = CueTranslator("ada")
     sent = [m for cue in cues for m in live.commands(cue)]
     assert [(m.yaw_deg, m.pitch_deg) for m in sent] == [(10.0, 5.0), (-10.0, 5.0), (-10.0, -3.0)]
-    animator = TimelineAnimator(Timeline((), cues, 1.5, ("ada",)), "ada", RenderSettings(), [])
+    animator = TimelineAnimator(Timeline((), cues, 1.5, ("ada",)), "ada", seed=0, eyes="saccade+blink",
+                                utterances=[], sample_rate=22_050)
     targets: list[tuple[float, float]] = []
     real = animator.gaze.set_target
     animator.gaze.set_target = lambda i, yaw, pitch, t_ns: (targets.append((yaw, pitch)), real(i, yaw, pitch, t_ns))

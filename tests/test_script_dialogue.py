@@ -158,3 +158,12 @@ def test_parameter_files_inside_a_turn_count_from_its_start(tmp_path: Path) -> N
     # the dialogue's own silence at 2.0 and the file's restatement at 3.0 merge into one cue
     assert roles == [(0.0, "talking"), (2.0, "silence"), (3.5, "listening")]
     assert t.length_s == 5.0
+
+
+def test_cues_that_leave_an_axis_alone_keep_the_current_value() -> None:
+    from agent.script import GazeCue, HeadCue
+
+    head = HeadCue(0.0, "ada", turn=None, nod=-0.3, tilt=None, duration_s=1.0)
+    assert head.targets((0.5, 0.2, 0.1)) == (0.5, -0.3, 0.1)
+    assert GazeCue(0.0, "ada", "saccade", None, None).target((4.0, 2.0)) is None
+    assert GazeCue(0.0, "ada", None, -7.0, None).target((4.0, 2.0)) == (-7.0, 2.0)

@@ -79,6 +79,11 @@ class EmotionCue:
     transition_s: float
 
 
+def keep_unset(values: tuple[float | None, ...], current: tuple[float, ...]) -> tuple[float, ...]:
+    """Each value, or the current one where the value is None (a cue that leaves that axis alone)."""
+    return tuple(c if v is None else v for v, c in zip(values, current, strict=True))
+
+
 @dataclass(frozen=True)
 class HeadCue:
     """Move the head to the targets (flexor values; None = leave that axis) over `duration_s`."""
@@ -90,6 +95,10 @@ class HeadCue:
     tilt: float | None
     duration_s: float
 
+    def targets(self, current: tuple[float, float, float]) -> tuple[float, float, float]:
+        """(turn, nod, tilt) after this cue, keeping the axes it leaves alone at `current`."""
+        return keep_unset((self.turn, self.nod, self.tilt), current)  # type: ignore[return-value]
+
 
 @dataclass(frozen=True)
 class GazeCue:
@@ -100,6 +109,12 @@ class GazeCue:
     mode: EyeMode | None
     yaw_deg: float | None
     pitch_deg: float | None
+
+    def target(self, current: tuple[float, float]) -> tuple[float, float] | None:
+        """(yaw, pitch) of the gaze target after this cue, or None when the cue sets no target."""
+        if self.yaw_deg is None and self.pitch_deg is None:
+            return None
+        return keep_unset((self.yaw_deg, self.pitch_deg), current)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)

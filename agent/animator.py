@@ -1,0 +1,88 @@
+"""One agent's face and gaze driven by a script timeline on virtual time (the offline pipeline's models).
+
+The cues are applied at their exact times and the models are sampled at any frame time, so the same
+seed and timeline give the same frames at any frame rate. The seed drives only the eyes and the
+blinks; the face's idle noise has its own fixed seed, so another seed changes nothing else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from agent.clock import nanoseconds
+from agent.config import load_toml
+from agent.face.model import FaceModel
+from agent.gaze.engine import GazeEngine
+from agent.lipsync.estimator import MouthTrack
+from agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, SayCue, Timeline
+
+FACE_IDLE_SEED = 7  # fixed: the render seed changes eyes and blinks only
+
+
+@dataclass
+class Utterance:
+    """A line of speech placed on the timeline: its samples, and its mouth track if the agent says it."""
+
+    start_s: float
+    samples: np.ndarray
+    track: MouthTrack | None
+
+
+class TimelineAnimator:
+    def __init__(self, timeline: Timeline, agent: str, *, seed: int, eyes: str | None,
+                 utterances: list[Utterance], sample_rate: int) -> None:
+        """`eyes` fixes the eye mode; None lets the timeline's own eye-mode cues decide."""
+        self.eyes = eyes
+        self.sample_rate = sample_rate
+        self.cues = [c for c in timeline.cues if c.agent == agent and not isinstance(c, SayCue)]
+        self.next_cue = 0
+        self.utterances = [u for u in utterances if u.track is not None]
+        head = load_toml("flexor_units")["head"]
+        self.head_deg = (float(head["turn_deg"]), float(head["nod_deg"]))
+        self.head = (0.0, 0.0, 0.0)
+        self.target = (0.0, 0.0)
+        self.face = FaceModel(seed=FACE_IDLE_SEED, idle_noise=True)
+        self.gaze = GazeEngine(1, seed, start_ns=0)
+        if eyes is not None:
+            self.gaze.set_mode(0, eyes, 0)
+
+    def frame_at(self, t_s: float) -> tuple[np.ndarray, tuple[float, float, float]]:
+        """The flexor values at `t_s` and the eye (yaw, pitch, lid); times must not go back."""
+        t_ns = nanoseconds(t_s)
+        while self.next_cue < len(self.cues) and nanoseconds(self.cues[self.next_cue].t_s) <= t_ns:
+            cue = self.cues[self.next_cue]
+            self._apply(cue, max(nanoseconds(cue.t_s), self.gaze.now_ns))
+            self.next_cue += 1
+        tick = self.gaze.tick(t_ns)
+        yaw, pitch, lid = float(tick.yaw_deg[0]), float(tick.pitch_deg[0]), float(tick.lid[0])
+        self.face.set_eyes(yaw, pitch, lid)
+        self.face.set_mouth(self._mouth_at(t_s))
+        return self.face.frame_at(t_ns).values, (yaw, pitch, lid)
+
+    def _apply(self, cue: RoleCue | EmotionCue | HeadCue | GazeCue, t_ns: int) -> None:
+        if isinstance(cue, RoleCue):
+            self.gaze.set_role(0, cue.role, t_ns)
+        elif isinstance(cue, EmotionCue):
+            self.face.set_emotion(cue.name, cue.intensity, cue.transition_s, t_ns)
+            self.gaze.set_emotion(0, cue.name, cue.intensity, t_ns)
+        elif isinstance(cue, HeadCue):
+            self.head = cue.targets(self.head)
+            self.face.move_head(*self.head, cue.duration_s, t_ns)
+            self.gaze.set_head(0, self.head[0] * self.head_deg[0], self.head[1] * self.head_deg[1], t_ns)
+        elif isinstance(cue, GazeCue):
+            if cue.mode is not None and self.eyes is None:
+                self.gaze.set_mode(0, cue.mode, t_ns)
+            target = cue.target(self.target)
+            if target is not None:
+                self.target = target
+                self.gaze.set_target(0, *target, t_ns)
+
+    def _mouth_at(self, t_s: float) -> dict[str, float] | None:
+        for u in self.utterances:
+            index = (t_s - u.start_s) * self.sample_rate
+            if 0 <= index < u.samples.size:
+                assert u.track is not None
+                return u.track.weights_at(index)
+        return None
