@@ -70,6 +70,15 @@ class FakeAudio:
     def report(self, msg) -> None:
         self.pub.publish(msg, category="audio")
 
+    def start_speech(self, client: AgentClient) -> str:
+        """A say request the audio side takes up and starts; returns once the agent is talking."""
+        self.beat()
+        rid = client.say(audio_path="/a.wav")
+        self.next_request()
+        self.report(SpeechStarted(agent="ada", request_id=rid))
+        client.expect_state(RoleState, lambda m: m.role == "talking")
+        return rid
+
     def close(self) -> None:
         self.pub.close()
         self.sub.close()
@@ -144,11 +153,7 @@ def test_say_lifecycle_is_republished_once_and_role_follows_speech(bus, client: 
 def test_manager_role_command_wins_over_speech(bus, client: AgentClient) -> None:
     audio = FakeAudio(bus)
     try:
-        audio.beat()
-        rid = client.say(audio_path="/a.wav")
-        audio.next_request()
-        audio.report(SpeechStarted(agent="ada", request_id=rid))
-        client.expect_state(RoleState, lambda m: m.role == "talking")
+        rid = audio.start_speech(client)
         client.set_role("silence")
         client.expect_state(RoleState, lambda m: m.role == "silence")
         audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=0.5))
@@ -200,11 +205,7 @@ def test_bad_say_requests_are_rejected(client: AgentClient) -> None:
 def test_barge_in_interrupts_and_makes_the_agent_listen(bus, client: AgentClient) -> None:
     audio = FakeAudio(bus)
     try:
-        audio.beat()
-        rid = client.say(audio_path="/a.wav")
-        audio.next_request()
-        audio.report(SpeechStarted(agent="ada", request_id=rid))
-        client.expect_state(RoleState, lambda m: m.role == "talking")
+        audio.start_speech(client)
         client.user_speaking(True)
         stop = audio.next_request()
         assert isinstance(stop, Interrupt) and "user" in stop.reason

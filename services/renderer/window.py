@@ -193,9 +193,7 @@ class Window:
     def _key_callback(self, window: object, key: int, scancode: int, action: int, mods: int) -> None:
         if action not in (glfw.PRESS, glfw.REPEAT):
             return
-        name = KEY_NAMES.get(key)
-        if key == glfw.KEY_EQUAL and not mods & glfw.MOD_SHIFT:
-            name = "+"  # '=' shares the key with '+' on most layouts
+        name = KEY_NAMES.get(key)  # '=' maps to '+' there: they share a key on most layouts
         if name is not None and self.on_key is not None:
             self.on_key(name)
 
