@@ -51,8 +51,12 @@ class Broker:
         self.backend.setsockopt(zmq.SNDHWM, config.hwm)
         self.backend.setsockopt(zmq.LINGER, 0)
         self.backend.setsockopt(zmq.XPUB_VERBOSE, 1)
-        self.frontend.bind(config.frontend)
-        self.backend.bind(config.backend)
+        try:
+            self.frontend.bind(config.frontend)
+            self.backend.bind(config.backend)
+        except zmq.ZMQError:
+            self.close()  # a failed start leaves no socket or lock behind
+            raise
         self.frontend.send(b"\x01")  # subscribe to everything: the cache must see every state message
         self.poller = zmq.Poller()
         self.poller.register(self.frontend, zmq.POLLIN)

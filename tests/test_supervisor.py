@@ -188,3 +188,24 @@ def test_service_that_never_beats_is_restarted_after_ready_timeout(rig) -> None:
     clock.advance_s(0.2)
     sup.check()
     assert mute.signals == [signal.SIGKILL]
+
+
+def test_a_broker_that_cannot_bind_releases_its_sockets_and_lock(tmp_path) -> None:
+    import socket
+
+    import zmq
+
+    from services.broker import Broker
+    from services.testing import private_bus_config
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        port = taken.getsockname()[1]
+        extra = f'[bus]\ntransport = "tcp"\ninstance = "x"\nruntime_dir = ""\ntcp_host = "127.0.0.1"\n' \
+                f'tcp_frontend_port = {port}\ntcp_backend_port = {port}\nallow_remote = false\nhwm = 100\n' \
+                f'max_message_bytes = 65536\n'
+        with private_bus_config(extra=extra) as config:
+            ctx = zmq.Context()
+            with pytest.raises(zmq.ZMQError):
+                Broker(config, ctx)
+            ctx.term()  # would hang if a socket had been left open
