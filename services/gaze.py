@@ -3,7 +3,9 @@
 It follows each agent's state (role, emotion, head, eye mode, gaze target) from the dialogue
 service, ticks the engine at a fixed rate (default 60 Hz) and publishes the eye state of every agent
 each tick plus a saccade event at every onset, so a renderer can draw the exact trajectory at its
-own frame times. A role change takes effect in the engine at once, so the next tick shows it.
+own frame times. A message that can start a saccade at once (role, head, gaze target, eye mode) makes
+the service tick right after the batch it came in, so the saccade event goes out then rather than at
+the next scheduled tick: a renderer learns of it within one bus hop.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ class GazeService(Service):
         self.engine = GazeEngine(len(self.agent_ids), int(table.get("seed", 0) if seed is None else seed),
                                  start_ns=self.clock.now_ns())
         self.modes = ["saccade+blink"] * len(self.agent_ids)
+        self.react_now = False  # a message in this batch may have started a saccade: tick after the batch
         for cls, handler in ((RoleState, self.on_role), (EmotionState, self.on_emotion), (HeadState, self.on_head),
                              (EyesState, self.on_eyes), (GazeTargetState, self.on_target)):
             self.handle(cls, handler)
@@ -69,6 +72,7 @@ class GazeService(Service):
 
     def on_role(self, msg: RoleState) -> None:
         self.engine.set_role(self._i(msg.agent), msg.role, self._now())
+        self.react_now = True
 
     def on_emotion(self, msg: EmotionState) -> None:
         try:
@@ -80,14 +84,22 @@ class GazeService(Service):
         # The eyes lead the head: the engine hears the new head direction when the move begins.
         self.engine.set_head(self._i(msg.agent), msg.turn * self.head_deg[0], msg.nod * self.head_deg[1],
                              self._now())
+        self.react_now = True
 
     def on_eyes(self, msg: EyesState) -> None:
         i = self._i(msg.agent)
         self.engine.set_mode(i, msg.mode, self._now())
         self.modes[i] = msg.mode
+        self.react_now = True
 
     def on_target(self, msg: GazeTargetState) -> None:
         self.engine.set_target(self._i(msg.agent), msg.yaw_deg, msg.pitch_deg, self._now())
+        self.react_now = True
+
+    def after_batch(self) -> None:
+        if self.react_now:
+            self.react_now = False
+            self.on_tick(self._now())
 
     def on_tick(self, now_ns: int) -> None:
         tick = self.engine.tick(max(now_ns, self.engine.now_ns))

@@ -143,9 +143,14 @@ class Service:
             self.dispatch(got)
             for more in self.sub.drain(1000):
                 self.dispatch(more)
+            self.after_batch()
         if self.parent_pid is not None and os.getppid() != self.parent_pid:
             self.log.warning("supervisor %d is gone: stopping", self.parent_pid)
             self._stop.set()
+
+    def after_batch(self) -> None:
+        """Called once after each batch of messages is handled: work a batch makes due (say, publishing
+        what the messages changed) is done once per batch, not once per message."""
 
     def beat(self) -> None:
         assert self.pub is not None

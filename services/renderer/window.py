@@ -176,15 +176,24 @@ class Window:
         if not self.handle:
             glfw.terminate()
             raise WindowError("glfw could not create a window with an OpenGL 3.3 context")
-        glfw.make_context_current(self.handle)
-        glfw.swap_interval(1 if vsync else 0)
-        self.ctx = moderngl.create_context()
+        self._text_tex: moderngl.Texture | None = None
+        ctx: moderngl.Context | None = None
+        try:
+            glfw.make_context_current(self.handle)
+            glfw.swap_interval(1 if vsync else 0)
+            ctx = moderngl.create_context()
+            self._text_prog = ctx.program(vertex_shader=_TEXT_VERTEX, fragment_shader=_TEXT_FRAGMENT)
+            self._text_vbo = ctx.buffer(reserve=6 * 4 * 4, dynamic=True)
+            self._text_vao = ctx.vertex_array(self._text_prog, [(self._text_vbo, "2f 2f", "in_pos", "in_uv")])
+        except Exception as exc:  # the window is already open: close it rather than leak it
+            if ctx is not None:
+                ctx.release()
+            glfw.destroy_window(self.handle)
+            glfw.terminate()
+            raise WindowError(f"OpenGL set-up in the window failed: {exc}") from exc
+        self.ctx = ctx
         self.on_key = on_key
         glfw.set_key_callback(self.handle, self._key_callback)
-        self._text_prog = self.ctx.program(vertex_shader=_TEXT_VERTEX, fragment_shader=_TEXT_FRAGMENT)
-        self._text_vbo = self.ctx.buffer(reserve=6 * 4 * 4, dynamic=True)
-        self._text_vao = self.ctx.vertex_array(self._text_prog, [(self._text_vbo, "2f 2f", "in_pos", "in_uv")])
-        self._text_tex: moderngl.Texture | None = None
         self._text = ""
         self.frames = 0
 
