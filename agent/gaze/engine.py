@@ -20,8 +20,8 @@ arithmetic, sets the tick time):
   changes: eyes in flight or just landed, lids of blinks in progress or just ended, agents whose mode
   changed, and the static and Perlin-noise modes. The tick hands out read-only views of it.
 - Eyes in flight keep a compact copy of their saccade, so a tick interpolates them without touching
-  the per-agent rows. Blinks in progress are kept as one chunk per tick in the order they started; a
-  chunk is dropped, its lids opened, once its last blink has ended.
+  the per-agent rows; they and the blinks in progress live in persistent buffers (inflight.py) that a
+  tick appends to and trims instead of rebuilding.
 - Small event batches are processed as one; onsets are ordered by one sort of a combined key.
 
 Events from outside (role, emotion, mode, head, target) take effect at their own timestamp; one stamped
@@ -37,6 +37,7 @@ import numpy as np
 from agent.counter_rng import splitmix64
 from agent.gaze.events import BlinkOnsets, GazeTick, SaccadeOnsets
 from agent.gaze.generator import direction_weights
+from agent.gaze.inflight import Flights, LiveBlinks
 from agent.gaze.params import KINDS, MODES, ROLES, GazeParams, check_name
 from agent.gaze.synth import saccade_progress
 from agent.noise import perlin1d, perlin_blink
@@ -46,10 +47,10 @@ __all__ = ["GazeEngine", "GazeTick", "SaccadeOnsets", "BlinkOnsets", "DEFAULT_RO
 NEVER_NS = 1 << 62
 _NS = 1_000_000_000
 _TWO_POW_MINUS_53 = 1.0 / float(1 << 53)
+_COUNTER_STEPS = np.arange(8, dtype=np.uint64)  # a draw of k uniforms reads counters c .. c + k - 1
+_ONE_BATCH_ROWS = 8192  # up to this many agents with events due are processed as one batch
 _HOLD_TABLE_INTERVALS = 32_768
 _HOLD_ROW = _HOLD_TABLE_INTERVALS + 1
-_ONE_BATCH_ROWS = 8192  # up to this many agents with events due are processed as one batch
-_ONE_CHUNK_BLINKS = 16_384  # up to this many blinks in progress are handled as one chunk
 
 STATIC, NOISE, SACCADE, SACCADE_BLINK = (MODES.index(m) for m in ("static", "noise", "saccade", "saccade+blink"))
 MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))
@@ -69,7 +70,6 @@ _RowHandler = Callable[[np.ndarray, np.ndarray], None]  # (agents, their gathere
 _N_COLUMNS = 23
 # The compact copy of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch.
 _FLIGHT = slice(ONSET, TO_PITCH + 1)
-_FLIGHT_WIDTH = 6
 _ROW = np.dtype((np.void, _N_COLUMNS * 8))  # a whole row as one element: copied by one memcpy
 
 # Per-agent 1-D arrays outside the rows: name -> (dtype, initial value). The next event time is scanned
@@ -136,7 +136,6 @@ class GazeEngine:
             [(60.0 / p.roles[r].blink_rate_per_min - blink.refractory_s) * _NS for r in ROLES]
         )
         self._refractory_ns = blink.refractory_s * _NS
-        self._blink_duration_ns = int(round(blink.duration_s * _NS))
         self._pull_window_ns = int(round(blink.pull_window_s * _NS))
         # Gaze-evoked blink chance = clip((A - min) * slope, 0, max): the ramp of blink.evoked_blink_probability.
         self._evoked_slope = blink.evoked_max_probability / max(blink.evoked_full_deg - blink.evoked_min_deg, 1e-9)
@@ -146,25 +145,22 @@ class GazeEngine:
         self._hold_quantiles, self._hold_slopes = self._hold_table()
         cumulative = np.cumsum(p.direction_probability)
         self._direction_cumulative = cumulative[:-1]  # a uniform beyond the last edge falls in the last bin
-        self._bin_cos = np.cos(np.deg2rad(p.direction_bins_deg))
-        self._bin_sin = np.sin(np.deg2rad(p.direction_bins_deg))
+        bins = np.deg2rad(p.direction_bins_deg)
+        self._bin_steps = np.stack([np.cos(bins), np.sin(bins)], axis=1)
+        self._eye_limits = np.array([p.eye_yaw_limit_deg, p.eye_pitch_limit_deg])
         self._biased_agents = 0  # how many agents' emotion tilts the direction bins
         self._n = 0
         self._rows = np.empty((0, _N_COLUMNS), np.int64)
         for name, (dtype, _) in _COLUMNS_1D.items():
             setattr(self, "_" + name, np.empty(0, dtype=dtype))
-        self._flight_agents = np.empty(0, np.int64)
-        self._flight = np.empty((0, _FLIGHT_WIDTH), np.int64)
-        self._flight_chunks: list[tuple[np.ndarray, np.ndarray]] = []
+        self._flights = Flights()
         self._flight_stale = False  # set when an eye in flight is relaunched or stopped from outside
-        # Blinks in progress, in the order they started: one (agents, onsets, last end) chunk per tick.
-        self._live_blinks: list[tuple[np.ndarray, np.ndarray, int]] = []
-        self._blinks_stale = False  # set when blinks in progress are cancelled from outside (set_mode)
-        self._lid_curve_ns = self.params.blink.lid_curve_s * _NS
-        # The eye state handed out by tick(), kept from tick to tick and rewritten only where it changes.
-        self._yaw_out = np.empty(0)
-        self._pitch_out = np.empty(0)
-        self._lid_out = np.empty(0)
+        self._live_blinks = LiveBlinks(blink.lid_curve_s, blink.lid_curve_closure, 0)
+        # The eye state handed out by tick(), kept from tick to tick and rewritten only where it changes;
+        # one scratch element past the last agent absorbs the lid writes of replaced blinks (LiveBlinks).
+        self._yaw_out = np.zeros(1)
+        self._pitch_out = np.zeros(1)
+        self._lid_out = np.zeros(1)
         self._dirty: list[np.ndarray] = []  # agents whose mode changed: resting position and open lid again
         self._saccade_chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._blink_chunks: list[tuple[np.ndarray, np.ndarray]] = []
@@ -213,8 +209,9 @@ class GazeEngine:
             setattr(self, "_" + name, np.concatenate([getattr(self, "_" + name), np.full(count, fill, dtype=dtype)]))
         self._mode[new] = mode_code
         for name in ("_yaw_out", "_pitch_out", "_lid_out"):
-            setattr(self, name, np.concatenate([getattr(self, name), np.zeros(count)]))
+            setattr(self, name, np.concatenate([getattr(self, name)[: self._n], np.zeros(count + 1)]))
         self._n += count
+        self._live_blinks.grow(self._n)
         self._members_cache.clear()
         self._derive(new)
         fresh = self._rows[new]
@@ -295,7 +292,7 @@ class GazeEngine:
         else:
             rows[:, NEXT_BLINK] = NEVER_NS
             self._blink_onset[idx] = -NEVER_NS
-            self._blinks_stale = True
+            self._live_blinks.cancel(idx)
         self._store(idx, rows)
         self._advance(idx, t)
 
@@ -326,13 +323,15 @@ class GazeEngine:
         rows = self._rows[idx]
         floats = rows.view(np.float64)
         amplitude = np.minimum(turn, self._max_magnitude[rows[:, ROLE]])
-        to_yaw = self._clip_yaw(floats[:, TARGET_YAW] + amplitude * d_yaw / turn)
-        to_pitch = self._clip_pitch(floats[:, TARGET_PITCH] + amplitude * d_pitch / turn)
+        to = np.stack(
+            [self._clip_yaw(floats[:, TARGET_YAW] + amplitude * d_yaw / turn),
+             self._clip_pitch(floats[:, TARGET_PITCH] + amplitude * d_pitch / turn)], axis=1
+        )  # fmt: skip
         u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)  # hold, blink pull, blink follower
         hold = self._hold_s(rows, u[:, 0], None)
         kind = np.full(idx.size, HEAD, np.int8)
         times = np.full(idx.size, t, dtype=np.int64)
-        self._launch(idx, rows, times, to_yaw, to_pitch, kind, hold, u[:, 1], u[:, 2], magnitude=amplitude, head=True)
+        self._launch(idx, rows, times, to, kind, hold, u[:, 1], u[:, 2], magnitude=amplitude, head=True)
         self._store(idx, rows)
 
     def set_target(
@@ -361,7 +360,7 @@ class GazeEngine:
             u = self._uniforms(moving, KEY_SACCADE, COUNTER_SACCADE, 2)  # blink pull, blink follower
             times = np.full(j.size, t, dtype=np.int64)
             kind = np.full(j.size, MUTUAL, np.int8)
-            self._launch(idx[j], moving, times, to[:, 0], to[:, 1], kind, None, u[:, 0], u[:, 1])
+            self._launch(idx[j], moving, times, to, kind, None, u[:, 0], u[:, 1])
             rows[j] = moving
         self._store(idx, rows)
 
@@ -377,113 +376,37 @@ class GazeEngine:
             self._advance_due(due, t)
         self._now_ns = t
         yaw, pitch, lid = self._yaw_out, self._pitch_out, self._lid_out
+        n = self._n
         if self._dirty:
             changed = np.concatenate(self._dirty)
             self._dirty.clear()
             yaw[changed], pitch[changed] = self._resting(changed)
             lid[changed] = 0.0
-        self._flight_positions(t, yaw, pitch)
+        if self._flight_stale:
+            self._flight_stale = False
+            self._flights.keep_current(lambda agents: self._rows.take(agents, axis=0)[:, [ONSET, END]])
+        self._flights.write_positions(t, yaw, pitch, self._resting)
         blinks = self._take_blinks()
         self._blink_lids(t, lid, blinks)
         self._apply_non_saccade_modes(t, yaw, pitch, lid)
         saccades = self._take_saccades()
-        return GazeTick(t, _read_only(yaw), _read_only(pitch), _read_only(lid), saccades, blinks)
+        return GazeTick(t, _read_only(yaw[:n]), _read_only(pitch[:n]), _read_only(lid[:n]), saccades, blinks)
 
     def _blink_lids(self, t: int, lid: np.ndarray, new: BlinkOnsets) -> None:
-        """Write the lids of the agents whose blink is in progress, chunk by chunk in the order the blinks
-        started, so an agent that blinks again within a blink ends with its latest blink's lid; a chunk
-        whose blinks have all ended opens its lids and is dropped. The blinks started since the last tick
-        (`new`) join as one chunk, less those already over or already followed by the agent's next blink
-        (so no agent is written twice by one assignment, whose order numpy leaves open)."""
-        chunks = self._live_blinks
-        if len(new):
-            agents, onsets = new.agent, new.onset_ns
-            live = onsets > t - self._blink_duration_ns
-            live &= self._blink_onset[agents] == onsets
-            if not live.all():
-                agents, onsets = agents[live], onsets[live]
-            if agents.size:
-                chunks.append((agents, onsets, int(onsets.max()) + self._blink_duration_ns))
-        if self._blinks_stale:
-            self._blinks_stale = False
-            for k, (agents, onsets, end) in enumerate(chunks):
-                current = self._blink_onset[agents] == onsets
-                lid[agents[~current]] = 0.0
-                chunks[k] = (agents[current], onsets[current], end)
-        if 1 < len(chunks) and sum(chunk[0].size for chunk in chunks) <= _ONE_CHUNK_BLINKS:
-            self._one_blink_chunk(t, lid)
-            return
-        ended = 0
-        for agents, _, end in chunks:
-            if end > t:
-                break
-            lid[agents] = 0.0
-            ended += 1
-        if ended:
-            del chunks[:ended]
-        curve_ns, closure = self._lid_curve_ns, self.params.blink.lid_curve_closure
-        for agents, onsets, _ in chunks:
-            elapsed_ns = (t - onsets).astype(np.float64)  # np.interp takes floats much faster than integers
-            lid[agents] = np.interp(elapsed_ns, curve_ns, closure, left=0.0, right=0.0)
-
-    def _one_blink_chunk(self, t: int, lid: np.ndarray) -> None:
-        """_blink_lids for few blinks in progress: all chunks as one, each agent's latest blink only (an
-        agent whose latest blink began and ended between ticks has none), written at once; ended blinks
-        are dropped."""
-        agents = np.concatenate([chunk[0] for chunk in self._live_blinks])
-        onsets = np.concatenate([chunk[1] for chunk in self._live_blinks])
-        latest = self._blink_onset[agents] == onsets
-        lid[agents[~latest]] = 0.0  # over, or their agent's latest blink, written below, is
-        agents, onsets = agents[latest], onsets[latest]
-        elapsed_ns = (t - onsets).astype(np.float64)
-        curve_ns, closure = self._lid_curve_ns, self.params.blink.lid_curve_closure
-        lid[agents] = np.interp(elapsed_ns, curve_ns, closure, left=0.0, right=0.0)
-        still = elapsed_ns < self._blink_duration_ns
-        self._live_blinks = []
-        if still.any():
-            onsets = onsets[still]
-            self._live_blinks.append((agents[still], onsets, int(onsets.max()) + self._blink_duration_ns))
-
-    def _flight_positions(self, t: int, yaw: np.ndarray, pitch: np.ndarray) -> None:
-        """Write the position of every eye in flight at `t` from the compact copies of their saccades."""
-        agents, flight = self._flight_agents, self._flight
-        if self._flight_chunks:
-            agents = np.concatenate([agents, *(chunk[0] for chunk in self._flight_chunks)])
-            flight = np.concatenate([flight, *(chunk[1] for chunk in self._flight_chunks)])
-            self._flight_chunks.clear()
-        if self._flight_stale:
-            agents, flight = self._current_flights(agents, flight)
-            self._flight_stale = False
-        # A relaunch by the timer comes after landing, so an earlier copy of the same agent has ended.
-        flying = flight[:, 1] > t
-        if not flying.all():
-            landed = agents[~flying]  # back to the resting position (a newer flight is written below)
-            yaw[landed], pitch[landed] = self._resting(landed)
-            agents, flight = agents[flying], np.compress(flying, flight, axis=0)
-        self._flight_agents, self._flight = agents, flight
+        """Write the lids of the agents whose blink is in progress. Of the blinks started since the last
+        tick (`new`) only each agent's latest joins: an earlier one was cut short by it, or by a switch of
+        mode (which resets the agent's latest blink onset)."""
+        agents, onsets = new.agent, new.onset_ns
         if agents.size:
-            onset = flight[:, 0]
-            progress = saccade_progress((t - onset) / (flight[:, 1] - onset))
-            remaining = 1.0 - progress  # this form is exact at both ends of the saccade
-            floats = flight.view(np.float64)
-            yaw[agents] = floats[:, 2] * remaining + floats[:, 4] * progress
-            pitch[agents] = floats[:, 3] * remaining + floats[:, 5] * progress
+            latest = self._blink_onset[agents] == onsets
+            if not latest.all():
+                agents, onsets = agents[latest], onsets[latest]
+        self._live_blinks.update(t, lid, agents, onsets)
 
     def _resting(self, agents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the agents' eyes rest once their current saccade has landed (both in one cache line)."""
         floats = self._rows.view(np.float64)
         return floats[agents, TO_YAW], floats[agents, TO_PITCH]
-
-    def _current_flights(self, agents: np.ndarray, flight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Drop the copies of saccades that were cut short from outside (relaunched or stopped)."""
-        current = self._rows[agents][:, [ONSET, END]]
-        keep = np.all(flight[:, :2] == current, axis=1)
-        # Two launches of one agent at the same instant: the later one, appended last, is the current one.
-        _, first_in_reverse = np.unique(agents[::-1], return_index=True)
-        latest = np.zeros(agents.size, dtype=bool)
-        latest[agents.size - 1 - first_in_reverse] = True
-        keep &= latest
-        return agents[keep], flight[keep]
 
     # ------------------------------------------------------------------ events
 
@@ -533,14 +456,12 @@ class GazeEngine:
         Bit for bit counter_rng.uniform01(stream seed, agent index, counter), with the per-agent key in
         the row; the row's counter advances by `count`.
         """
-        z = rows[:, counter].view(np.uint64)[:, None] + np.arange(count, dtype=np.uint64)
+        z = rows[:, counter].view(np.uint64)[:, None] + _COUNTER_STEPS[:count]
         z ^= rows[:, key].view(np.uint64)[:, None]
         _splitmix64_inplace(z, scratch := np.empty_like(z))
         rows[:, counter] += count
         np.right_shift(z, np.uint64(11), out=scratch)
-        u = scratch.astype(np.float64)
-        u *= _TWO_POW_MINUS_53
-        return u
+        return np.multiply(scratch, _TWO_POW_MINUS_53)  # converts the 53-bit integers exactly
 
     def _schedule_blinks(self, rows: np.ndarray, t: int) -> None:
         """Draw a fresh next blink from `t` for the rows with the statistical blink model."""
@@ -610,32 +531,34 @@ class GazeEngine:
         """The gaze timer expired (or the regime changed): choose mutual or away and launch the saccade.
 
         Six uniforms per agent in one draw: mutual or away, magnitude, direction, hold, and the gaze-evoked
-        blink's chance and follower interval."""
+        blink's chance and follower interval. Yaw and pitch go as the two columns of one array."""
         times = rows[:, NEXT_SACCADE].copy()
         floats = rows.view(np.float64)
         u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 6)
         away = u[:, 0] >= floats[:, P_MUTUAL]
-        magnitude = np.log(self._magnitude_top - u[:, 1] * floats[:, MAG_SPAN])
+        magnitude = u[:, 1] * floats[:, MAG_SPAN]
+        np.subtract(self._magnitude_top, magnitude, out=magnitude)
+        np.log(magnitude, out=magnitude)
         magnitude *= floats[:, MAG_SCALE]
-        cos, sin = self._direction(agents, u[:, 2])
-        target_yaw, target_pitch = floats[:, TARGET_YAW].copy(), floats[:, TARGET_PITCH].copy()
-        to_yaw = np.where(away, self._clip_yaw(target_yaw + magnitude * cos), target_yaw)
-        to_pitch = np.where(away, self._clip_pitch(target_pitch + magnitude * sin), target_pitch)
+        to = floats[:, TARGET_YAW : TARGET_PITCH + 1].copy()
+        step = self._direction(agents, u[:, 2])
+        step *= magnitude[:, None]
+        step += to
+        np.copyto(to, self._clip(step), where=away[:, None])
         hold = self._hold_s(rows, u[:, 3], away)
         kind = away.view(np.int8)
-        self._launch(agents, rows, times, to_yaw, to_pitch, kind, hold, u[:, 4], u[:, 5], magnitude, away)
+        self._launch(agents, rows, times, to, kind, hold, u[:, 4], u[:, 5], magnitude, away)
 
-    def _direction(self, agents: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Cosine and sine of the drawn direction bin, tilted by the agents' emotions where they have one."""
+    def _direction(self, agents: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The unit step (yaw, pitch) of the drawn direction bin, tilted by the agents' emotions where they
+        have one."""
         if self._biased_agents:
             strength = self._bias_strength[agents]
             if strength.any():
                 weights = direction_weights(self.params, self._bias_direction[agents], strength)
                 index = (u[:, None] >= np.cumsum(weights, axis=-1)).sum(axis=-1)
-                index = np.minimum(index, self._bin_cos.size - 1)
-                return self._bin_cos[index], self._bin_sin[index]
-        index = np.searchsorted(self._direction_cumulative, u, side="right")
-        return self._bin_cos[index], self._bin_sin[index]
+                return self._bin_steps[np.minimum(index, self._bin_steps.shape[0] - 1)]
+        return self._bin_steps[np.searchsorted(self._direction_cumulative, u, side="right")]
 
     def _hold_s(self, rows: np.ndarray, u: np.ndarray, away: np.ndarray | None) -> np.ndarray:
         """Inverse-CDF hold times (s) from the quantile table of each agent's (role, mutual/away), scaled by
@@ -659,8 +582,7 @@ class GazeEngine:
         agents: np.ndarray,
         rows: np.ndarray,
         times: np.ndarray,
-        to_yaw: np.ndarray,
-        to_pitch: np.ndarray,
+        to: np.ndarray,
         kind: np.ndarray,
         hold_s: np.ndarray | None,
         u_pull: np.ndarray,
@@ -669,34 +591,44 @@ class GazeEngine:
         drawn: np.ndarray | None = None,
         head: bool = False,
     ) -> None:
-        """Start saccades at `times` from where each eye is then. Without `hold_s` the hold timer is kept.
+        """Start saccades at `times` from where each eye is then to `to` (yaw, pitch columns). Without
+        `hold_s` the hold timer is kept.
 
         `magnitude` is the drawn Eyes Alive magnitude to report, where `drawn` (default: everywhere); the
         others report the amplitude moved."""
         floats = rows.view(np.float64)
-        from_yaw, from_pitch = self._position(rows, times)
-        d_yaw, d_pitch = to_yaw - from_yaw, to_pitch - from_pitch
-        amplitude = np.hypot(d_yaw, d_pitch)
-        duration_ns = np.rint(amplitude * self._d_ns_per_deg + self._d0_ns).astype(np.int64)
+        start = self._position(rows, times)
+        delta = to - start
+        amplitude = np.hypot(delta[:, 0], delta[:, 1])
+        duration = amplitude * self._d_ns_per_deg
+        duration += self._d0_ns
+        duration_ns = np.rint(duration, out=duration).astype(np.int64)
         end = times + duration_ns
         if hold_s is not None:
-            next_saccade = end + np.rint(hold_s * _NS).astype(np.int64)
+            next_saccade = np.rint(hold_s * _NS).astype(np.int64)
+            next_saccade += end
         else:
             next_saccade = np.maximum(rows[:, NEXT_SACCADE], end)
             hold_s = (next_saccade - end) * 1e-9
         rows[:, ONSET], rows[:, END], rows[:, NEXT_SACCADE] = times, end, next_saccade
-        floats[:, FROM_YAW], floats[:, FROM_PITCH] = from_yaw, from_pitch
-        floats[:, TO_YAW], floats[:, TO_PITCH] = to_yaw, to_pitch
+        floats[:, FROM_YAW : FROM_PITCH + 1] = start
+        floats[:, TO_YAW : TO_PITCH + 1] = to
         rows[:, KIND] = kind
         self._couple_blinks(agents, rows, times, amplitude, u_pull, u_follow, head)
-        self._flight_chunks.append((agents, rows[:, _FLIGHT].copy()))
+        self._flights.add(agents, rows[:, _FLIGHT])
         if magnitude is None:
             magnitude = amplitude
         elif drawn is not None:
             magnitude = np.where(drawn, magnitude, amplitude)
-        direction = np.mod(np.rad2deg(np.arctan2(d_pitch, d_yaw)), 360.0)
+        direction = np.arctan2(delta[:, 1], delta[:, 0])
+        np.rad2deg(direction, out=direction)
+        # np.mod(direction, 360) for angles within one turn, without its slow floating remainder: negative
+        # angles go up a turn, and adding 0.0 turns -0.0 into 0.0 as np.mod does.
+        np.add(direction, 360.0, out=direction, where=direction < 0.0)
+        direction += 0.0
+        duration *= 1e-9
         floats_out = np.array(
-            (from_yaw, from_pitch, to_yaw, to_pitch, magnitude, amplitude, direction, duration_ns * 1e-9, hold_s)
+            (start[:, 0], start[:, 1], to[:, 0], to[:, 1], magnitude, amplitude, direction, duration, hold_s)
         )
         self._saccade_chunks.append((agents, times, kind, floats_out))
 
@@ -736,19 +668,20 @@ class GazeEngine:
 
     # ------------------------------------------------------------------ positions
 
-    def _position(self, rows: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eye position at `times` along each row's current saccade; landed eyes skip the velocity profile."""
+    def _position(self, rows: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """Eye (yaw, pitch) at `times` along each row's current saccade; landed eyes skip the velocity
+        profile."""
         floats = rows.view(np.float64)
-        yaw, pitch = floats[:, TO_YAW].copy(), floats[:, TO_PITCH].copy()
+        position = floats[:, TO_YAW : TO_PITCH + 1].copy()
         in_flight = np.flatnonzero(times < rows[:, END])
         if in_flight.size:
             self._flight_stale = True  # these eyes are relaunched or stopped mid-flight
             onset = rows[in_flight, ONSET]
-            progress = saccade_progress((times[in_flight] - onset) / (rows[in_flight, END] - onset))
+            progress = saccade_progress((times[in_flight] - onset) / (rows[in_flight, END] - onset))[:, None]
             remaining = 1.0 - progress  # this form is exact at both ends of the saccade
-            yaw[in_flight] = floats[in_flight, FROM_YAW] * remaining + yaw[in_flight] * progress
-            pitch[in_flight] = floats[in_flight, FROM_PITCH] * remaining + pitch[in_flight] * progress
-        return yaw, pitch
+            start = floats[in_flight, FROM_YAW : FROM_PITCH + 1]
+            position[in_flight] = start * remaining + position[in_flight] * progress
+        return position
 
     def _noise_position(self, idx: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
@@ -765,7 +698,8 @@ class GazeEngine:
         """Where each eye is at `t` in its current mode."""
         rows = self._rows[idx]
         stale = self._flight_stale  # only looking: nothing is relaunched here
-        yaw, pitch = self._position(rows, np.full(idx.size, t, dtype=np.int64))
+        position = self._position(rows, np.full(idx.size, t, dtype=np.int64))
+        yaw, pitch = position[:, 0], position[:, 1]
         self._flight_stale = stale
         mode = self._mode[idx]
         static = mode == STATIC
@@ -821,6 +755,11 @@ class GazeEngine:
         chunks.clear()
         order = _onset_order(agent, onset, self._n)
         return BlinkOnsets(agent[order], onset[order])
+
+    def _clip(self, position: np.ndarray) -> np.ndarray:
+        """Clip (yaw, pitch) columns to the eye's range, in place."""
+        np.maximum(position, -self._eye_limits, out=position)
+        return np.minimum(position, self._eye_limits, out=position)
 
     def _clip_yaw(self, yaw: np.ndarray) -> np.ndarray:
         limit = self.params.eye_yaw_limit_deg
