@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from agent.clock import seconds
+from agent.counter_rng import uniform01
 from agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES, N_FLEXORS
-from agent.noise import perlin1d
 
 
 def _pair_streams() -> np.ndarray:
@@ -26,7 +26,12 @@ _PHASE = (np.arange(N_FLEXORS) * 0.618034) % 1.0
 
 
 class IdleNoise:
-    """amplitude[i] * perlin1d(rate_hz * t) per flexor; "do not care" where the amplitude is 0."""
+    """amplitude[i] * perlin1d(rate_hz * t) per flexor; "do not care" where the amplitude is 0.
+
+    The noise is agent.noise.perlin1d, evaluated here with its lattice gradients kept between frames:
+    they change only when the phase crosses an integer (every few seconds at idle rates), and hashing
+    them is most of perlin1d's cost.
+    """
 
     def __init__(self, amplitude: np.ndarray, rate_hz: float, seed: int = 0) -> None:
         amplitude = np.array(amplitude, dtype=np.float64)
@@ -38,8 +43,25 @@ class IdleNoise:
         self.rate_hz = float(rate_hz)
         self.seed = int(seed)
         self._active = amplitude > 0
+        self._offset = _PHASE[_STREAMS]
+        self._lattice: np.ndarray | None = None  # the integer parts the cached gradients belong to
+        self._g0 = self._g1 = np.zeros(N_FLEXORS)
 
     def values_at(self, t_ns: int) -> np.ndarray:
-        phase = self.rate_hz * seconds(t_ns) + _PHASE[_STREAMS]
-        noise = perlin1d(phase, self.seed, _STREAMS)
+        phase = self.rate_hz * seconds(t_ns) + self._offset
+        noise = self._perlin(phase)
         return np.where(self._active, self.amplitude * noise, np.nan)
+
+    def _perlin(self, x: np.ndarray) -> np.ndarray:
+        """perlin1d(x, self.seed, _STREAMS), the same arithmetic step for step."""
+        i0 = np.floor(x)
+        if self._lattice is None or not np.array_equal(i0, self._lattice):
+            lattice = i0.astype(np.int64).astype(np.uint64)
+            self._g0 = uniform01(self.seed, _STREAMS, lattice) * 2.0 - 1.0
+            self._g1 = uniform01(self.seed, _STREAMS, lattice + np.uint64(1)) * 2.0 - 1.0
+            self._lattice = i0
+        f = x - i0
+        n0 = self._g0 * f
+        n1 = self._g1 * (f - 1.0)
+        fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
+        return 2.0 * (n0 + fade * (n1 - n0))

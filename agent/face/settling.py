@@ -51,9 +51,10 @@ class Settler:
     def value_at(self, t_ns: int) -> np.ndarray:
         """Settled values at t_ns; before a flexor's last change it reads that change's start value."""
         elapsed_s = np.maximum(int(t_ns) - self._t0_ns, 0) / 1e9
-        with np.errstate(divide="ignore", invalid="ignore"):
-            remaining = np.where(self._settle_s > 0, np.exp(-LN_20 * elapsed_s / self._settle_s), 0.0)
-        return self._target + (self._start - self._target) * remaining
+        # A flexor with no settle time is at its target: exp(-inf) = 0, without dividing by zero.
+        exponent = np.full(N_FLEXORS, -np.inf)
+        np.divide(-LN_20 * elapsed_s, self._settle_s, out=exponent, where=self._settle_s > 0)
+        return self._target + (self._start - self._target) * np.exp(exponent)
 
     def retarget(self, target: np.ndarray, t_ns: int, settle_s: np.ndarray | float | None = None) -> None:
         """New targets from t_ns; only flexors whose target changes start a new transition.

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES, N_FLEXORS
 
 # Vertex layout shared with the shaders: position(3) normal(3) aux(3) info(4) as float32, where
 # info = (material, bone0, bone1, weight of bone1) and aux is a rest-frame direction or position a
@@ -425,6 +425,11 @@ def build_static_mesh(detail: float = 1.0) -> StaticMesh:
     offset_v, offset_i = 0, 0
     for name, parts in groups.items():
         v, t = _merge(parts)
+        # The grids' collapsed rows (the poles of the head, eyes, nose and ears; the lids' corners) make
+        # triangles of no area: they draw nothing, yet software GL shades and sets up each of them.
+        corner = np.round(v[t, 0:3].astype(np.float64) * 1e6)
+        flat_area = np.all(corner[:, 0] == corner[:, 1], 1) | np.all(corner[:, 1] == corner[:, 2], 1)
+        t = t[~(flat_area | np.all(corner[:, 2] == corner[:, 0], 1))]
         verts_all.append(v)
         flat = (t + offset_v).reshape(-1)
         idx_all.append(flat)
@@ -471,31 +476,52 @@ class RigidFacing:
         blended = (info[:, 2] > 0) & (info[:, 0] != info[:, 1])
         self.mixed = np.nonzero(blended[tri].any(1) | (info[tri, 0] != self.bone[:, None]).any(1))[0]
         used, local = np.unique(tri[self.mixed], return_inverse=True)
-        # Components in rows (3, n), so the per-frame arithmetic runs on contiguous arrays.
-        self._mixed_tri = local.reshape(-1, 3).T.copy()  # (3 corners, n)
-        self._mixed_rest = pos[used].T.copy()
-        # Skinned per pair of bones (in practice one pair: head and jaw), a few array operations each.
+        # Skinned per pair of bones (in practice one pair: head and jaw), a few array operations each; the
+        # vertices are sorted by pair so that each pair's columns are a slice, not a gather.
         pairs = info[used, 0:2].astype(np.intp)
+        by_pair = np.lexsort((pairs[:, 1], pairs[:, 0]))
+        used, pairs = used[by_pair], pairs[by_pair]
+        local = np.argsort(by_pair)[local]
+        # Components in rows (3, n), so the per-frame arithmetic runs on contiguous arrays; the corners
+        # of every mixed triangle, corner after corner, gathered in one take.
+        self._mixed_corners = local.reshape(-1, 3).T.reshape(-1).copy()  # (3 corners * n,)
+        self._mixed_rest = pos[used].T.copy()
+        bounds = np.flatnonzero(np.any(np.diff(pairs, axis=0) != 0, axis=1)) + 1
+        starts, stops = np.concatenate([[0], bounds]).tolist(), np.append(bounds, len(used)).tolist()
         self._pairs = [
-            (int(b0), int(b1), np.nonzero((pairs[:, 0] == b0) & (pairs[:, 1] == b1))[0])
-            for b0, b1 in np.unique(pairs, axis=0)
+            (int(pairs[a, 0]), int(pairs[a, 1]), slice(a, b)) for a, b in zip(starts, stops, strict=True) if b > a
         ]
         self._mixed_w = info[used, 2].astype(np.float64)
-        self._rows = np.arange(tri.shape[0])
+        # The parts ride one bone each and lie one after another, so the rigid test is one small matrix
+        # product per run of triangles on the same bone, into views made once.
+        self._s = np.empty(tri.shape[0])
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(self.bone)) + 1])
+        stops = np.append(starts[1:], tri.shape[0])
+        self._runs = [
+            (int(self.bone[a]), self.normal[a:b], self._s[a:b])
+            for a, b in zip(starts.tolist(), stops.tolist(), strict=True)
+        ]
 
     def front(self, bones: np.ndarray, eye: np.ndarray) -> np.ndarray:
         """Which triangles face `eye` (the camera's position in the posed head frame)."""
         rot = bones[:, :3, :3]
         eye_in_bone = np.einsum("kji,kj->ki", rot, eye - bones[:, :3, 3])  # B^-1 e for each bone
-        s = (self.normal @ eye_in_bone.T)[self._rows, self.bone] - self.offset
+        for bone, normal, out in self._runs:
+            np.matmul(normal, eye_in_bone[bone], out=out)
+        s = self._s - self.offset
         posed = np.empty_like(self._mixed_rest)
         for b0, b1, cols in self._pairs:
             p = self._mixed_rest[:, cols]
             a = rot[b0] @ p + bones[b0, :3, 3:4]
-            posed[:, cols] = a + self._mixed_w[cols] * (rot[b1] @ p + bones[b1, :3, 3:4] - a)
-        t0, t1, t2 = self._mixed_tri
-        q0 = posed[:, t0]
-        (ux, uy, uz), (vx, vy, vz) = posed[:, t1] - q0, posed[:, t2] - q0
+            b = rot[b1] @ p + bones[b1, :3, 3:4]
+            b -= a
+            b *= self._mixed_w[cols]
+            np.add(a, b, out=posed[:, cols])
+        n = self.mixed.size
+        corners = posed[:, self._mixed_corners].reshape(3, 3, n)  # (xyz, corner, triangle)
+        q0 = corners[:, 0]
+        corners[:, 1:] -= q0[:, None]
+        (ux, uy, uz), (vx, vy, vz) = corners[:, 1], corners[:, 2]
         dx, dy, dz = eye[:, None] - q0
         s[self.mixed] = (uy * vz - uz * vy) * dx + (uz * vx - ux * vz) * dy + (ux * vy - uy * vx) * dz
         return s > 0.0
@@ -909,10 +935,14 @@ class Units:
 
 
 def head_model(f: np.ndarray, units: Units) -> np.ndarray:
+    return np.array(_head_matrix(_f(f, "turn"), _f(f, "nod"), _f(f, "tilt"), units)).reshape(4, 4)
+
+
+def _head_matrix(turn: float, nod: float, tilt: float, units: Units) -> list[float]:
     # turn +1 = toward the agent's right (-x): a negative yaw about +y; nod +1 = chin up: a negative
     # rotation about +x; tilt +1 = toward the agent's right shoulder: the top of the head moves to -x.
-    rot = rot_y(-_f(f, "turn") * units.turn) @ rot_x(-_f(f, "nod") * units.nod) @ rot_z(_f(f, "tilt") * units.tilt)
-    return about(NECK_PIVOT, rot)
+    rot = _mul3(_mul3(_ry3(-turn * units.turn), _rx3(-nod * units.nod)), _rz3(tilt * units.tilt))
+    return _about(_NECK_PIVOT, rot)
 
 
 def eye_rotation(look_x: float, look_y: float, units: Units) -> np.ndarray:
@@ -933,20 +963,47 @@ def lid_elevations(blink: float, lids: float, pitch_deg: float) -> tuple[float, 
     return upper, lower
 
 
-def _rx(deg: float) -> np.ndarray:
+# Bones are posed in plain floats: a frame needs a dozen 3x3 products, and on arrays that small numpy's
+# per-call overhead costs far more than the arithmetic.
+Mat3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+_NECK_PIVOT = tuple(float(v) for v in NECK_PIVOT)
+_JAW_PIVOT = tuple(float(v) for v in JAW_PIVOT)
+_IDENTITY = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+
+
+def _rx3(deg: float) -> Mat3:
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    return ((1.0, 0.0, 0.0), (0.0, c, -s), (0.0, s, c))
 
 
-def _ry(deg: float) -> np.ndarray:
+def _ry3(deg: float) -> Mat3:
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return ((c, 0.0, s), (0.0, 1.0, 0.0), (-s, 0.0, c))
 
 
-def _set_about(out: np.ndarray, pivot: np.ndarray, rotation: np.ndarray) -> None:
-    """Write the 4x4 rotation (3x3) about `pivot` into `out`, whose last row is already (0, 0, 0, 1)."""
-    out[:3, :3] = rotation
-    out[:3, 3] = pivot - rotation @ pivot
+def _rz3(deg: float) -> Mat3:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return ((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0))
+
+
+def _mul3(a: Mat3, b: Mat3) -> Mat3:
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return tuple(  # type: ignore[return-value]
+        (r0 * b00 + r1 * b10 + r2 * b20, r0 * b01 + r1 * b11 + r2 * b21, r0 * b02 + r1 * b12 + r2 * b22)
+        for r0, r1, r2 in a
+    )
+
+
+def _about(pivot: tuple[float, ...], rotation: Mat3) -> list[float]:
+    """The 4x4 matrix of `rotation` about `pivot` instead of the origin (see about()), row-major, flat."""
+    px, py, pz = pivot
+    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = rotation
+    return [
+        *(a0, b0, c0, px - (a0 * px + b0 * py + c0 * pz)),
+        *(a1, b1, c1, py - (a1 * px + b1 * py + c1 * pz)),
+        *(a2, b2, c2, pz - (a2 * px + b2 * py + c2 * pz)),
+        *(0.0, 0.0, 0.0, 1.0),
+    ]
 
 
 class FacePoser:
@@ -957,33 +1014,46 @@ class FacePoser:
         self.layout = DynamicLayout()
         self._dynamic = self.layout.template()
         self._centres = {1: eye_centre(1), -1: eye_centre(-1)}
+        self._centre_tuples = {side: tuple(float(v) for v in c) for side, c in self._centres.items()}
 
     def pose(self, flexors: np.ndarray, dynamic: bool = True) -> Pose:
         """The pose for `flexors`. With dynamic=False the brows and mouth are left for build_dynamic(),
         which a renderer can ask for only what its vertex shader needs."""
         f = clean_flexors(flexors)
         u = self.units
-        # Every bone is a rotation about a pivot, written straight into one array: this runs every frame,
-        # and a dozen small matrix products cost more in numpy's call overhead than in arithmetic.
-        bones = np.zeros((N_BONES, 4, 4))
-        bones[:, 3, 3] = 1.0
-        bones[BONE_HEAD, 0, 0] = bones[BONE_HEAD, 1, 1] = bones[BONE_HEAD, 2, 2] = 1.0
+        values = dict(zip(FLEXOR_NAMES, f.tolist(), strict=True))
         shape = mouth_shape(f)
-        # Rotating about +x by a positive angle swings the chin down and back.
-        _set_about(bones[BONE_JAW], JAW_PIVOT, _rx(shape.jaw_deg))
-        lx, ly = _f(f, "look_x"), _f(f, "look_y")
-        eye_rot = _ry(-lx * u.look_x) @ _rx(-ly * u.look_y)
-        pupils = np.empty((2, 3))
-        model = head_model(f, u)
-        for k, (side, suffix) in enumerate(((1, "l"), (-1, "r"))):
-            c = self._centres[side]
-            _set_about(bones[BONE_EYE_L if side > 0 else BONE_EYE_R], c, eye_rot)
-            up, low = lid_elevations(_f(f, "blink_" + suffix), _f(f, "lids_" + suffix), ly * u.look_y)
-            _set_about(bones[BONE_ULID_L if side > 0 else BONE_ULID_R], c, _rx(-up))
-            _set_about(bones[BONE_LLID_L if side > 0 else BONE_LLID_R], c, _rx(-low))
-            pupil = c + EYE_RADIUS * eye_rot[:, 2]  # the eye's forward pole, rotated about its centre
-            pupils[k] = model[:3, :3] @ pupil + model[:3, 3]
-        pose = Pose(bones=bones, model=model, dynamic=self._dynamic, pupils=pupils, flexors=f, mouth=shape)
+        head = _head_matrix(values["turn"], values["nod"], values["tilt"], u)
+        m00, m01, m02, m03, m10, m11, m12, m13, m20, m21, m22, m23 = head[:12]
+        ly = values["look_y"]
+        eye_rot = _mul3(_ry3(-values["look_x"] * u.look_x), _rx3(-ly * u.look_y))
+        forward = [row[2] for row in eye_rot]  # the eye's forward pole, rotated about its centre
+        # Rotating the jaw about +x by a positive angle swings the chin down and back.
+        bones: list[list[float]] = [_IDENTITY, _about(_JAW_PIVOT, _rx3(shape.jaw_deg)), [], [], [], [], [], []]
+        pupils = []
+        for side, suffix in ((1, "l"), (-1, "r")):
+            left = side > 0
+            c = self._centre_tuples[side]
+            bones[BONE_EYE_L if left else BONE_EYE_R] = _about(c, eye_rot)
+            up, low = lid_elevations(values["blink_" + suffix], values["lids_" + suffix], ly * u.look_y)
+            bones[BONE_ULID_L if left else BONE_ULID_R] = _about(c, _rx3(-up))
+            bones[BONE_LLID_L if left else BONE_LLID_R] = _about(c, _rx3(-low))
+            x, y, z = (ci + EYE_RADIUS * fi for ci, fi in zip(c, forward, strict=True))
+            pupils.append(
+                (
+                    m00 * x + m01 * y + m02 * z + m03,
+                    m10 * x + m11 * y + m12 * z + m13,
+                    m20 * x + m21 * y + m22 * z + m23,
+                )
+            )
+        pose = Pose(
+            bones=np.array([x for bone in bones for x in bone]).reshape(N_BONES, 4, 4),
+            model=np.array(head).reshape(4, 4),
+            dynamic=self._dynamic,
+            pupils=np.array(pupils),
+            flexors=f,
+            mouth=shape,
+        )
         if dynamic:
             self.build_dynamic(pose)
         return pose
