@@ -10,6 +10,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import av
 import pytest
 import zmq
 
@@ -17,7 +18,9 @@ from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, Heartbeat
+from services.cli import main as eca_main
 from services.testing import LineReader, eca_command, private_bus_config, running
+from services.up import instance_running
 
 pytestmark = pytest.mark.slow
 
@@ -122,3 +125,45 @@ def test_a_second_broker_for_the_same_instance_refuses_to_start(config: BusConfi
                                 capture_output=True, text=True, timeout=60)
         assert second.returncode == 1
         assert f"instance '{config.instance}' is already running" in second.stdout
+
+
+@pytest.mark.parametrize(("extra", "says"), [
+    (["--only", "renderer", "--headless", "--window"], "--headless and --window exclude each other"),
+    (["--only", "renderer", "--size", "12x3"], "size must lie between 16x16 and 8192x8192, got 12x3"),
+    (["--only", "renderer", "--fps", "0"], "fps must lie in [1, 240], got 0.0"),
+    (["--headless", "--only", "dialogue"], "renderer options (--headless) given, but the renderer is not started"),
+])
+def test_bad_renderer_options_are_refused_before_anything_starts(
+        config: BusConfig, extra: list[str], says: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code = eca_main(["up", "--config", str(config.config_path), "--instance", config.instance, *extra])
+    assert code == 2
+    assert says in capsys.readouterr().err
+    assert not instance_running(config)
+
+
+def test_up_headless_records_the_live_face(config: BusConfig, tmp_path: Path) -> None:
+    video = tmp_path / "live.mp4"
+    argv = eca_command("up", "--config", str(config.config_path), "--instance", config.instance, "--quiet",
+                       "--only", "dialogue", "--only", "renderer", "--headless", "--video", str(video),
+                       "--size", "160x120", "--fps", "10")
+    with running(argv) as (proc, reader):
+        reader.wait_for("[up] ready in", 60.0)
+        line = reader.lines[reader.wait_for("[renderer] INFO headless mode (EGL, forced): 160x120 at 10 fps", 5.0)]
+        assert f"writing video {video}" in line
+        with AgentClient(config, agent="ada") as client:
+            client.set_emotion("surprised", 1.0, transition_s=0.0)
+            client.expect_state(EmotionState, lambda m: m.name == "surprised")
+        frames = Subscriber(zmq.Context.instance(), config, ["stream.ada.face_frame"])
+        try:
+            frames.wait_ready()
+            assert frames.recv(10.0) is not None  # the face is being drawn
+        finally:
+            frames.close()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=15)
+        assert proc.returncode == 0
+    with av.open(str(video)) as container:
+        stream = container.streams.video[0]
+        decoded = [frame for frame in container.decode(stream)]
+    assert (stream.codec_context.name, stream.width, stream.height) == ("h264", 160, 120)
+    assert len(decoded) >= 1
