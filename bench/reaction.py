@@ -17,8 +17,9 @@ The latency of a trial is the face frame's publish stamp (taken after the frame 
 command's publish stamp, both on the monotonic clock of this host. Emotion trials are also split at
 the stamps on the way (`parts`): bus (command -> the dialogue service's new state), wait (-> the slot
 of the frame that shows it) and draw (slot -> the frame drawn and published): the worst case is a
-period of waiting plus the draw, so the draw's tail decides whether p99 <= period + 3 ms holds. The baseline is the frame period:
-ratios are latency / period. Target: p99 <= one period + 3 ms; under load the renderer holds its rate.
+period of waiting plus the draw, so the draw's tail decides whether p99 <= period + 3 ms holds.
+The baseline is the frame period: ratios are latency / period. Target: p99 <= one period + 3 ms;
+under load the renderer holds its rate.
 
     python bench/reaction.py [--fps 60] [--size 640x480] [--trials 40] [--json]
 """
