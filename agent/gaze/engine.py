@@ -65,18 +65,22 @@ _RowHandler = Callable[[np.ndarray, np.ndarray], None]  # (agents, their gathere
     ONSET, END, FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH,
     NEXT_SACCADE, NEXT_BLINK, COUNTER_SACCADE, COUNTER_BLINK, KEY_SACCADE, KEY_BLINK,
     ROLE, MODE, KIND, HOLD_BASE, TARGET_YAW, TARGET_PITCH,
-    P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE, BLINK_SPREAD_NS,
-) = range(23)  # fmt: skip
-_N_COLUMNS = 23
+    P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE, BLINK_SPREAD_NS, BLINK_ONSET,
+) = range(24)  # fmt: skip
+# 24 columns are 192 bytes, three whole cache lines when the matrix starts on a line (_aligned_rows): a
+# 23-column row straddles four lines at most offsets, and the rows an event batch gathers and scatters
+# back are the bulk of a tick's random memory traffic. The latest blink onset rides in the row, written
+# with the rest of it, instead of costing a random write of its own per blink.
+_N_COLUMNS = 24
+_CACHE_LINE = 64
 # The compact copy of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch.
 _FLIGHT = slice(ONSET, TO_PITCH + 1)
 _ROW = np.dtype((np.void, _N_COLUMNS * 8))  # a whole row as one element: copied by one memcpy
 
 # Per-agent 1-D arrays outside the rows: name -> (dtype, initial value). The next event time is scanned
-# every tick; the next three are read by events; the rest only by set_head / set_emotion / set_role.
+# every tick; the mode is read by events; the rest only by set_head / set_emotion / set_role.
 _COLUMNS_1D: dict[str, tuple[type, float | int]] = {
-    "next_event": (np.int64, NEVER_NS),
-    "blink_onset": (np.int64, -NEVER_NS), "next_is_blink": (np.bool_, False), "mode": (np.int8, 0),
+    "next_event": (np.int64, NEVER_NS), "mode": (np.int8, 0),
     "head_yaw": (np.float64, 0.0), "head_pitch": (np.float64, 0.0),
     "head_ref_yaw": (np.float64, 0.0), "head_ref_pitch": (np.float64, 0.0),
     "magnitude_scale": (np.float64, 1.0), "mutual_shift": (np.float64, 0.0),
@@ -142,7 +146,7 @@ class GazeEngine:
         self._magnitude_top = p.p_max / p.p_ref
         self._d_ns_per_deg = p.d_s_per_deg * _NS
         self._d0_ns = p.d0_s * _NS
-        self._hold_quantiles, self._hold_slopes = self._hold_table()
+        self._hold = self._hold_table()
         cumulative = np.cumsum(p.direction_probability)
         self._direction_cumulative = cumulative[:-1]  # a uniform beyond the last edge falls in the last bin
         bins = np.deg2rad(p.direction_bins_deg)
@@ -156,11 +160,10 @@ class GazeEngine:
         self._flights = Flights()
         self._flight_stale = False  # set when an eye in flight is relaunched or stopped from outside
         self._live_blinks = LiveBlinks(blink.lid_curve_s, blink.lid_curve_closure, 0)
-        # The eye state handed out by tick(), kept from tick to tick and rewritten only where it changes;
-        # one scratch element past the last agent absorbs the lid writes of replaced blinks (LiveBlinks).
-        self._yaw_out = np.zeros(1)
-        self._pitch_out = np.zeros(1)
-        self._lid_out = np.zeros(1)
+        # The eye state handed out by tick(), kept from tick to tick and rewritten only where it changes:
+        # one row per agent (yaw, pitch, lid), so an eye's yaw and pitch writes share a cache line; one
+        # scratch row past the last agent absorbs the lid writes of replaced blinks (LiveBlinks).
+        self._eyes = np.zeros((1, 3))
         self._dirty: list[np.ndarray] = []  # agents whose mode changed: resting position and open lid again
         self._saccade_chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._blink_chunks: list[tuple[np.ndarray, np.ndarray]] = []
@@ -168,16 +171,17 @@ class GazeEngine:
         if n_agents:
             self.add_agents(int(n_agents), self._now_ns, role, mode)
 
-    def _hold_table(self) -> tuple[np.ndarray, np.ndarray]:
-        """Quantile tables of the six (role, mutual/away) hold distributions, one row each, raveled, and
-        the step from each quantile to the next (the interpolation reads value + fraction * step)."""
+    def _hold_table(self) -> np.ndarray:
+        """Quantile tables of the six (role, mutual/away) hold distributions, one row each, raveled: per
+        quantile a pair (step to the next quantile, quantile), as the interpolation reads value + fraction *
+        step. Side by side, a draw reads one cache line of the table instead of one in each of two."""
         u = np.linspace(0.0, 1.0, _HOLD_TABLE_INTERVALS + 1)
         rows = []
         for role in ROLES:
             for distribution in (self.params.roles[role].mutual_interval, self.params.roles[role].away_interval):
                 rows.append(distribution.sample_s(u))
         quantiles = np.concatenate(rows)
-        return quantiles, np.append(np.diff(quantiles), 0.0)
+        return np.stack([np.append(np.diff(quantiles), 0.0), quantiles], axis=1)
 
     # ------------------------------------------------------------------ agents
 
@@ -199,17 +203,20 @@ class GazeEngine:
         rows[:, ONSET] = rows[:, END] = t
         rows[:, NEXT_SACCADE] = t if mode_code >= SACCADE else NEVER_NS
         rows[:, NEXT_BLINK] = NEVER_NS
+        rows[:, BLINK_ONSET] = -NEVER_NS
         for column, seed in zip((KEY_SACCADE, KEY_BLINK), self._stream_seeds, strict=True):
             # The same per-agent keys counter_rng.hash3 derives for (stream seed, stream = agent index).
             rows[:, column] = splitmix64(splitmix64(np.uint64(seed)) ^ new.astype(np.uint64)).view(np.int64)
         rows[:, ROLE], rows[:, MODE], rows[:, KIND] = ROLES.index(role), mode_code, MUTUAL
         rows[:, INTERVAL_SCALE] = _float_bits(1.0)
-        self._rows = np.concatenate([self._rows, rows])
+        grown = _aligned_rows(self._n + count)
+        grown[: self._n] = self._rows
+        grown[self._n :] = rows
+        self._rows = grown
         for name, (dtype, fill) in _COLUMNS_1D.items():
             setattr(self, "_" + name, np.concatenate([getattr(self, "_" + name), np.full(count, fill, dtype=dtype)]))
         self._mode[new] = mode_code
-        for name in ("_yaw_out", "_pitch_out", "_lid_out"):
-            setattr(self, name, np.concatenate([getattr(self, name)[: self._n], np.zeros(count + 1)]))
+        self._eyes = np.concatenate([self._eyes[: self._n], np.zeros((count + 1, 3))])
         self._n += count
         self._live_blinks.grow(self._n)
         self._members_cache.clear()
@@ -291,7 +298,7 @@ class GazeEngine:
             self._schedule_blinks(rows, t)
         else:
             rows[:, NEXT_BLINK] = NEVER_NS
-            self._blink_onset[idx] = -NEVER_NS
+            rows[:, BLINK_ONSET] = -NEVER_NS
             self._live_blinks.cancel(idx)
         self._store(idx, rows)
         self._advance(idx, t)
@@ -375,7 +382,7 @@ class GazeEngine:
         if due.size:
             self._advance_due(due, t)
         self._now_ns = t
-        yaw, pitch, lid = self._yaw_out, self._pitch_out, self._lid_out
+        yaw, pitch, lid = self._eyes[:, 0], self._eyes[:, 1], self._eyes[:, 2]
         n = self._n
         if self._dirty:
             changed = np.concatenate(self._dirty)
@@ -398,15 +405,22 @@ class GazeEngine:
         mode (which resets the agent's latest blink onset)."""
         agents, onsets = new.agent, new.onset_ns
         if agents.size:
-            latest = self._blink_onset[agents] == onsets
+            latest = self._rows.reshape(-1).take(agents * _N_COLUMNS + BLINK_ONSET) == onsets
             if not latest.all():
                 agents, onsets = agents[latest], onsets[latest]
         self._live_blinks.update(t, lid, agents, onsets)
 
     def _resting(self, agents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Where the agents' eyes rest once their current saccade has landed (both in one cache line)."""
-        floats = self._rows.view(np.float64)
-        return floats[agents, TO_YAW], floats[agents, TO_PITCH]
+        """Where the agents' eyes rest once their current saccade has landed (both in one cache line).
+
+        np.take on flat offsets: 2-D fancy indexing costs more per element, and a whole-row gather
+        reads three lines where one is needed."""
+        flat = self._rows.view(np.float64).reshape(-1)
+        offsets = agents * _N_COLUMNS
+        offsets += TO_YAW
+        yaw = flat.take(offsets)
+        offsets += TO_PITCH - TO_YAW
+        return yaw, flat.take(offsets)
 
     # ------------------------------------------------------------------ events
 
@@ -432,7 +446,6 @@ class GazeEngine:
         _as_rows(self._rows)[idx] = _as_rows(rows)
         next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]
         self._next_event[idx] = np.minimum(next_saccade, next_blink)
-        self._next_is_blink[idx] = next_blink < next_saccade
 
     def _derive(self, idx: np.ndarray) -> None:
         """Fold role and emotion into the columns a decision reads (see _decide)."""
@@ -480,13 +493,19 @@ class GazeEngine:
                 self._advance_due(idx, t)
 
     def _advance_due(self, idx: np.ndarray, t: int) -> None:
-        # Gathering the blink-first and the saccade-first agents' rows apart (told by one byte per agent)
-        # saves copying each kind out of one mixed batch and back.
+        # Gathering the blink-first and the saccade-first agents' rows apart saves copying each kind out of
+        # one mixed batch and back. Which is which is read from the rows' timers, a line the gather then
+        # finds in cache, rather than kept in an array of its own that every stored row would write.
         # Small batches go as one: there the fixed cost of the numpy calls of a second pass outweighs it.
         if idx.size <= _ONE_BATCH_ROWS:
             groups: tuple[np.ndarray, ...] = (idx,)
         else:
-            blink_first = self._next_is_blink[idx]
+            flat = self._rows.reshape(-1)
+            offsets = idx * _N_COLUMNS
+            offsets += NEXT_SACCADE
+            next_saccade = flat.take(offsets)
+            offsets += NEXT_BLINK - NEXT_SACCADE
+            blink_first = flat.take(offsets) < next_saccade
             count = int(np.count_nonzero(blink_first))
             groups = (idx,) if count in (0, idx.size) else (idx[blink_first], idx[~blink_first])
         for group in groups:
@@ -524,7 +543,7 @@ class GazeEngine:
         times = rows[:, NEXT_BLINK].copy()
         u = self._uniforms(rows, KEY_BLINK, COUNTER_BLINK, 1)[:, 0]
         rows[:, NEXT_BLINK] = times + self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS], u)
-        self._blink_onset[agents] = times
+        rows[:, BLINK_ONSET] = times
         self._blink_chunks.append((agents, times))
 
     def _decide(self, agents: np.ndarray, rows: np.ndarray) -> None:
@@ -571,9 +590,9 @@ class GazeEngine:
             cell += _HOLD_ROW
         else:
             np.add(cell, _HOLD_ROW, out=cell, where=away)
-        hold = self._hold_slopes[cell]
-        hold *= x
-        hold += self._hold_quantiles[cell]
+        pairs = self._hold.take(cell, axis=0)
+        hold = pairs[:, 0] * x
+        hold += pairs[:, 1]
         hold *= rows.view(np.float64)[:, INTERVAL_SCALE]
         return hold
 
@@ -659,7 +678,7 @@ class GazeEngine:
             interval = self._blink_interval_ns(rows.view(np.float64)[j, BLINK_SPREAD_NS], u_follow[j])
             rows[j, NEXT_BLINK] = next_blink[j] + interval
             pulled, onset = agents[j], times[j]
-            self._blink_onset[pulled] = onset
+            rows[j, BLINK_ONSET] = onset
             self._blink_chunks.append((pulled, onset))
 
     def _blink_interval_ns(self, spread_ns: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -788,6 +807,14 @@ def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndar
         if np.all(ordered[1:] > ordered[:-1]):
             return order
     return np.lexsort((agent, onset))
+
+
+def _aligned_rows(count: int) -> np.ndarray:
+    """An uninitialised (count, _N_COLUMNS) int64 matrix that starts on a cache line boundary."""
+    words = _CACHE_LINE // 8
+    buffer = np.empty(count * _N_COLUMNS + words, np.int64)
+    start = (-buffer.ctypes.data % _CACHE_LINE) // 8
+    return buffer[start : start + count * _N_COLUMNS].reshape(count, _N_COLUMNS)
 
 
 def _as_rows(matrix: np.ndarray) -> np.ndarray:
