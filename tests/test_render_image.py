@@ -8,7 +8,8 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from agent.face.flexors import N_FLEXORS
+from agent.face.frame import FlexorFrame
 from services.renderer import (
     HeadlessContextError,
     Renderer,
@@ -28,10 +29,7 @@ MAGENTA = (1.0, 0.0, 1.0)
 
 
 def flexors(**values: float) -> np.ndarray:
-    f = np.zeros(N_FLEXORS)
-    for name, value in values.items():
-        f[FLEXOR_INDEX[name]] = value
-    return f
+    return FlexorFrame.from_dict(values).values
 
 
 @pytest.fixture(scope="module")

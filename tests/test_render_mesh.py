@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from agent.face.flexors import N_FLEXORS
+from agent.face.frame import FlexorFrame
 from services.renderer.config import load_render_config
 from services.renderer.mesh import (
     BONE_ULID_L,
@@ -33,10 +34,7 @@ from services.renderer.mesh import (
 
 
 def flexors(**values: float) -> np.ndarray:
-    f = np.zeros(N_FLEXORS)
-    for name, value in values.items():
-        f[FLEXOR_INDEX[name]] = value
-    return f
+    return FlexorFrame.from_dict(values).values
 
 
 @pytest.fixture(scope="module")
