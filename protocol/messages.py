@@ -183,6 +183,51 @@ class GazeTargetState(Message):
     target: str = bounded("", max_len=32, doc="what is there")
 
 
+MAX_PENDING_SAYS = 64  # per agent: what one speech state can list
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeechState(Message):
+    """The agent's say requests accepted and not yet ended, oldest first, one list entry per request.
+
+    A restarted dialogue service reads it back from the cache, so it can still interrupt, feed chunks
+    to and end the requests its predecessor handed to the audio service."""
+
+    TYPE = "speech"
+    CATEGORY = "state"
+    request_ids: list[str] = bounded([], max_len=MAX_PENDING_SAYS, doc="the pending requests (each 1-64 chars)")
+    streamed: list[bool] = bounded([], max_len=MAX_PENDING_SAYS, doc="its audio comes as speech_chunk messages")
+    next_chunk: list[int] = bounded([], lo=0, hi=2**31, max_len=MAX_PENDING_SAYS,
+                                    doc="index of the next chunk it accepts (streamed)")
+    chunks_done: list[bool] = bounded([], max_len=MAX_PENDING_SAYS, doc="its last chunk has come (streamed)")
+    started: list[bool] = bounded([], max_len=MAX_PENDING_SAYS, doc="its speech_started has been published")
+    audio_started_ns: list[int] = bounded([], lo=0, hi=2**63 - 1, max_len=MAX_PENDING_SAYS,
+                                          doc="started_ns of the audio service it went to; 0: none known")
+
+    def consistency_problem(self) -> tuple[str, str] | None:
+        n = len(self.request_ids)
+        for name in ("streamed", "next_chunk", "chunks_done", "started", "audio_started_ns"):
+            if len(getattr(self, name)) != n:
+                return name, f"has {len(getattr(self, name))} entries for {n} request_ids"
+        if "" in self.request_ids:
+            return "request_ids", "an empty request id"
+        if len(set(self.request_ids)) != n:
+            return "request_ids", "a request id listed twice"
+        return None
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlaybackState(Message):
+    """The say requests the audio service holds for the agent (queued or playing), in the order it took
+    them; published by the audio service at each change. With the dialogue service's speech state it
+    tells a restarted dialogue service which of its predecessor's requests ended while it was away."""
+
+    TYPE = "playback"
+    CATEGORY = "state"
+    request_ids: list[str] = bounded([], max_len=MAX_PENDING_SAYS, doc="the requests held (each 1-64 chars)")
+    started_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="the audio service instance (its heartbeat's started_ns)")
+
+
 # --- events: things that happened -----------------------------------------------------------------
 
 
@@ -323,7 +368,7 @@ class Error(Message):
 
 ALL_MESSAGES: tuple[type[Message], ...] = (
     SetRole, SetEmotion, MoveHead, SetEyes, SetGazeTarget, Say, SpeechChunk, Interrupt, UserSpeech,
-    RoleState, EmotionState, HeadState, EyesState, GazeTargetState,
+    RoleState, EmotionState, HeadState, EyesState, GazeTargetState, SpeechState, PlaybackState,
     SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Saccade,
     ClockAnchor, MouthKeys, EyeState, FaceFrame,
     Heartbeat, Hello, Error,

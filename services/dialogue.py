@@ -24,6 +24,7 @@ from agent.face.emotions import canonical_emotion_name, load_emotion_table
 from protocol.bus import Received
 from protocol.endpoints import BusConfig
 from protocol.messages import (
+    MAX_PENDING_SAYS,
     EmotionState,
     EyesState,
     GazeTargetState,
@@ -32,6 +33,7 @@ from protocol.messages import (
     Interrupt,
     Message,
     MoveHead,
+    PlaybackState,
     RoleState,
     Say,
     SetEmotion,
@@ -43,11 +45,12 @@ from protocol.messages import (
     SpeechFinished,
     SpeechInterrupted,
     SpeechStarted,
+    SpeechState,
     UserSpeech,
 )
 from services.runtime import Rejected, Service
 
-STATE_TYPES = (RoleState, EmotionState, HeadState, EyesState, GazeTargetState)
+STATE_TYPES = (RoleState, EmotionState, HeadState, EyesState, GazeTargetState, SpeechState, PlaybackState)
 
 
 @dataclass
@@ -135,6 +138,9 @@ class DialogueService(Service):
             state.head = adopted.get("head", state.head)  # type: ignore[assignment]
             state.eyes = adopted.get("eyes", state.eyes)  # type: ignore[assignment]
             state.gaze_target = adopted.get("gaze_target", state.gaze_target)  # type: ignore[assignment]
+            speech = adopted.get("speech")
+            if isinstance(speech, SpeechState):
+                self._adopt_pending(state, speech)
             if state.role.role == "talking" and state.role.set_by == "speech":
                 # A previous instance was mid-speech; what the role was before is lost with it, so the
                 # end of that speech (reported by the audio service) returns the agent to the default.
@@ -143,12 +149,52 @@ class DialogueService(Service):
             for msg in state.current():
                 if msg.TYPE not in adopted:
                     self._set_state(agent, msg)
+            if "speech" not in adopted:
+                self._publish_speech(state, agent)
+            playback = adopted.get("playback")
+            if isinstance(playback, PlaybackState) and state.pending:
+                self._reconcile(agent, playback)
             if adopted:
                 self.log.info("agent %s: adopted current state (%s) from the cache", agent,
                               ", ".join(sorted(adopted)))
         # from now on our own state echoes would come back on state.<agent>.: we know them already
         for agent in self.agent_ids:
             self.sub.unsubscribe(f"state.{agent}.")
+
+    def _adopt_pending(self, state: AgentState, speech: SpeechState) -> None:
+        """Take over the say requests a previous instance handed to the audio service (its speech state)."""
+        now_ns = self.clock.now_ns()
+        for rid, streamed, next_chunk, chunks_done, started, audio_ns in zip(
+            speech.request_ids, speech.streamed, speech.next_chunk, speech.chunks_done, speech.started,
+            speech.audio_started_ns, strict=True,
+        ):
+            state.pending[rid] = PendingSay(rid, speech.agent, streamed, now_ns, audio_ns or None, started,
+                                            next_chunk, chunks_done)
+        if state.pending:
+            self.log.info("agent %s: took over %d pending say request(s) from a previous instance",
+                          speech.agent, len(state.pending))
+
+    def _reconcile(self, agent: str, playback: PlaybackState) -> None:
+        """End the adopted requests that the audio service instance they went to no longer holds: they
+        ended while no dialogue service was listening, and their terminal event is still owed."""
+        held = set(playback.request_ids)
+        self._fail_pending(
+            lambda p: p.agent == agent and p.audio_started_ns == playback.started_ns and p.request_id not in held,
+            "it ended while the dialogue service was restarting; how it ended was lost",
+        )
+
+    def _publish_speech(self, state: AgentState, agent: str) -> None:
+        """The agent's pending say requests as state.<agent>.speech, for a successor to take over."""
+        pending = list(state.pending.values())
+        self.publish(SpeechState(
+            agent=agent,
+            request_ids=[p.request_id for p in pending],
+            streamed=[p.streamed for p in pending],
+            next_chunk=[p.next_chunk for p in pending],
+            chunks_done=[p.chunks_done for p in pending],
+            started=[p.started for p in pending],
+            audio_started_ns=[p.audio_started_ns or 0 for p in pending],
+        ))
 
     def _agent(self, msg: Message) -> AgentState:
         state = self.agents.get(msg.agent)
@@ -207,9 +253,13 @@ class DialogueService(Service):
             raise Rejected(f"sample_rate {cmd.sample_rate} is too low for PCM (8000 or more)", cmd.request_id)
         if cmd.pcm is not None and len(cmd.pcm) % 2:
             raise Rejected("pcm must hold whole 16-bit samples (an even number of bytes)", cmd.request_id)
+        if len(state.pending) >= MAX_PENDING_SAYS:
+            raise Rejected(f"agent '{cmd.agent}' already has {MAX_PENDING_SAYS} say requests pending; "
+                           "send this one when one of them has ended", cmd.request_id)
         state.pending[cmd.request_id] = PendingSay(cmd.request_id, cmd.agent, cmd.streamed,
                                                    self.clock.now_ns(), self.audio_started_ns)
         self.publish(dataclasses.replace(cmd, t_ns=0), category="play")
+        self._publish_speech(state, cmd.agent)
 
     def on_chunk(self, cmd: SpeechChunk) -> None:
         state = self._agent(cmd)
@@ -226,6 +276,7 @@ class DialogueService(Service):
         pending.next_chunk += 1
         pending.chunks_done = cmd.last
         self.publish(dataclasses.replace(cmd, t_ns=0), category="play")
+        self._publish_speech(state, cmd.agent)
 
     def on_interrupt(self, cmd: Interrupt) -> None:
         state = self._agent(cmd)
@@ -252,6 +303,7 @@ class DialogueService(Service):
             return  # already failed by us (audio lost), or a duplicate
         pending.started = True
         self.publish(dataclasses.replace(ev, t_ns=0))
+        self._publish_speech(state, ev.agent)
         if state.role.role != "talking" or state.role.set_by != "speech":
             state.role_before_speech = state.role
             self._set_state(ev.agent, RoleState(agent=ev.agent, role="talking", speaker=ev.agent,
@@ -259,12 +311,15 @@ class DialogueService(Service):
 
     def on_audio_terminal(self, ev: SpeechFinished | SpeechInterrupted | SpeechFailed) -> None:
         state = self._agent(ev)
-        if state.pending.pop(ev.request_id, None) is None and ev.request_id in state.ended:
+        was_pending = state.pending.pop(ev.request_id, None) is not None
+        if not was_pending and ev.request_id in state.ended:
             return  # already ended here (failed by us when the audio side was lost), or a duplicate
         # (one unknown here and not ended here was handed to the audio service by a previous instance of
-        # this service: its terminal event is still owed to the client)
+        # this service whose speech state never reached the cache: its terminal event is still owed)
         state.ended.append(ev.request_id)
         self.publish(dataclasses.replace(ev, t_ns=0))
+        if was_pending:
+            self._publish_speech(state, ev.agent)
         self._after_speech(state)
 
     def _after_speech(self, state: AgentState) -> None:
@@ -279,8 +334,13 @@ class DialogueService(Service):
     def on_heartbeat(self, beat: Heartbeat) -> None:
         if beat.service != "audio":
             return
-        if self.audio_started_ns is not None and beat.started_ns != self.audio_started_ns:
-            self._fail_pending(lambda p: p.audio_started_ns != beat.started_ns, "the audio service restarted")
+        if beat.started_ns != self.audio_started_ns:
+            # Requests handed to another instance (before a restart of either service) will never play.
+            known = self.audio_started_ns is not None
+            self._fail_pending(
+                lambda p: p.audio_started_ns != beat.started_ns and (known or p.audio_started_ns is not None),
+                "the audio service restarted",
+            )
         self.audio_started_ns = beat.started_ns
         self.audio_last_beat_ns = self.clock.now_ns()
 
@@ -313,4 +373,5 @@ class DialogueService(Service):
                 state.ended.append(p.request_id)
                 self.publish(SpeechFailed(agent=p.agent, request_id=p.request_id, reason=reason))
             if doomed:
+                self._publish_speech(state, doomed[0].agent)
                 self._after_speech(state)

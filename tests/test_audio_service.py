@@ -11,6 +11,7 @@ from protocol.client import AgentClient
 from protocol.messages import (
     ClockAnchor,
     MouthKeys,
+    PlaybackState,
     RoleState,
     SpeechFailed,
     SpeechFinished,
@@ -123,3 +124,13 @@ def test_an_unexpected_player_error_still_ends_the_request(client: AgentClient, 
     rid = client.say(pcm=tone(0.2), sample_rate=RATE)
     failed = client.wait_for_speech(rid, 10.0)
     assert isinstance(failed, SpeechFailed) and "device went away" in failed.reason
+
+
+def test_the_playback_state_holds_a_request_from_acceptance_to_its_end(client: AgentClient) -> None:
+    first = client.expect_state(PlaybackState)
+    assert first.request_ids == [] and first.source == "audio" and first.started_ns > 0
+    rid = client.say(pcm=tone(0.3), sample_rate=RATE)
+    held = client.expect_state(PlaybackState, lambda m: m.request_ids == [rid])
+    assert held.started_ns == first.started_ns
+    assert isinstance(client.wait_for_speech(rid, 10.0), SpeechFinished)
+    client.expect_state(PlaybackState, lambda m: m.request_ids == [] and m.seq > held.seq)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
 import zmq
@@ -13,16 +14,21 @@ from protocol.bus import BusTimeout, Publisher, Subscriber
 from protocol.client import AgentClient, CommandRejected
 from protocol.messages import (
     ALL_AGENTS,
+    MAX_PENDING_SAYS,
+    TERMINAL_SPEECH_EVENTS,
     EmotionState,
     Error,
     Heartbeat,
     Interrupt,
+    PlaybackState,
     RoleState,
     Say,
     SpeechChunk,
     SpeechFailed,
     SpeechFinished,
+    SpeechInterrupted,
     SpeechStarted,
+    SpeechState,
 )
 from services.dialogue import DialogueService
 from services.runtime import wait_until
@@ -40,6 +46,21 @@ def dialogue(bus) -> Iterator[DialogueService]:
     service = DialogueService(bus)
     with ServiceThread(service):
         yield service
+
+
+@contextmanager
+def dialogue_known_to(audio: FakeAudio, bus) -> Iterator[DialogueService]:
+    """A dialogue service that has had the (fake) audio service's heartbeat."""
+    with ServiceThread(DialogueService(bus)) as thread:
+        audio.introduce(thread.service)
+        yield thread.service
+
+
+@pytest.fixture
+def audio(bus) -> Iterator[FakeAudio]:
+    fake = FakeAudio(bus)
+    yield fake
+    fake.close()
 
 
 @pytest.fixture
@@ -69,6 +90,16 @@ class FakeAudio:
 
     def report(self, msg) -> None:
         self.pub.publish(msg, category="audio")
+
+    def introduce(self, dialogue: DialogueService) -> None:
+        """A heartbeat, and wait until the dialogue service knows this instance (requests it then
+        accepts record it: the beat and a say come from different publishers, in either order)."""
+        self.beat()
+        assert wait_until(lambda: dialogue.audio_started_ns == self.started_ns, 5.0)
+
+    def hold(self, *request_ids: str) -> None:
+        """What the audio service publishes whenever the requests it holds change."""
+        self.pub.publish(PlaybackState(agent="ada", request_ids=list(request_ids), started_ns=self.started_ns))
 
     def start_speech(self, client: AgentClient) -> str:
         """A say request the audio side takes up and starts; returns once the agent is talking."""
@@ -305,3 +336,84 @@ def test_a_restarted_dialogue_service_still_ends_the_speech_its_predecessor_star
                 assert isinstance(stop, Interrupt) and stop.request_id == ""
     finally:
         audio.close()
+
+
+def test_the_speech_state_lists_the_pending_requests_until_they_end(
+    dialogue, client: AgentClient, audio: FakeAudio) -> None:
+    assert client.expect_state(SpeechState).request_ids == []
+    audio.introduce(dialogue)
+    rid = client.say(audio_path="/a.wav")
+    audio.next_request()
+    listed = client.expect_state(SpeechState, lambda m: m.request_ids == [rid])
+    assert listed.started == [False] and listed.audio_started_ns == [audio.started_ns]
+    audio.report(SpeechStarted(agent="ada", request_id=rid))
+    client.expect_state(SpeechState, lambda m: m.started == [True])
+    audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=1.0))
+    client.expect_state(SpeechState, lambda m: m.request_ids == [])
+
+
+def test_a_restarted_dialogue_service_takes_over_its_predecessors_requests(bus, audio: FakeAudio) -> None:
+    with AgentClient(bus, agent="ada") as client:
+        with dialogue_known_to(audio, bus):
+            client.send(Say(agent="ada", request_id="tts", streamed=True, sample_rate=16000))
+            audio.next_request()
+            client.send(SpeechChunk(agent="ada", request_id="tts", index=0, pcm=b"\0\0"))
+            audio.next_request()
+            client.expect_state(SpeechState, lambda m: m.next_chunk == [1])
+        with ServiceThread(DialogueService(bus)) as second:
+            assert list(second.service.agents["ada"].pending) == ["tts"]
+            audio.beat()
+            client.send(SpeechChunk(agent="ada", request_id="tts", index=1, pcm=b"\0\0", last=True))
+            chunk = audio.next_request()
+            assert isinstance(chunk, SpeechChunk) and (chunk.index, chunk.last) == (1, True)
+            client.interrupt("tts")  # by id: the new instance knows the request
+            stop = audio.next_request()
+            assert isinstance(stop, Interrupt) and stop.request_id == "tts"
+            audio.report(SpeechInterrupted(agent="ada", request_id="tts", played_s=0.1, reason="command"))
+            assert isinstance(client.wait_for_speech("tts", 5.0), SpeechInterrupted)
+            client.expect_state(SpeechState, lambda m: m.request_ids == [])
+
+
+def test_a_request_that_ended_while_no_dialogue_service_ran_fails_once(bus, audio: FakeAudio) -> None:
+    with AgentClient(bus, agent="ada") as client:
+        with dialogue_known_to(audio, bus):
+            rid = client.say(audio_path="/a.wav")
+            audio.next_request()
+            audio.hold(rid)
+            audio.report(SpeechStarted(agent="ada", request_id=rid))
+            client.expect_state(RoleState, lambda m: m.role == "talking")
+        # the speech ends while no dialogue service listens: its terminal event is lost
+        audio.report(SpeechFinished(agent="ada", request_id=rid, played_s=1.0))
+        audio.hold()
+        client.expect_state(PlaybackState, lambda m: m.request_ids == [])  # the cache has it now
+        with ServiceThread(DialogueService(bus)) as second:
+            failed = client.wait_for_speech(rid, 5.0)
+            assert isinstance(failed, SpeechFailed) and "while the dialogue service was restarting" in failed.reason
+            client.expect_state(RoleState, lambda m: m.role == "listening" and m.set_by == "speech")
+            assert second.service.agents["ada"].pending == {}
+            client.set_emotion("annoyed")  # a later marker
+            client.expect_state(EmotionState, lambda m: m.name == "annoyed")
+            assert not any(isinstance(m, TERMINAL_SPEECH_EVENTS) and m.request_id == rid for m in client._inbox)
+
+
+def test_requests_for_an_audio_instance_gone_fail_after_a_dialogue_restart(bus, audio: FakeAudio) -> None:
+    with AgentClient(bus, agent="ada") as client:
+        with dialogue_known_to(audio, bus):
+            rid = client.say(audio_path="/a.wav")
+            audio.next_request()
+            client.expect_state(SpeechState, lambda m: m.request_ids == [rid])
+        audio.started_ns = 2  # both restarted: the new audio instance never saw the request
+        with ServiceThread(DialogueService(bus)):
+            audio.beat()
+            failed = client.wait_for_speech(rid, 5.0)
+            assert isinstance(failed, SpeechFailed) and "restarted" in failed.reason
+
+
+def test_a_say_beyond_the_pending_limit_is_rejected(dialogue, client: AgentClient, audio: FakeAudio) -> None:
+    audio.introduce(dialogue)
+    for k in range(MAX_PENDING_SAYS):
+        client.send(Say(agent="ada", request_id=f"r{k}", audio_path="/a.wav"))
+    client.expect_state(SpeechState, lambda m: len(m.request_ids) == MAX_PENDING_SAYS)
+    client.send(Say(agent="ada", request_id="one-too-many", audio_path="/a.wav"))
+    err = client.wait_for(lambda m: isinstance(m, Error), 5.0)
+    assert err.request_id == "one-too-many" and f"already has {MAX_PENDING_SAYS}" in err.reason

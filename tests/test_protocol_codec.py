@@ -36,6 +36,7 @@ from protocol.messages import (
     MouthKeys,
     Say,
     SetEmotion,
+    SpeechState,
 )
 from protocol.topics import topic_for
 from services.testing import BrokerThread, private_bus_config
@@ -108,6 +109,13 @@ def messages(draw: st.DrawFn, cls: type[Message] | None = None) -> Message:
     if cls is MouthKeys:  # one weight per sample position, or the message is inconsistent
         n = len(values.get("sample_index", []))
         values["weights"] = {k: (v * n)[:n] if v else [0.0] * n for k, v in values.get("weights", {}).items()}
+    if cls is SpeechState:  # one entry per request id, each id non-empty and listed once
+        ids = list(dict.fromkeys(i for i in values.get("request_ids", []) if i))
+        values["request_ids"] = ids
+        for spec in field_specs(cls):
+            if typing.get_origin(spec.kind) is list and spec.name != "request_ids":
+                drawn = values.get(spec.name) or [typing.get_args(spec.kind)[0]()]  # False or 0
+                values[spec.name] = (drawn * len(ids))[: len(ids)]
     return cls(**values)
 
 

@@ -151,12 +151,13 @@ def test_endpoints_are_the_documented_files_in_a_private_directory(instance: Ins
 
 def test_a_new_subscriber_gets_the_current_state_from_the_cache(client: RawClient) -> None:
     topics = {topic for topic, _ in client.early}
-    for kind in ("role", "emotion", "head", "eyes", "gaze_target"):
+    for kind in ("role", "emotion", "head", "eyes", "gaze_target", "speech"):  # this instance runs no audio
         assert f"state.{AGENT}.{kind}" in topics
     for topic, msg in client.early:
         if topic.startswith("state."):
             assert topic == f"state.{msg['agent']}.{msg['type']}"
-            assert msg["v"] == 1 and msg["source"] == "dialogue" and msg["seq"] >= 1
+            owner = "audio" if msg["type"] == "playback" else "dialogue"
+            assert msg["v"] == 1 and msg["source"] == owner and msg["seq"] >= 1
 
 
 def test_sets_an_emotion_and_receives_the_state_change(client: RawClient) -> None:

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from protocol.endpoints import BusConfig
+from protocol.messages import MAX_PENDING_SAYS, Interrupt, Message, MouthKeys, PlaybackState, Say, SpeechChunk
 from protocol.messages import ClockAnchor as ClockAnchorMsg
-from protocol.messages import Interrupt, Message, MouthKeys, Say, SpeechChunk
 from protocol.messages import SpeechFailed as SpeechFailedMsg
 from protocol.messages import SpeechFinished as SpeechFinishedMsg
 from protocol.messages import SpeechInterrupted as SpeechInterruptedMsg
@@ -46,6 +46,9 @@ class AudioService(Service):
         self.players: dict[str, Player] = {}
         self.stream_rates: dict[str, int] = {}
         self.interrupt_reasons: dict[str, str] = {}
+        # Per agent, the requests taken and not yet ended (dict: insertion-ordered set), published as
+        # state.<agent>.playback so a restarted dialogue service can tell which of its requests ended.
+        self.held: dict[str, dict[str, None]] = {a: {} for a in self.agent_ids}
         for cls, handler in ((Say, self.on_say), (SpeechChunk, self.on_chunk), (Interrupt, self.on_interrupt)):
             self.handle(cls, handler)
 
@@ -57,6 +60,7 @@ class AudioService(Service):
             sink: Sink = self._sink_factory()
             self.players[agent] = Player(sink, self.events.put, agent_id=agent, clock=self.clock,
                                          config=self.audio_config).start()
+            self._publish_playback(agent)
 
     def teardown(self) -> None:
         for player in self.players.values():
@@ -69,8 +73,14 @@ class AudioService(Service):
             raise Rejected(f"unknown agent '{msg.agent}'")
         return player
 
+    def _publish_playback(self, agent: str) -> None:
+        self.publish(PlaybackState(agent=agent, request_ids=list(self.held[agent]), started_ns=self.started_ns))
+
     def on_say(self, msg: Say) -> None:
         player = self._player(msg)
+        held = self.held[msg.agent]
+        if len(held) >= MAX_PENDING_SAYS:
+            raise Rejected(f"already holding {MAX_PENDING_SAYS} say requests for '{msg.agent}'", msg.request_id)
         try:
             if msg.audio_path is not None:
                 player.say_file(msg.request_id, msg.audio_path)
@@ -84,6 +94,9 @@ class AudioService(Service):
             self.log.exception("cannot start %s", msg.request_id)
             reason = f"the audio service could not play it: {type(exc).__name__}: {exc}"
             self.publish(SpeechFailedMsg(agent=msg.agent, request_id=msg.request_id, reason=reason[:500]), "audio")
+            return
+        held[msg.request_id] = None  # a request the player failed at once leaves again with its event
+        self._publish_playback(msg.agent)
 
     def on_chunk(self, msg: SpeechChunk) -> None:
         player = self._player(msg)
@@ -106,6 +119,11 @@ class AudioService(Service):
                 return
             for msg, category in self.to_messages(event):
                 self.publish(msg, category)
+            if isinstance(event, events.SpeechFinished | events.SpeechInterrupted | events.SpeechFailed):
+                held = self.held.get(event.agent_id, {})
+                if event.utterance_id in held:
+                    del held[event.utterance_id]
+                    self._publish_playback(event.agent_id)
 
     def to_messages(self, ev: events.AudioEvent) -> list[tuple[Message, str]]:
         agent = ev.agent_id
