@@ -4,8 +4,9 @@ It follows each agent's state (role, emotion, head, eye mode, gaze target) from 
 service, ticks the engine at a fixed rate (default 60 Hz) and publishes the eye state of every agent
 each tick plus a saccade event at every onset, so a renderer can draw the exact trajectory at its
 own frame times. A message that can start a saccade at once (role, head, gaze target, eye mode) makes
-the service tick right after the batch it came in, so the saccade event goes out then rather than at
-the next scheduled tick: a renderer learns of it within one bus hop.
+the service tick right after the batch it came in, so the saccade event and that agent's eye state go
+out then rather than at the next scheduled tick: a renderer learns of it within one bus hop. The other
+agents' eye states keep the scheduled rate.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -39,7 +41,9 @@ class GazeService(Service):
         self.engine = GazeEngine(len(self.agent_ids), int(table.get("seed", 0) if seed is None else seed),
                                  start_ns=self.clock.now_ns())
         self.modes = ["saccade+blink"] * len(self.agent_ids)
-        self.react_now = False  # a message in this batch may have started a saccade: tick after the batch
+        # Agents whose message in this batch may have started a saccade: the service ticks right after the
+        # batch and sends their eye states then; the others' keep the rate_hz schedule.
+        self.touched: set[int] = set()
         for cls, handler in ((RoleState, self.on_role), (EmotionState, self.on_emotion), (HeadState, self.on_head),
                              (EyesState, self.on_eyes), (GazeTargetState, self.on_target)):
             self.handle(cls, handler)
@@ -71,8 +75,9 @@ class GazeService(Service):
         return max(self.clock.now_ns(), self.engine.now_ns)
 
     def on_role(self, msg: RoleState) -> None:
-        self.engine.set_role(self._i(msg.agent), msg.role, self._now())
-        self.react_now = True
+        i = self._i(msg.agent)
+        self.engine.set_role(i, msg.role, self._now())
+        self.touched.add(i)
 
     def on_emotion(self, msg: EmotionState) -> None:
         try:
@@ -82,26 +87,33 @@ class GazeService(Service):
 
     def on_head(self, msg: HeadState) -> None:
         # The eyes lead the head: the engine hears the new head direction when the move begins.
-        self.engine.set_head(self._i(msg.agent), msg.turn * self.head_deg[0], msg.nod * self.head_deg[1],
-                             self._now())
-        self.react_now = True
+        i = self._i(msg.agent)
+        self.engine.set_head(i, msg.turn * self.head_deg[0], msg.nod * self.head_deg[1], self._now())
+        self.touched.add(i)
 
     def on_eyes(self, msg: EyesState) -> None:
         i = self._i(msg.agent)
         self.engine.set_mode(i, msg.mode, self._now())
         self.modes[i] = msg.mode
-        self.react_now = True
+        self.touched.add(i)
 
     def on_target(self, msg: GazeTargetState) -> None:
-        self.engine.set_target(self._i(msg.agent), msg.yaw_deg, msg.pitch_deg, self._now())
-        self.react_now = True
+        i = self._i(msg.agent)
+        self.engine.set_target(i, msg.yaw_deg, msg.pitch_deg, self._now())
+        self.touched.add(i)
 
     def after_batch(self) -> None:
-        if self.react_now:
-            self.react_now = False
-            self.on_tick(self._now())
+        if self.touched:
+            touched = sorted(self.touched)
+            self.touched.clear()
+            self._tick(self._now(), touched)
 
     def on_tick(self, now_ns: int) -> None:
+        self._tick(now_ns, range(len(self.agent_ids)))
+
+    def _tick(self, now_ns: int, eye_states_for: Iterable[int]) -> None:
+        """Advance every agent and publish every saccade begun since the last tick, and the eye states of
+        `eye_states_for`."""
         tick = self.engine.tick(max(now_ns, self.engine.now_ns))
         s = tick.saccades
         for k in range(len(s)):
@@ -116,7 +128,8 @@ class GazeService(Service):
         yaw = np.clip(tick.yaw_deg, -90.0, 90.0)
         pitch = np.clip(tick.pitch_deg, -90.0, 90.0)
         lid = np.clip(tick.lid, 0.0, 1.0)
-        for i, agent in enumerate(self.agent_ids):
+        for i in eye_states_for:
+            agent = self.agent_ids[i]
             self.publish(EyeState(agent=agent, t_ns=tick.t_ns, yaw_deg=float(yaw[i]), pitch_deg=float(pitch[i]),
                                   lid=float(lid[i]), mode=self.modes[i]))  # type: ignore[arg-type]
 

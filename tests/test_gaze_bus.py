@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import zmq
@@ -17,44 +19,67 @@ from services.testing import BrokerThread, ServiceThread, private_bus_config
 SLOW_TICKS = "[gaze]\nrate_hz = 0.05\nseed = 3\n"
 
 
-def test_a_role_change_is_published_before_the_next_scheduled_tick() -> None:
-    with private_bus_config(extra=SLOW_TICKS) as config, BrokerThread(config):
+@contextmanager
+def gaze_service(topics: list[str], agents: list[str] | None = None) -> Iterator[tuple[Subscriber, Publisher]]:
+    """A gaze service with slow scheduled ticks on a private bus; a subscriber to `topics` and a publisher
+    standing in for the dialogue service."""
+    with private_bus_config(agents=agents, extra=SLOW_TICKS) as config, BrokerThread(config):
         ctx = zmq.Context()
-        sub = Subscriber(ctx, config, ["event.ada.saccade", "stream.ada.eye_state"])
+        sub = Subscriber(ctx, config, topics)
         dialogue = Publisher(ctx, config, "dialogue")
         try:
             sub.wait_ready()
             dialogue.wait_ready()
             with ServiceThread(GazeService(config)):
-                onsets = []
-                for role in ("talking", "listening", "talking"):
-                    role_state = dialogue.publish(RoleState(agent="ada", role=role))
-                    deadline = time.monotonic() + 5.0
-                    saccade: Saccade | None = None
-                    eye: EyeState | None = None
-                    while (saccade is None or eye is None) and (left := deadline - time.monotonic()) > 0:
-                        received = sub.recv(left)
-                        if received is None:
-                            break
-                        m = received.message
-                        if isinstance(m, Saccade) and m.onset_ns >= role_state.t_ns:
-                            saccade = m
-                        if isinstance(m, EyeState) and m.t_ns >= role_state.t_ns:
-                            eye = m
-                    assert saccade is not None, f"no saccade for the change to {role} before the next tick"
-                    assert eye is not None, f"no eye state after the change to {role}"
-                    # the eye state published with the reaction is already on the new saccade
-                    expected = eye_position_at(
-                        eye.t_ns,
-                        saccade.onset_ns,
-                        (saccade.from_yaw_deg, saccade.from_pitch_deg),
-                        (saccade.to_yaw_deg, saccade.to_pitch_deg),
-                        saccade.duration_s,
-                    )
-                    assert np.allclose((eye.yaw_deg, eye.pitch_deg), expected, atol=1e-9)
-                    onsets.append(saccade.onset_ns)
-                assert len(set(onsets)) == 3
+                yield sub, dialogue
         finally:
             sub.close()
             dialogue.close()
             ctx.term()
+
+
+def test_a_role_change_is_published_before_the_next_scheduled_tick() -> None:
+    with gaze_service(["event.ada.saccade", "stream.ada.eye_state"]) as (sub, dialogue):
+        onsets = []
+        for role in ("talking", "listening", "talking"):
+            role_state = dialogue.publish(RoleState(agent="ada", role=role))
+            deadline = time.monotonic() + 5.0
+            saccade: Saccade | None = None
+            eye: EyeState | None = None
+            while (saccade is None or eye is None) and (left := deadline - time.monotonic()) > 0:
+                received = sub.recv(left)
+                if received is None:
+                    break
+                m = received.message
+                if isinstance(m, Saccade) and m.onset_ns >= role_state.t_ns:
+                    saccade = m
+                if isinstance(m, EyeState) and m.t_ns >= role_state.t_ns:
+                    eye = m
+            assert saccade is not None, f"no saccade for the change to {role} before the next tick"
+            assert eye is not None, f"no eye state after the change to {role}"
+            # the eye state published with the reaction is already on the new saccade
+            expected = eye_position_at(
+                eye.t_ns,
+                saccade.onset_ns,
+                (saccade.from_yaw_deg, saccade.from_pitch_deg),
+                (saccade.to_yaw_deg, saccade.to_pitch_deg),
+                saccade.duration_s,
+            )
+            assert np.allclose((eye.yaw_deg, eye.pitch_deg), expected, atol=1e-9)
+            onsets.append(saccade.onset_ns)
+        assert len(set(onsets)) == 3
+
+
+def test_a_reaction_sends_the_eye_state_of_the_agent_it_concerns_only() -> None:
+    # bob comes first in the agent list, so a reaction tick that sent his eye state would send it before ada's
+    with gaze_service(["stream.ada.eye_state", "stream.bob.eye_state"], agents=["bob", "ada"]) as (sub, dialogue):
+        for role in ("talking", "listening", "talking"):
+            role_state = dialogue.publish(RoleState(agent="ada", role=role))
+            deadline = time.monotonic() + 5.0
+            after: list[EyeState] = []
+            while not any(m.agent == "ada" for m in after) and (left := deadline - time.monotonic()) > 0:
+                received = sub.recv(left)
+                if received is not None and isinstance(received.message, EyeState):
+                    if received.message.t_ns >= role_state.t_ns:
+                        after.append(received.message)
+            assert [m.agent for m in after] == ["ada"], f"eye states after the change to {role}: {after}"
