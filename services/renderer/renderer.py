@@ -129,9 +129,10 @@ class Renderer:
         self.dynamic_vbo = ctx.buffer(extruded_copy(tube_template(self.poser.layout)).tobytes(), dynamic=True)
         strips = self.poser.layout.strip_block
         self._strip_offset = strips.start * sample.dynamic.shape[1] * 4
-        # The static outline quads are chosen each frame; the dynamic parts keep an inverted hull.
+        # The static outline quads are chosen each frame; the dynamic parts keep an inverted hull. Face and
+        # lids side by side in the outline buffer: the outline pass draws both with one call.
         self.meshes: dict[str, FrameIndices | HullIndices] = {
-            "static": FrameIndices(ctx, static.indices, static.ranges, static.vertices, ("face", "eyes", "lids")),
+            "static": FrameIndices(ctx, static.indices, static.ranges, static.vertices, ("face", "lids", "eyes")),
             "dynamic": HullIndices(ctx, dyn_indices, dyn_ranges, sample.dynamic.shape[0], ("brows", "lips")),
         }
         self._vaos: dict[tuple[str, str, str], moderngl.VertexArray] = {}  # (mesh, program, index set)
