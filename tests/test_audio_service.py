@@ -17,6 +17,7 @@ from protocol.messages import (
     SpeechFinished,
     SpeechInterrupted,
     SpeechStarted,
+    SpeechState,
 )
 from services.audio.service import AudioService
 from services.audio.sinks import NullSink
@@ -124,6 +125,22 @@ def test_an_unexpected_player_error_still_ends_the_request(client: AgentClient, 
     rid = client.say(pcm=tone(0.2), sample_rate=RATE)
     failed = client.wait_for_speech(rid, 10.0)
     assert isinstance(failed, SpeechFailed) and "device went away" in failed.reason
+
+
+def test_a_request_the_player_refuses_ends_with_speech_failed_and_leaves_no_pending(
+    client: AgentClient, monkeypatch
+) -> None:
+    from services.audio.player import Player
+
+    def refuse(self, utterance_id, samples, sample_rate):  # noqa: ANN001, ARG001
+        raise ValueError(f"utterance {utterance_id!r} is already in flight")
+
+    monkeypatch.setattr(Player, "say_pcm", refuse)
+    rid = client.say(pcm=tone(0.2), sample_rate=RATE)
+    failed = client.wait_for_speech(rid, 10.0)  # an error answer instead would raise here
+    assert isinstance(failed, SpeechFailed) and "refused it" in failed.reason and "in flight" in failed.reason
+    listed = client.expect_state(SpeechState, lambda m: rid in m.request_ids)
+    client.expect_state(SpeechState, lambda m: m.request_ids == [] and m.seq > listed.seq)  # nothing pending
 
 
 def test_the_playback_state_holds_a_request_from_acceptance_to_its_end(client: AgentClient) -> None:

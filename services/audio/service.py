@@ -79,8 +79,11 @@ class AudioService(Service):
     def on_say(self, msg: Say) -> None:
         player = self._player(msg)
         held = self.held[msg.agent]
+        # The dialogue service accepted the request, so a refusal here ends it like any failure: with a
+        # speech_failed, which the dialogue service passes on once (an error would leave it pending there).
         if len(held) >= MAX_PENDING_SAYS:
-            raise Rejected(f"already holding {MAX_PENDING_SAYS} say requests for '{msg.agent}'", msg.request_id)
+            self._refuse(msg, f"the audio service already holds {MAX_PENDING_SAYS} say requests for this agent")
+            return
         try:
             if msg.audio_path is not None:
                 player.say_file(msg.request_id, msg.audio_path)
@@ -89,14 +92,18 @@ class AudioService(Service):
             else:
                 player.say_stream(msg.request_id, msg.sample_rate)
         except ValueError as exc:
-            raise Rejected(str(exc), msg.request_id) from None
+            self._refuse(msg, f"the audio service refused it: {exc}")
+            return
         except Exception as exc:  # anything else still ends the request, so the client is not left waiting
             self.log.exception("cannot start %s", msg.request_id)
-            reason = f"the audio service could not play it: {type(exc).__name__}: {exc}"
-            self.publish(SpeechFailedMsg(agent=msg.agent, request_id=msg.request_id, reason=reason[:500]), "audio")
+            self._refuse(msg, f"the audio service could not play it: {type(exc).__name__}: {exc}")
             return
         held[msg.request_id] = None  # a request the player failed at once leaves again with its event
         self._publish_playback(msg.agent)
+
+    def _refuse(self, msg: Say, reason: str) -> None:
+        self.log.warning("say request %s of %s not played: %s", msg.request_id, msg.agent, reason)
+        self.publish(SpeechFailedMsg(agent=msg.agent, request_id=msg.request_id, reason=reason[:500]), "audio")
 
     def on_chunk(self, msg: SpeechChunk) -> None:
         player = self._player(msg)
