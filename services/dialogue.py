@@ -150,7 +150,7 @@ class DialogueService(Service):
                 if msg.TYPE not in adopted:
                     self._set_state(agent, msg)
             if "speech" not in adopted:
-                self._publish_speech(state, agent)
+                self._publish_speech(state)
             playback = adopted.get("playback")
             if isinstance(playback, PlaybackState) and state.pending:
                 self._reconcile(agent, playback)
@@ -183,11 +183,11 @@ class DialogueService(Service):
             "it ended while the dialogue service was restarting; how it ended was lost",
         )
 
-    def _publish_speech(self, state: AgentState, agent: str) -> None:
+    def _publish_speech(self, state: AgentState) -> None:
         """The agent's pending say requests as state.<agent>.speech, for a successor to take over."""
         pending = list(state.pending.values())
         self.publish(SpeechState(
-            agent=agent,
+            agent=state.role.agent,
             request_ids=[p.request_id for p in pending],
             streamed=[p.streamed for p in pending],
             next_chunk=[p.next_chunk for p in pending],
@@ -259,7 +259,7 @@ class DialogueService(Service):
         state.pending[cmd.request_id] = PendingSay(cmd.request_id, cmd.agent, cmd.streamed,
                                                    self.clock.now_ns(), self.audio_started_ns)
         self.publish(dataclasses.replace(cmd, t_ns=0), category="play")
-        self._publish_speech(state, cmd.agent)
+        self._publish_speech(state)
 
     def on_chunk(self, cmd: SpeechChunk) -> None:
         state = self._agent(cmd)
@@ -276,7 +276,7 @@ class DialogueService(Service):
         pending.next_chunk += 1
         pending.chunks_done = cmd.last
         self.publish(dataclasses.replace(cmd, t_ns=0), category="play")
-        self._publish_speech(state, cmd.agent)
+        self._publish_speech(state)
 
     def on_interrupt(self, cmd: Interrupt) -> None:
         state = self._agent(cmd)
@@ -303,7 +303,7 @@ class DialogueService(Service):
             return  # already failed by us (audio lost), or a duplicate
         pending.started = True
         self.publish(dataclasses.replace(ev, t_ns=0))
-        self._publish_speech(state, ev.agent)
+        self._publish_speech(state)
         if state.role.role != "talking" or state.role.set_by != "speech":
             state.role_before_speech = state.role
             self._set_state(ev.agent, RoleState(agent=ev.agent, role="talking", speaker=ev.agent,
@@ -319,7 +319,7 @@ class DialogueService(Service):
         state.ended.append(ev.request_id)
         self.publish(dataclasses.replace(ev, t_ns=0))
         if was_pending:
-            self._publish_speech(state, ev.agent)
+            self._publish_speech(state)
         self._after_speech(state)
 
     def _after_speech(self, state: AgentState) -> None:
@@ -373,5 +373,5 @@ class DialogueService(Service):
                 state.ended.append(p.request_id)
                 self.publish(SpeechFailed(agent=p.agent, request_id=p.request_id, reason=reason))
             if doomed:
-                self._publish_speech(state, doomed[0].agent)
+                self._publish_speech(state)
                 self._after_speech(state)
