@@ -20,6 +20,9 @@ from services.renderer import (
     read_rgb,
 )
 from services.renderer.mesh import EYE_RADIUS, eye_centre
+from services.renderer.renderer import SURFACE
+
+SURFACE_FACE = (SURFACE, "face")
 
 pytestmark = pytest.mark.gl
 
@@ -262,7 +265,6 @@ def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
     import services.renderer.renderer as module
 
     r = Renderer(ctx, SIZE)
-    static = r.meshes["static"]
     hull = np.concatenate([r.static.indices, r.static.indices + np.uint32(r.static.vertices.shape[0])])
     hull_ibo = ctx.buffer(hull.astype(np.uint32).tobytes())
     hull_vao = ctx.vertex_array(
@@ -281,7 +283,7 @@ def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
         ctx.cull_face = "front"
         base = r.static.indices.size
         for group in groups:
-            first, count = static.ranges[module.SURFACE, group]
+            first, count = r.static.ranges[group]
             hull_vao.render(moderngl.TRIANGLES, vertices=count, first=base + first)
         ctx.cull_face = "back"
         ctx.disable(moderngl.CULL_FACE)
@@ -302,6 +304,30 @@ def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
         assert dark_q.sum() > 100 and (dark_q & ~near_h).sum() < 0.1 * dark_q.sum(), view
     hull_vao.release()
     hull_ibo.release()
+    r.release()
+
+
+def test_leaving_out_the_triangles_that_face_away_changes_no_pixel(ctx) -> None:
+    """The surface pass is given only the static triangles that may face the camera: every pose and
+    view draws the same picture as with all of them (GL would cull the rest)."""
+    r = Renderer(ctx, SIZE)
+    static = r.meshes["static"]
+    rng = np.random.default_rng(11)
+    names = ("turn", "nod", "tilt", "look_x", "look_y", "lids_l", "lids_r", "say_ah", "say_oo")
+    poses = [flexors(**{n: float(rng.choice([-1.0, 1.0])) if rng.random() < 0.4 else float(rng.uniform(-1, 1))
+                        for n in names}) for _ in range(24)]  # fmt: skip
+    poses += [flexors(blink_l=1.0, turn=1.0, nod=-1.0), flexors(turn=-1.0, nod=1.0, tilt=1.0, say_ah=1.0)]
+    toggles = [RenderToggles(), RenderToggles(eye_cover=False, wireframe=True)]
+    drawn = []
+    for i, f in enumerate(poses):
+        kw = {"view": ("full", "upper")[i % 2], "toggles": toggles[(i // 2) % 2]}
+        subset = image(r, f, **kw)
+        assert static.ranges[SURFACE_FACE][1] < r.static.ranges["face"][1]  # some were left out
+        static.EDGE_ON_SLACK = np.inf  # every triangle
+        everything = image(r, f, **kw)
+        del static.EDGE_ON_SLACK
+        drawn.append(np.count_nonzero(subset != everything))
+    assert drawn == [0] * len(poses)
     r.release()
 
 

@@ -9,7 +9,7 @@ i.e. toward -x here, the viewer's left. The agent's left-side flexors (blink_l, 
 smile_l, sneer_l) act on the +x side of the face.
 
 The face is split in two vertex sets:
-- static: head, hair, nose, ears, eyeballs and lids. They never change shape; flexors move them with
+- static: head, hair, nose, eyeballs and lids. They never change shape; flexors move them with
   rigid "bones" (jaw, eyes, lids) blended per vertex in the vertex shader, so a frame uploads only a
   few matrices;
 - dynamic: brows and mouth (lips, cavity, teeth, tongue), whose shapes depend on several flexors at
@@ -407,9 +407,6 @@ def build_static_mesh(detail: float = 1.0) -> StaticMesh:
         n(10),
         n(6),
     )
-    ears = [
-        _ellipsoid(np.array([s * 0.86, 0.0, -0.08]), np.array([0.11, 0.2, 0.13]), "skin", n(8), n(5)) for s in (1, -1)
-    ]
     eyes = [build_eye(1, n(14), n(6)), build_eye(-1, n(14), n(6))]
     lids = [build_lid(s, up, n(9)) for s in (1, -1) for up in (True, False)]
     blush = [build_blush(1), build_blush(-1)]
@@ -420,12 +417,12 @@ def build_static_mesh(detail: float = 1.0) -> StaticMesh:
     head = Part(head.vertices, head.triangles[order])
     # The nose has a group of its own because it gets no outline: it rises out of the cheek, and the
     # line would show where it meets the skin; its shading alone shapes it.
-    groups = {"decals": blush, "nose": [nose], "face": [*ears, head], "eyes": eyes, "lids": lids}
+    groups = {"decals": blush, "nose": [nose], "face": [head], "eyes": eyes, "lids": lids}
     verts_all, idx_all, ranges = [], [], {}
     offset_v, offset_i = 0, 0
     for name, parts in groups.items():
         v, t = _merge(parts)
-        # The grids' collapsed rows (the poles of the head, eyes, nose and ears; the lids' corners) make
+        # The grids' collapsed rows (the poles of the head, eyes and nose; the lids' corners) make
         # triangles of no area: they draw nothing, yet software GL shades and sets up each of them.
         corner = np.round(v[t, 0:3].astype(np.float64) * 1e6)
         flat_area = np.all(corner[:, 0] == corner[:, 1], 1) | np.all(corner[:, 1] == corner[:, 2], 1)
@@ -469,7 +466,11 @@ class RigidFacing:
         pos = vertices[:, 0:3].astype(np.float64)
         tri = np.asarray(triangles, dtype=np.intp)
         p0 = pos[tri[:, 0]]
-        self.normal = _cross(pos[tri[:, 1]] - p0, pos[tri[:, 2]] - p0)
+        normal = _cross(pos[tri[:, 1]] - p0, pos[tri[:, 2]] - p0)
+        # Unit normals, so the test's value is the eye's signed distance from the triangle's plane
+        # (zero-area triangles keep a zero normal: never facing).
+        self._inverse_length = 1.0 / np.maximum(np.linalg.norm(normal, axis=1), 1e-300)
+        self.normal = normal * self._inverse_length[:, None]
         self.offset = np.einsum("ij,ij->i", self.normal, p0)
         info = vertices[:, 10:13]
         self.bone = info[tri[:, 0], 0].astype(np.intp)
@@ -492,6 +493,7 @@ class RigidFacing:
             (int(pairs[a, 0]), int(pairs[a, 1]), slice(a, b)) for a, b in zip(starts, stops, strict=True) if b > a
         ]
         self._mixed_w = info[used, 2].astype(np.float64)
+        self._mixed_scale = self._inverse_length[self.mixed]
         # The parts ride one bone each and lie one after another, so the rigid test is one small matrix
         # product per run of triangles on the same bone, into views made once.
         self._s = np.empty(tri.shape[0])
@@ -504,6 +506,12 @@ class RigidFacing:
 
     def front(self, bones: np.ndarray, eye: np.ndarray) -> np.ndarray:
         """Which triangles face `eye` (the camera's position in the posed head frame)."""
+        return self.distances(bones, eye) > 0.0
+
+    def distances(self, bones: np.ndarray, eye: np.ndarray) -> np.ndarray:
+        """The signed distance of `eye` (the camera's position in the posed head frame) from each posed
+        triangle's plane: positive where the triangle faces it. The few triangles that blend two bones
+        use their rest area to scale, which keeps the sign exact and the size close."""
         rot = bones[:, :3, :3]
         eye_in_bone = np.einsum("kji,kj->ki", rot, eye - bones[:, :3, 3])  # B^-1 e for each bone
         for bone, normal, out in self._runs:
@@ -523,8 +531,10 @@ class RigidFacing:
         corners[:, 1:] -= q0[:, None]
         (ux, uy, uz), (vx, vy, vz) = corners[:, 1], corners[:, 2]
         dx, dy, dz = eye[:, None] - q0
-        s[self.mixed] = (uy * vz - uz * vy) * dx + (uz * vx - ux * vz) * dy + (ux * vy - uy * vx) * dz
-        return s > 0.0
+        s[self.mixed] = (
+            (uy * vz - uz * vy) * dx + (uz * vx - ux * vz) * dy + (ux * vy - uy * vx) * dz
+        ) * self._mixed_scale
+        return s
 
 
 class Silhouette:

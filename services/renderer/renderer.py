@@ -2,9 +2,9 @@
 
 All GPU objects (programs, buffers, vertex arrays, the offscreen target) are made once in __init__;
 a frame writes a handful of uniforms, the centre lines of the brows and lips (the vertex shader builds
-their tubes), the mouth's few inner vertices and the outline quads along the static parts'
-silhouettes, so the same Renderer can draw every frame of a window, a
-headless test or a video.
+their tubes), the mouth's few inner vertices, the static triangles that face the camera and the
+outline quads along the static parts' silhouettes, so the same Renderer can draw every frame of a
+window, a headless test or a video.
 """
 
 from __future__ import annotations
@@ -296,7 +296,7 @@ class Renderer:
         self.tube_ubo.bind_to_uniform_block(_TUBES_BLOCK)
         # The eye in the head frame (modelview is a rigid motion): where every facing test looks from.
         eye = -modelview[:3, :3].T @ modelview[:3, 3]
-        self.meshes["static"].update(self.static_facing.front(pose.bones, eye))
+        self.meshes["static"].update(self.static_facing.distances(pose.bones, eye))
         suffix = "_3d" if toggles.surface_3d else ""
         flat = self.flat_prog
         flat["u_viewport"].value = (float(width), float(height))
@@ -398,8 +398,17 @@ class Renderer:
 
 
 class FrameIndices:
-    """The static mesh's index buffer: its triangles by named group, which never change, followed by
-    the outline quads of the silhouette edges, rewritten each frame (mesh.Silhouette)."""
+    """The static mesh's index buffers, rewritten each frame from which way its triangles face: for the
+    surface, each named group's triangles that may face the camera; for the outline, the quads of the
+    silhouette edges (mesh.Silhouette).
+
+    Software GL shades the vertices of every triangle it is given and sets each up before it culls the
+    back faces, and about half of the static triangles face away in any frame, so they are left out of
+    the surface buffer. A triangle within EDGE_ON_SLACK of edge-on stays in (GL culls it by its
+    projected area in single precision, the test here is in double), so the picture is the same as
+    drawing them all."""
+
+    EDGE_ON_SLACK = 1e-4  # head-frame units of the eye's distance from a triangle's plane (the head is ~2 wide)
 
     def __init__(
         self,
@@ -412,6 +421,19 @@ class FrameIndices:
         indices = np.ascontiguousarray(indices, dtype=np.uint32)
         triangles = indices.reshape(-1, 3)
         self.ranges: dict[tuple[str, str], tuple[int, int]] = {(SURFACE, name): r for name, r in ranges.items()}
+        # The surface groups in index order, each a run of whole triangles (one void element each, so the
+        # per-frame selection is one compress).
+        by_start = sorted(ranges.items(), key=lambda item: item[1][0])
+        self._groups = [name for name, _ in by_start]
+        self._group_starts = np.array([first // 3 for _, (first, _) in by_start])
+        bounds = [0]
+        for name, (first, count) in by_start:
+            if first != bounds[-1] or count <= 0 or count % 3:
+                raise ValueError(f"surface group {name!r} is not the next run of whole triangles")
+            bounds.append(first + count)
+        if bounds[-1] != indices.size:
+            raise ValueError("the surface groups must cover the whole index buffer")
+        self._triangles = triangles.copy().view(np.dtype((np.void, 12))).reshape(-1)
         # One table of the outlined groups' edges, group after group, with the triangles on each side
         # numbered across the whole mesh (len(triangles) where the mesh ends: never facing).
         t0, t1, quads, self._names, bounds = [], [], [], [], [0]
@@ -430,15 +452,25 @@ class FrameIndices:
         self._front = np.zeros(len(triangles) + 1, dtype=bool)
         # The outline quads, rewritten each frame, have a buffer of their own.
         self.ibos = {
-            SURFACE: ctx.buffer(indices.tobytes()),
+            SURFACE: ctx.buffer(indices.tobytes(), dynamic=True),
             OUTLINE: ctx.buffer(reserve=self._quads.nbytes, dynamic=True),
         }
-        self.update(np.zeros(len(triangles), dtype=bool))
+        self.update(np.full(len(triangles), np.inf))
 
-    def update(self, front: np.ndarray) -> None:
-        """Upload the outline quads for the edges between a triangle facing the camera and one not."""
+    def update(self, distances: np.ndarray) -> None:
+        """Upload the triangles that may face the camera and the outline quads of the edges between a
+        triangle facing it and one not, from the eye's signed distance to each triangle's plane
+        (RigidFacing.distances)."""
+        maybe = distances > -self.EDGE_ON_SLACK
+        counts = np.add.reduceat(maybe.view(np.uint8), self._group_starts, dtype=np.intp)
+        offset = 0
+        for name, count in zip(self._groups, counts.tolist(), strict=True):
+            self.ranges[SURFACE, name] = (offset, 3 * count)
+            offset += 3 * count
+        if offset:
+            self.ibos[SURFACE].write(np.compress(maybe, self._triangles))
         f = self._front
-        f[:-1] = front
+        np.greater(distances, 0.0, out=f[:-1])
         on = f[self._t0] != f[self._t1]
         counts = np.add.reduceat(on.view(np.uint8), self._starts, dtype=np.intp)
         offset = 0
