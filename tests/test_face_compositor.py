@@ -11,7 +11,7 @@ from agent.clock import nanoseconds
 from agent.face.actions import Pose
 from agent.face.compositor import DEFAULT_LAYERS, Blend, Compositor, LayerSpec, blend_onto
 from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from agent.face.frame import DONT_CARE
+from agent.face.frame import DONT_CARE, FlexorFrame
 from agent.face.settling import LN_20, Settler
 
 SMILE, BROW, NOD, LOOK_X = (FLEXOR_INDEX[n] for n in ("smile_l", "brow_l", "nod", "look_x"))
@@ -69,6 +69,18 @@ def test_output_is_clipped_to_the_flexor_range() -> None:
     comp.set_pose("emotion", Pose.from_dict({"nod": 0.9}), 0)
     comp.set_action("head", Pose.from_dict({"nod": 0.9}))
     assert comp.compose(0)[NOD] == 1.0
+
+
+def test_frames_hold_the_clipped_composite_and_are_read_only() -> None:
+    comp = _instant()
+    comp.set_pose("emotion", Pose.from_dict({"nod": 0.9, "smile_l": -0.7}), 0)
+    comp.set_action("head", Pose.from_dict({"nod": 0.9}))
+    frame = comp.frame_at(S(2))
+    np.testing.assert_array_equal(frame.values, comp.compose(S(2)))
+    assert frame.t_ns == S(2) and frame.values[NOD] == 1.0
+    np.testing.assert_array_equal(FlexorFrame(frame.values, frame.t_ns).values, frame.values)  # a valid frame
+    with pytest.raises(ValueError):
+        frame.values[NOD] = 0.0
 
 
 def test_blend_onto_keeps_dont_care_below_when_the_layer_does_not_care() -> None:

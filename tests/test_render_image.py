@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterator
 
+import moderngl
 import numpy as np
 import pytest
 
@@ -329,6 +330,47 @@ def test_leaving_out_the_triangles_that_face_away_changes_no_pixel(ctx) -> None:
         drawn.append(np.count_nonzero(subset != everything))
     assert drawn == [0] * len(poses)
     r.release()
+
+
+def test_the_vertex_shader_builds_the_brows_and_mouth_where_numpy_does(ctx) -> None:
+    """The real FACE_VERTEX, by transform feedback, over the dynamic vertices built from the uploaded
+    curve block: positions and normals where build_dynamic puts them, and the jaw weights, read through
+    a jaw bone that only lifts by 1 in z."""
+    from services.renderer.mesh import CURVE_POINTS, N_BONES, TUBE_POINTS, FacePoser, shader_template
+    from services.renderer.renderer import VERTEX_FORMAT
+    from services.renderer.shaders import FACE_VERTEX
+
+    poser = FacePoser()
+    template = shader_template(poser.layout).astype(np.float32)
+    n = template.shape[0]
+    prog = ctx.program(vertex_shader=FACE_VERTEX, varyings=["gl_Position", "v_normal"])
+    frame = np.tile(np.eye(4, dtype=np.float32), (N_BONES + 1, 1, 1))
+    frame[1, 3, 2] = 1.0  # the jaw bone (column-major: column 3 is the translation)
+    frames = ctx.buffer(frame.tobytes())
+    block = np.zeros((CURVE_POINTS + TUBE_POINTS, 4), dtype=np.float32)
+    curves = ctx.buffer(reserve=block.nbytes)
+    prog["Frame"].binding, prog["Curves"].binding = 0, 1
+    vbo = ctx.buffer(template.tobytes())
+    vao = ctx.vertex_array(prog, [(vbo, *VERTEX_FORMAT)], skip_errors=True)
+    out = ctx.buffer(reserve=n * 7 * 4)
+    target = create_offscreen_target(ctx, (4, 4))  # Mesa runs transform feedback only with a framebuffer bound
+    target.use()
+    rng = np.random.default_rng(8)
+    for f in [flexors(), flexors(say_ah=1.0, say_oo=0.4, smile_r=1.0, brows_knit=0.8)] + [
+        rng.uniform(-1, 1, N_FLEXORS) for _ in range(4)
+    ]:
+        full = poser.pose(f).dynamic
+        poser.build_dynamic(poser.pose(f, dynamic=False), block)
+        curves.write(block)
+        frames.bind_to_uniform_block(0)
+        curves.bind_to_uniform_block(1)
+        vao.transform(out, mode=moderngl.POINTS, vertices=n)
+        got = np.frombuffer(out.read(), dtype=np.float32).reshape(n, 7)
+        expected = full[:, 0:3] + np.outer(full[:, 12], [0.0, 0.0, 1.0])
+        np.testing.assert_allclose(got[:, 0:3], expected, atol=2e-5)
+        np.testing.assert_allclose(got[:, 4:7], full[:, 3:6], atol=2e-4)
+    for obj in (vao, vbo, out, curves, frames, prog, target):
+        obj.release()
 
 
 def test_upper_view_keeps_the_eyes_in_frame_when_the_head_moves(renderer: Renderer) -> None:

@@ -12,24 +12,27 @@ from agent.face.frame import FlexorFrame
 from services.renderer.config import load_render_config
 from services.renderer.mesh import (
     BONE_ULID_L,
+    CURVE_POINTS,
     EXTRUDED,
     EYE_RADIUS,
     RING,
     SEGMENTS,
+    STRIP_CODE,
     TUBE_CODE,
     TUBE_POINTS,
     FacePoser,
     RigidFacing,
     Silhouette,
     _ellipsoid,
+    _on_face,
     build_static_mesh,
     clean_flexors,
     extruded_copy,
     eye_centre,
     lid_elevations,
     mouth_shape,
+    shader_template,
     skin,
-    tube_template,
 )
 
 
@@ -77,39 +80,50 @@ def test_dynamic_geometry_is_finite_and_stable_in_size(poser: FacePoser) -> None
     assert sizes == {(poser.layout.n_vertices, 13)}
 
 
-def _shader_tubes(template: np.ndarray, curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """What FACE_VERTEX does with a tube vertex (shaders.py), in numpy: positions, normals, jaw weights."""
+def shader_dynamic(template: np.ndarray, block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What FACE_VERTEX does with the vertices of shader_template (shaders.py), in numpy: positions,
+    normals and jaw weights from the curve_block."""
+    points, sections = block[:CURVE_POINTS], block[CURVE_POINTS:]
+    on_face, normal_at = _on_face(points[:, 0], points[:, 1], points[:, 2])
     k = np.rint(template[:, 0]).astype(int)
-    j = k % SEGMENTS
-    cos, sin = template[:, 1:2], template[:, 2:3]
-    c, o, e = curves[k, 0], curves[k, 1], curves[k, 2]
-    tangent = curves[np.where(j == SEGMENTS - 1, k, k + 1), 0, :3] - curves[np.where(j == 0, k, k - 1), 0, :3]
-    side = np.cross(o[:, :3], tangent)
+    pos, normal = on_face[k].copy(), template[:, 3:6].astype(np.float64).copy()
+    tube = template[:, 9] >= TUBE_CODE
+    tube &= template[:, 9] < STRIP_CODE
+    kt = k[tube]
+    j = kt % SEGMENTS
+    cos, sin = template[tube, 1:2], template[tube, 2:3]
+    o, section = normal_at[kt], sections[kt]
+    tangent = on_face[np.where(j == SEGMENTS - 1, kt, kt + 1)] - on_face[np.where(j == 0, kt, kt - 1)]
+    side = np.cross(o, tangent)
     side /= np.linalg.norm(side, axis=1, keepdims=True)
-    pos = c[:, :3] + cos * c[:, 3:4] * side + sin * o[:, 3:4] * o[:, :3]
-    normal = cos * e[:, 1:2] * side + sin * o[:, :3]
-    return pos, normal / np.linalg.norm(normal, axis=1, keepdims=True), e[:, 0]
+    pos[tube] = on_face[kt] + cos * section[:, 0:1] * side + sin * section[:, 1:2] * o
+    tube_normal = cos * section[:, 2:3] * side + sin * o
+    normal[tube] = tube_normal / np.linalg.norm(tube_normal, axis=1, keepdims=True)
+    return pos, normal, points[k, 3]
 
 
-def test_tubes_built_from_centre_lines_match_the_numpy_tubes(poser: FacePoser) -> None:
-    """The renderer uploads only the tubes' centre lines; the vertex shader must rebuild what build_dynamic
-    builds in numpy, jaw weights included."""
+def test_the_shader_builds_from_the_curve_block_what_numpy_builds(poser: FacePoser) -> None:
+    """The renderer uploads only the points the brows and mouth are built from; the vertex shader (here
+    in numpy; test_render_image runs the real one) must rebuild what build_dynamic builds, jaw weights
+    included."""
     lay = poser.layout
-    template = tube_template(lay)
-    tubes = template[lay.tube_block]
-    assert (tubes[:, 9] >= TUBE_CODE).all() and (template[lay.strip_block, 9] < EXTRUDED).all()
+    template = shader_template(lay)
+    tubes, strips = template[lay.tube_block], template[lay.strip_block]
+    assert (tubes[:, 9] >= TUBE_CODE).all() and (tubes[:, 9] < STRIP_CODE).all() and (strips[:, 9] >= STRIP_CODE).all()
     rng = np.random.default_rng(3)
     for f in [flexors(), flexors(say_ah=1.0, smile_l=1.0, brow_r=-1.0)] + [
         rng.uniform(-1, 1, N_FLEXORS) for _ in range(5)
     ]:
         full = poser.pose(f).dynamic.copy()
-        curves = np.zeros((TUBE_POINTS, 3, 4), dtype=np.float32)
-        fast = poser.build_dynamic(poser.pose(f, dynamic=False), curves)
-        pos, normal, weight = _shader_tubes(tubes.astype(np.float64), curves.astype(np.float64))
-        np.testing.assert_allclose(pos, full[lay.tube_block, 0:3], atol=1e-5)
-        np.testing.assert_allclose(normal, full[lay.tube_block, 3:6], atol=1e-4)
-        np.testing.assert_allclose(weight, full[lay.tube_block, 12], atol=1e-6)
-        np.testing.assert_array_equal(fast[lay.strip_block], full[lay.strip_block])
+        block = np.zeros((CURVE_POINTS + TUBE_POINTS, 4), dtype=np.float32)
+        untouched = poser.pose(f, dynamic=False)
+        before = untouched.dynamic.copy()
+        poser.build_dynamic(untouched, block)
+        np.testing.assert_array_equal(untouched.dynamic, before)  # only the block is written
+        pos, normal, weight = shader_dynamic(template, block.astype(np.float64))
+        np.testing.assert_allclose(pos, full[:, 0:3], atol=1e-5)
+        np.testing.assert_allclose(normal, full[:, 3:6], atol=1e-4)
+        np.testing.assert_allclose(weight, full[:, 12], atol=1e-6)
 
 
 def test_nan_is_relaxed_and_values_are_clipped() -> None:

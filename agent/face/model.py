@@ -28,7 +28,8 @@ from agent.face.settings import FaceSettings, FlexorUnits, load_face_settings, l
 
 MOUTH_FLEXORS: tuple[str, ...] = ("say_ah", "say_oo", "say_ee", "say_mm", "say_ff")
 _LOOK_X, _LOOK_Y = FLEXOR_INDEX["look_x"], FLEXOR_INDEX["look_y"]
-_BLINK_L, _BLINK_R = FLEXOR_INDEX["blink_l"], FLEXOR_INDEX["blink_r"]
+_BLINKS = np.array([FLEXOR_INDEX["blink_l"], FLEXOR_INDEX["blink_r"]])
+_MOUTH = np.array([FLEXOR_INDEX[name] for name in MOUTH_FLEXORS])
 
 
 class _Held:
@@ -101,12 +102,12 @@ class FaceModel:
         self._gaze.vector[_LOOK_X] = self._degrees_to_flexor(yaw_deg, self.units.look_x_deg, "gaze yaw")
         self._gaze.vector[_LOOK_Y] = self._degrees_to_flexor(pitch_deg, self.units.look_y_deg, "gaze pitch")
         if lid is None:
-            self._blink.vector[[_BLINK_L, _BLINK_R]] = np.nan
+            self._blink.vector[_BLINKS] = np.nan
         else:
             closure = check_flexor_value("blink_l", lid)
             if closure < 0:
                 raise ValueError(f"lid closure must lie in [0, 1], got {lid!r}")
-            self._blink.vector[[_BLINK_L, _BLINK_R]] = closure
+            self._blink.vector[_BLINKS] = closure
 
     @staticmethod
     def _degrees_to_flexor(angle_deg: float | None, deg_per_unit: float, what: str) -> float:
@@ -114,7 +115,7 @@ class FaceModel:
             return math.nan
         if not math.isfinite(angle_deg):
             raise ValueError(f"{what} must be a finite number of degrees, got {angle_deg!r}")
-        return float(np.clip(angle_deg / deg_per_unit, -1.0, 1.0))
+        return min(max(float(angle_deg) / deg_per_unit, -1.0), 1.0)  # plain floats: this runs every frame
 
     def set_mouth(self, weights: Mapping[str, float] | None) -> None:
         """Mouth-shape weights from lip-sync ({say_ah: 0.6, ...}); shapes not named are closed (0).
@@ -126,7 +127,7 @@ class FaceModel:
                 if name not in MOUTH_FLEXORS:
                     raise ValueError(f"unknown mouth shape {name!r}; mouth shapes: {', '.join(MOUTH_FLEXORS)}")
                 vector[MOUTH_FLEXORS.index(name)] = check_flexor_value(name, value, "mouth")
-        self._mouth.vector[[FLEXOR_INDEX[name] for name in MOUTH_FLEXORS]] = vector
+        self._mouth.vector[_MOUTH] = vector
 
     def frame_at(self, t_ns: int) -> FlexorFrame:
         return self.compositor.frame_at(t_ns)

@@ -14,8 +14,9 @@ The face is split in two vertex sets:
   few matrices;
 - dynamic: brows and mouth (lips, cavity, teeth, tongue), whose shapes depend on several flexors at
   once in non-linear ways. They are small (about 350 vertices), rebuilt in numpy each frame
-  (build_dynamic). The renderer uploads only the centre lines of the brow and lip tubes, from which
-  its vertex shader builds them (tube_curves), and the mouth's inner strips. The lower lip, the
+  (build_dynamic). The renderer uploads only the points they are built from (curve_block), and its
+  vertex shader builds the brow and lip tubes and the mouth's inner strips on the head's surface
+  from them. The lower lip, the
   tongue and the lower edge of the mouth cavity also ride on the jaw bone, so the jaw and the lips
   can never disagree.
 """
@@ -636,39 +637,51 @@ def _tubes(
 
 
 TUBE_POINTS = len(TUBES) * SEGMENTS  # centre-line points of all tubes, tube after tube
-TUBE_CODE = 2 * EXTRUDED  # added to the material of a tube vertex the vertex shader builds (tube_template)
+CURVE_ROWS = len(TUBES) + 2 * len(STRIPS)  # rows of points: each tube's centre line, each strip's two edges
+CURVE_POINTS = CURVE_ROWS * SEGMENTS
+TUBE_CODE = 2 * EXTRUDED  # added to the material of a tube vertex the vertex shader builds (shader_template)
+STRIP_CODE = 4 * EXTRUDED  # likewise for a vertex of the mouth's strips
 
 
-def tube_curves(
-    centre: np.ndarray,
-    out: np.ndarray,
+def curve_block(
+    x: np.ndarray,
+    y: np.ndarray,
+    lift: np.ndarray,
+    jaw_weight: np.ndarray,
     half_h: np.ndarray,
     half_d: np.ndarray,
-    jaw_weight: np.ndarray,
-    curves: np.ndarray,
+    block: np.ndarray,
 ) -> None:
-    """What the vertex shader needs to build the tubes of _tubes, per centre-line point: rows of
-    (centre, half_h), (surface normal, half_d), (jaw weight, section aspect, 0, 0), in `curves`
-    (TUBE_POINTS, 3, 4). Only the lower lip (the last tube) rides on the jaw."""
-    c = curves.reshape(len(TUBES), SEGMENTS, 3, 4)
-    c[:, :, 0, 0:3] = centre
-    c[:, :, 0, 3] = half_h
-    c[:, :, 1, 0:3] = out
-    c[:, :, 1, 3] = half_d
-    c[:, :, 2, 0] = 0.0
-    c[-1, :, 2, 0] = jaw_weight
-    c[:, :, 2, 1] = (half_d.sum(1) / np.maximum(half_h.sum(1), 1e-9))[:, None]
+    """What the vertex shader needs to build the brows and the mouth (build_dynamic, _on_face, _tubes):
+    per point of the CURVE_ROWS rows, (x, y, lift off the head's surface, jaw weight); then per tube
+    centre-line point, (half height, half depth, section aspect, 0). `block` is (CURVE_POINTS +
+    TUBE_POINTS, 4) float32."""
+    points = block[:CURVE_POINTS].reshape(CURVE_ROWS, SEGMENTS, 4)
+    points[..., 0] = x
+    points[..., 1] = y
+    points[..., 2] = lift
+    points[..., 3] = jaw_weight
+    sections = block[CURVE_POINTS:].reshape(len(TUBES), SEGMENTS, 4)
+    sections[..., 0] = half_h
+    sections[..., 1] = half_d
+    sections[..., 2] = (half_d.sum(1) / np.maximum(half_h.sum(1), 1e-9))[:, None]
+    sections[..., 3] = 0.0
 
 
-def tube_template(layout: DynamicLayout) -> np.ndarray:
-    """layout.template() with each tube vertex marked for the vertex shader: position (centre-line
-    point, cosine, sine of its place around the section) and TUBE_CODE added to its material."""
+def shader_template(layout: DynamicLayout) -> np.ndarray:
+    """layout.template() with each vertex marked for the vertex shader, which builds them all from the
+    curve_block: a tube vertex holds (its centre-line point, cosine, sine of its place around the section)
+    and TUBE_CODE added to its material; a strip vertex holds (its point) and STRIP_CODE."""
     out = layout.template()
     k = np.arange(TUBE_POINTS)
     out[layout.tube_block, 0] = np.repeat(k, RING)
     out[layout.tube_block, 1] = np.tile(_RING_COS[:, 0], TUBE_POINTS)
     out[layout.tube_block, 2] = np.tile(_RING_SIN[:, 0], TUBE_POINTS)
     out[layout.tube_block, 9] += TUBE_CODE
+    strips = layout.strip_block
+    out[strips, 0] = np.arange(TUBE_POINTS, TUBE_POINTS + strips.stop - strips.start)
+    out[strips, 1:3] = 0.0
+    out[strips, 9] += STRIP_CODE
     return out
 
 
@@ -867,9 +880,8 @@ def build_dynamic(
 ) -> None:
     """Write brows, lips, cavity, teeth and tongue for flexors `f` into `out` (layout.template() rows).
 
-    With `curves` ((TUBE_POINTS, 3, 4) float32, see tube_curves) the tubes are not built here: their
-    centre lines go into `curves` for the vertex shader to build them, and only the mouth's strips are
-    written into `out`.
+    With `curves` ((CURVE_POINTS + TUBE_POINTS, 4) float32, see curve_block) nothing is built here: the
+    points the vertex shader builds them from go into `curves`, and `out` is left as it was.
     """
     bx, by = brow_curves(_f(f, "brow_l"), _f(f, "brow_r"), _f(f, "brows_knit"))
     lip_h_u = shape.thick_u * _LIP_TAPER
@@ -878,9 +890,9 @@ def build_dynamic(
     top = shape.upper + 0.01 * _LIP_TAPER
     bottom = shape.lower - 0.01 * _LIP_TAPER
     # Rows: brow l, brow r, upper lip, lower lip, then the two edges of cavity, teeth and tongue.
-    x = np.empty((10, SEGMENTS))
-    y = np.empty((10, SEGMENTS))
-    lift = np.empty((10, SEGMENTS))
+    x = np.empty((CURVE_ROWS, SEGMENTS))
+    y = np.empty((CURVE_ROWS, SEGMENTS))
+    lift = np.empty((CURVE_ROWS, SEGMENTS))
     x[0:2] = bx
     x[2:] = shape.x
     y[0:2] = by
@@ -896,29 +908,28 @@ def build_dynamic(
     lift[4:6] = inset - 0.004
     lift[6:8] = inset + 0.002
     lift[8:10] = inset + 0.001
-    p, n = _on_face(x, y, lift)
-    half_h = np.empty((4, SEGMENTS))
-    half_d = np.empty((4, SEGMENTS))
+    half_h = np.empty((len(TUBES), SEGMENTS))
+    half_d = np.empty((len(TUBES), SEGMENTS))
     half_h[0:2] = _BROW_HALF_H
     half_d[0:2] = _BROW_HALF_D
     half_h[2], half_h[3] = lip_h_u, lip_h_l
     half_d[2], half_d[3] = 0.6 * lip_h_u + 0.004, 0.6 * lip_h_l + 0.004
-    tb, sb = layout.tube_block, layout.strip_block
+    # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
     w = shape.jaw_weight
-    if curves is None:
-        pos, nrm = _tubes(p[:4], n[:4], half_h, half_d)
-        out[tb, 0:3] = pos.reshape(-1, 3)
-        out[tb, 3:6] = nrm.reshape(-1, 3)
-        # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
-        out[layout.slices["lip_l"], 12] = np.repeat(w, RING)
-    else:
-        tube_curves(p[:4], n[:4], half_h, half_d, w, curves)
-    out[sb, 0:3] = p[4:].reshape(-1, 3)
-    cavity = layout.slices["cavity"]
-    out[cavity.start + SEGMENTS : cavity.stop, 12] = w
-    tongue = layout.slices["tongue"]
-    out[tongue.start : tongue.start + SEGMENTS, 12] = 0.85 * w
-    out[tongue.start + SEGMENTS : tongue.stop, 12] = w
+    weight = np.zeros((CURVE_ROWS, SEGMENTS))
+    weight[3] = weight[5] = weight[9] = w
+    weight[8] = 0.85 * w
+    if curves is not None:
+        curve_block(x, y, lift, weight, half_h, half_d, curves)
+        return
+    p, n = _on_face(x, y, lift)
+    tb, sb = layout.tube_block, layout.strip_block
+    pos, nrm = _tubes(p[: len(TUBES)], n[: len(TUBES)], half_h, half_d)
+    out[tb, 0:3] = pos.reshape(-1, 3)
+    out[tb, 3:6] = nrm.reshape(-1, 3)
+    out[tb, 12] = np.repeat(weight[: len(TUBES)].reshape(-1), RING)
+    out[sb, 0:3] = p[len(TUBES) :].reshape(-1, 3)
+    out[sb, 12] = weight[len(TUBES) :].reshape(-1)
 
 
 @dataclass
@@ -1070,7 +1081,7 @@ class FacePoser:
 
     def build_dynamic(self, pose: Pose, curves: np.ndarray | None = None) -> np.ndarray:
         """Write the brows and mouth of `pose` into its dynamic vertices (pose(..., dynamic=False) skips
-        it); with `curves`, only the strips, and the tubes' centre lines into `curves` (build_dynamic)."""
+        it); with `curves`, only the points the vertex shader builds them from (build_dynamic)."""
         assert pose.flexors is not None and pose.mouth is not None
         build_dynamic(pose.flexors, pose.mouth, self.layout, pose.dynamic, curves)
         return pose.dynamic

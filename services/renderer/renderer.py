@@ -1,10 +1,10 @@
 """The face renderer: draws one flexor frame with cel shading and outlines into any framebuffer.
 
 All GPU objects (programs, buffers, vertex arrays, the offscreen target) are made once in __init__;
-a frame writes a handful of uniforms, the centre lines of the brows and lips (the vertex shader builds
-their tubes), the mouth's few inner vertices, the static triangles that face the camera and the
-outline quads along the static parts' silhouettes, so the same Renderer can draw every frame of a
-window, a headless test or a video.
+a frame writes a handful of uniforms, the few hundred numbers the vertex shader builds the brows and
+the mouth from (mesh.curve_block), the static triangles that face the camera and the outline quads
+along the static parts' silhouettes, so the same Renderer can draw every frame of a window, a
+headless test or a video.
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ import moderngl
 import numpy as np
 
 from agent.face.flexors import N_FLEXORS
-from services.renderer.config import VIEWS, RenderConfig, load_render_config
+from services.renderer.config import VIEWS, Framing, RenderConfig, load_render_config
 from services.renderer.context import check_size, create_offscreen_target
 from services.renderer.mesh import (
+    CURVE_POINTS,
     EYE_Y,
     IRIS_ANGLE,
     MATERIALS,
@@ -32,7 +33,7 @@ from services.renderer.mesh import (
     build_static_mesh,
     extruded_copy,
     eye_centre,
-    tube_template,
+    shader_template,
 )
 from services.renderer.shaders import (
     EYE_FRAGMENT,
@@ -48,7 +49,7 @@ VERTEX_FORMAT = ("3f 3f 3f 4f", "in_pos", "in_normal", "in_aux", "in_info")
 MAX_TRAJECTORY_POINTS = 600  # a longer overlay_points keeps its most recent points
 REFERENCE_HEIGHT = 480.0  # outline and overlay widths are given in pixels at this image height
 _OVERLAY_FLOATS = 5  # x, y, r, g, b
-_FRAME_BLOCK, _TUBES_BLOCK = 0, 1  # uniform-block binding points of the per-frame matrices and tubes
+_FRAME_BLOCK, _CURVES_BLOCK = 0, 1  # uniform-block binding points of the per-frame matrices and curves
 SURFACE, OUTLINE = "surface", "outline"  # the two index sets of a FrameIndices
 
 
@@ -110,12 +111,12 @@ class Renderer:
         # Bones and camera go in one uniform block that every program reads: one write per frame.
         self._frame = np.zeros((N_BONES + 1, 4, 4), dtype=np.float32)
         self.frame_ubo = ctx.buffer(reserve=self._frame.nbytes, dynamic=True)
-        # The brows' and lips' centre lines, from which the vertex shader builds them (mesh.tube_curves).
-        self._curves = np.zeros((TUBE_POINTS, 3, 4), dtype=np.float32)
-        self.tube_ubo = ctx.buffer(reserve=self._curves.nbytes, dynamic=True)
+        # The points from which the vertex shader builds the brows and the mouth (mesh.curve_block).
+        self._curves = np.zeros((CURVE_POINTS + TUBE_POINTS, 4), dtype=np.float32)
+        self.curve_ubo = ctx.buffer(reserve=self._curves.nbytes, dynamic=True)
         for prog in self._programs:
             prog["Frame"].binding = _FRAME_BLOCK
-            prog["Tubes"].binding = _TUBES_BLOCK
+            prog["Curves"].binding = _CURVES_BLOCK
 
         static = build_static_mesh(self.config.mesh_detail)
         self.static = static
@@ -123,12 +124,10 @@ class Renderer:
         self.static_vbo = ctx.buffer(extruded_copy(static.vertices).tobytes())
         sample = self.poser.pose(np.zeros(N_FLEXORS))
         dyn_indices, dyn_ranges = self.poser.layout.indices(sample.dynamic)
-        # The tubes (brows, lips) are built in the vertex shader from their centre lines (the Tubes
-        # block), so of the dynamic vertices only the mouth's strips are rewritten each frame (their
-        # outline copies are never drawn).
-        self.dynamic_vbo = ctx.buffer(extruded_copy(tube_template(self.poser.layout)).tobytes(), dynamic=True)
-        strips = self.poser.layout.strip_block
-        self._strip_offset = strips.start * sample.dynamic.shape[1] * 4
+        # The vertex shader builds the brows, lips and the mouth's strips on the head from the Curves
+        # block, so the dynamic vertices only say which point and which place around a tube they are,
+        # and never change (the strips' outline copies are never drawn).
+        self.dynamic_vbo = ctx.buffer(extruded_copy(shader_template(self.poser.layout)).tobytes())
         # The static outline quads are chosen each frame; the dynamic parts keep an inverted hull. Face and
         # lids side by side in the outline buffer: the outline pass draws both with one call.
         self.meshes: dict[str, FrameIndices | HullIndices] = {
@@ -196,6 +195,8 @@ class Renderer:
                     else:
                         prog[name].value = value
         self.last_pose: Pose | None = None
+        self._camera_key: tuple[Framing, float, float, float] | None = None
+        self._camera_value: tuple[np.ndarray, np.ndarray] = (np.eye(4), np.eye(4))
 
     def release(self) -> None:
         """Free every GL object this renderer made (the context itself stays the caller's)."""
@@ -206,7 +207,7 @@ class Renderer:
             *self._programs,
             self.overlay_prog,
             self.frame_ubo,
-            self.tube_ubo,
+            self.curve_ubo,
             self.static_vbo,
             self.dynamic_vbo,
             *{id(ibo): ibo for mesh in self.meshes.values() for ibo in mesh.ibos.values()}.values(),
@@ -232,13 +233,20 @@ class Renderer:
         if view not in VIEWS:
             raise ValueError(f"unknown view {view!r}; choose one of {', '.join(VIEWS)}")
         framing = self.config.framings[view]
-        # Keep the framed width of a 4:3 image on narrower targets, so the face is never cropped.
-        height = framing.height * max(1.0, (4.0 / 3.0) / aspect)
-        distance = (height / 2.0) / math.tan(math.radians(framing.fov_deg) / 2.0)
         target = np.array([0.0, framing.center_y, 0.0])
         if view == "upper" and model is not None:
             eyes_rest = np.array([0.0, EYE_Y, float(eye_centre(1)[2]), 1.0])
             target[:2] += (model @ eyes_rest)[:2] - eyes_rest[:2]
+        key = (framing, aspect, float(target[0]), float(target[1]))
+        if self._camera_key != key:  # the full view's camera stays put from frame to frame
+            self._camera_key, self._camera_value = key, self._camera(framing, aspect, target)
+        return self._camera_value
+
+    @staticmethod
+    def _camera(framing: Framing, aspect: float, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # Keep the framed width of a 4:3 image on narrower targets, so the face is never cropped.
+        height = framing.height * max(1.0, (4.0 / 3.0) / aspect)
+        distance = (height / 2.0) / math.tan(math.radians(framing.fov_deg) / 2.0)
         view_m = np.eye(4)
         view_m[0, 3] = -target[0]
         view_m[1, 3] = -target[1]
@@ -246,6 +254,8 @@ class Renderer:
         fov = 2.0 * math.degrees(math.atan((height / 2.0) / distance))
         depth = distance + framing.depth_z
         proj = perspective(fov, aspect, max(0.05, depth - 3.0), depth + 3.0)
+        view_m.flags.writeable = False  # shared by the frames that reuse them
+        proj.flags.writeable = False
         return view_m, proj
 
     def to_pixels(self, points: np.ndarray, view: str = "full", size: tuple[int, int] | None = None) -> np.ndarray:
@@ -289,11 +299,10 @@ class Renderer:
         matrices[N_BONES] = proj.T
         self.frame_ubo.write(matrices)
         self.frame_ubo.bind_to_uniform_block(_FRAME_BLOCK)
-        # The brows and mouth: the strips' vertices, and the tubes' centre lines for the vertex shader.
-        dyn = self.poser.build_dynamic(pose, self._curves)
-        self.dynamic_vbo.write(dyn[self.poser.layout.strip_block], offset=self._strip_offset)
-        self.tube_ubo.write(self._curves)
-        self.tube_ubo.bind_to_uniform_block(_TUBES_BLOCK)
+        # The brows and mouth: the points the vertex shader builds them from.
+        self.poser.build_dynamic(pose, self._curves)
+        self.curve_ubo.write(self._curves)
+        self.curve_ubo.bind_to_uniform_block(_CURVES_BLOCK)
         # The eye in the head frame (modelview is a rigid motion): where every facing test looks from.
         eye = -modelview[:3, :3].T @ modelview[:3, 3]
         self.meshes["static"].update(self.static_facing.distances(pose.bones, eye))

@@ -6,20 +6,35 @@ surface gets its own small program instead of one shader that branches on the ma
 
 from __future__ import annotations
 
-from services.renderer.mesh import EXTRUDED, N_BONES, SEGMENTS, TUBE_POINTS
+from services.renderer.mesh import (
+    CURVE_POINTS,
+    EXTRUDED,
+    HEAD_A,
+    HEAD_B,
+    HEAD_C,
+    HEAD_N,
+    HEAD_TAPER,
+    N_BONES,
+    SEGMENTS,
+    TUBE_POINTS,
+)
 
 FACE_VERTEX = """
 #version 330
 #define EXTRUDED __EXTRUDED__  // mesh.EXTRUDED: added to the material of an outline quad's outer corners
-#define SEGMENTS __SEGMENTS__  // mesh.SEGMENTS: centre-line points per tube
+#define SEGMENTS __SEGMENTS__  // mesh.SEGMENTS: points per tube centre line and per strip edge
+#define CURVE_POINTS __CURVE_POINTS__  // mesh.CURVE_POINTS
+// The head's surface (mesh._on_face): |x / (A t(y))|^N + |y / B|^N + |z / C|^N = 1, t(y) = 1 - T u^2.
+const float HEAD_A = __HEAD_A__, HEAD_B = __HEAD_B__, HEAD_C = __HEAD_C__;
+const float HEAD_N = __HEAD_N__, HEAD_TAPER = __HEAD_TAPER__;
 layout(std140) uniform Frame {  // written once per frame, shared by every program
     mat4 u_bones[__N_BONES__];  // rest head frame -> camera, per bone (the head's modelview times the bone)
     mat4 u_proj;
 };
-layout(std140) uniform Tubes {  // written once per frame: the brows and lips
-    // Per tube centre-line point (mesh.tube_curves): (centre, half height), (surface normal, half depth),
-    // (jaw weight, section aspect, -, -).
-    vec4 u_curves[3 * __TUBE_POINTS__];
+layout(std140) uniform Curves {  // written once per frame: the brows and the mouth (mesh.curve_block)
+    // Per point of each tube's centre line and each strip's edges: (x, y, lift off the head, jaw weight);
+    // then per tube centre-line point: (half height, half depth, section aspect, -).
+    vec4 u_curves[CURVE_POINTS + __TUBE_POINTS__];
 };
 uniform vec3 u_palette[10]; // per material, mesh.MATERIALS order
 uniform vec3 u_light_v;     // toward the key light, camera space, unit
@@ -27,33 +42,62 @@ uniform float u_outline;    // outline width in pixels (the outline pass)
 uniform vec2 u_viewport;
 uniform float u_depth_bias; // pulls the wireframe pass in front of the surface it traces
 
-in vec3 in_pos;             // a tube vertex: (centre-line point, cos, sin around the section)
+in vec3 in_pos;             // a tube vertex: (centre-line point, cos, sin around the section); a strip's: (point, -, -)
 in vec3 in_normal;
 in vec3 in_aux;
-in vec4 in_info;            // material (+ EXTRUDED, + 2 EXTRUDED for a tube), bone0, bone1, weight of bone1
+in vec4 in_info;            // material (+ EXTRUDED, + 2 EXTRUDED for a tube, + 4 EXTRUDED for a strip), bone0,
+                            // bone1, weight of bone1
 
 out vec3 v_normal;          // camera space
 out vec3 v_aux;             // eye: rest direction
 out float v_ndl;            // n.l for the cel bands
 flat out vec3 v_color;      // one colour per triangle (its last vertex's): no need to interpolate it
 
+// The point (x, y) of the head's front, moved `lift` along the surface normal `n` (mesh._on_face).
+vec3 on_face(vec4 q, out vec3 n) {
+    float u = clamp(-q.y / HEAD_B, 0.0, 1.0);
+    float taper = 1.0 - HEAD_TAPER * u * u;
+    float wx = HEAD_A * taper;
+    float ax = abs(q.x) / wx;
+    float ay = abs(q.y) / HEAD_B;
+    float axn = pow(ax, HEAD_N);
+    float ayn = pow(ay, HEAD_N);
+    float rest = max(1.0 - axn - ayn, 1e-9);
+    float zc = pow(rest, 1.0 / HEAD_N);
+    float dt_dy = (u > 0.0 && u < 1.0) ? 2.0 * HEAD_TAPER * u / HEAD_B : 0.0;
+    vec3 g = vec3(sign(q.x) * axn / max(ax, 1e-12) / wx,
+                  sign(q.y) * ayn / max(ay, 1e-12) / HEAD_B - axn / taper * dt_dy,
+                  rest / zc / HEAD_C);
+    n = normalize(g);
+    return vec3(q.x, q.y, HEAD_C * zc) + n * q.z;
+}
+
 void main() {
     int code = int(in_info.x + 0.5);
     vec3 pos = in_pos;
     vec3 normal = in_normal;
     float w = in_info.w;
-    if (code >= int(2.0 * EXTRUDED)) {
+    if (code >= int(4.0 * EXTRUDED)) {
+        // A vertex of the mouth's inner strips: its point on the face; the normal faces the camera.
+        vec4 q = u_curves[int(in_pos.x + 0.5)];
+        vec3 unused;
+        pos = on_face(q, unused);
+        w = q.w;
+    } else if (code >= int(2.0 * EXTRUDED)) {
         // A brow or lip: a tube of elliptic section around its centre line (mesh._tubes).
         int k = int(in_pos.x + 0.5);
         int j = k % SEGMENTS;
-        vec4 c = u_curves[3 * k];
-        vec4 o = u_curves[3 * k + 1];
-        vec4 e = u_curves[3 * k + 2];
-        vec3 tangent = u_curves[3 * (j == SEGMENTS - 1 ? k : k + 1)].xyz - u_curves[3 * (j == 0 ? k : k - 1)].xyz;
-        vec3 side = normalize(cross(o.xyz, tangent));
-        pos = c.xyz + (in_pos.y * c.w) * side + (in_pos.z * o.w) * o.xyz;
-        normal = normalize((in_pos.y * e.y) * side + in_pos.z * o.xyz);
-        w = e.x;
+        vec4 q = u_curves[k];
+        vec4 section = u_curves[CURVE_POINTS + k];
+        vec3 o;
+        vec3 c = on_face(q, o);
+        vec3 unused;
+        vec3 tangent = on_face(u_curves[j == SEGMENTS - 1 ? k : k + 1], unused)
+                     - on_face(u_curves[j == 0 ? k : k - 1], unused);
+        vec3 side = normalize(cross(o, tangent));
+        pos = c + (in_pos.y * section.x) * side + (in_pos.z * section.y) * o;
+        normal = normalize((in_pos.y * section.z) * side + in_pos.z * o);
+        w = q.w;
     }
     int b0 = int(in_info.y + 0.5);
     int b1 = int(in_info.z + 0.5);
@@ -84,8 +128,14 @@ void main() {
 for _name, _value in (
     ("__EXTRUDED__", f"{EXTRUDED:.1f}"),
     ("__SEGMENTS__", str(SEGMENTS)),
+    ("__CURVE_POINTS__", str(CURVE_POINTS)),
     ("__N_BONES__", str(N_BONES)),
     ("__TUBE_POINTS__", str(TUBE_POINTS)),
+    ("__HEAD_A__", repr(float(HEAD_A))),
+    ("__HEAD_B__", repr(float(HEAD_B))),
+    ("__HEAD_C__", repr(float(HEAD_C))),
+    ("__HEAD_N__", repr(float(HEAD_N))),
+    ("__HEAD_TAPER__", repr(float(HEAD_TAPER))),
 ):
     FACE_VERTEX = FACE_VERTEX.replace(_name, _value)
 
