@@ -8,6 +8,7 @@ from scipy import stats
 
 from agent.gaze.blink import lid_closure
 from agent.gaze.engine import GazeEngine, SaccadeOnsets
+from agent.gaze.inflight import LiveBlinks
 from agent.gaze.params import KINDS, GazeParams
 from agent.gaze.synth import eye_position_at
 from agent.noise import perlin_blink
@@ -343,3 +344,24 @@ def test_eye_state_follows_the_latest_onsets(params: GazeParams) -> None:
     assert lids_seen > 1000 and cancelled > 0
     with pytest.raises(ValueError):
         tick.yaw_deg[0] = 1.0  # a tick hands out read-only views of the engine's eye state
+
+
+@pytest.mark.parametrize(
+    ("curve_s", "closure"),
+    [([0.0, 0.05, 0.2, 0.25], [0.0, 1.0, 0.33, 0.0]), ([0.01, 0.03, 0.03, 0.1, 0.3], [0.2, 1.0, 0.9, 0.5, 0.1])],
+)
+def test_lids_of_blinks_in_progress_follow_the_curve_piece_by_piece(curve_s: list[float], closure: list[float]) -> None:
+    """The lids of a whole window of blinks, computed a straight piece at a time, are the curve's values
+    (np.interp, with 0 before it starts) at every elapsed time, knots and the curve's very end included."""
+    n = 400
+    blinks = LiveBlinks(np.array(curve_s), np.array(closure), n)
+    t = 10 * S
+    end_ns = round(curve_s[-1] * S)
+    knots = [t - round(k * S) for k in curve_s]
+    rng = np.random.default_rng(4)
+    onsets = np.sort(np.concatenate([rng.integers(t - end_ns, t + 1, n - len(knots)), knots]))
+    lid = np.full(n + 1, -1.0)
+    blinks.update(t, lid, np.arange(n), onsets)
+    curve_ns = np.array(curve_s) * 1e9  # in nanoseconds, so the curve's end is exactly representable
+    expected = np.interp((t - onsets).astype(float), curve_ns, closure, left=0.0, right=0.0)
+    np.testing.assert_allclose(lid[:n], expected, rtol=0, atol=1e-12)

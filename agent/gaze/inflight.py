@@ -97,9 +97,18 @@ class LiveBlinks:
     """
 
     def __init__(self, curve_s: np.ndarray, closure: np.ndarray, n_agents: int) -> None:
-        self._curve_ns = np.asarray(curve_s, dtype=np.float64) * 1e9
         self._closure = np.asarray(closure, dtype=np.float64)
         self._duration_ns = int(round(float(curve_s[-1]) * 1e9))
+        # The curve's pieces as lines closure = slope * elapsed + offset, latest piece first (the window
+        # holds onsets in ascending order, so elapsed times descend): (first ns, slope, offset) each.
+        knots, values = np.asarray(curve_s, dtype=np.float64) * 1e9, self._closure
+        self._pieces = [
+            (int(round(knots[j])), slope, float(values[j] - slope * knots[j]))
+            for j in range(len(knots) - 2, -1, -1)
+            if knots[j + 1] > knots[j]
+            for slope in [float((values[j + 1] - values[j]) / (knots[j + 1] - knots[j]))]
+        ]
+        self._elapsed = np.empty(1024)  # scratch for the window's elapsed times
         self._agents = np.empty(1024, np.int64)
         self._onsets = np.empty(1024, np.int64)
         self._head = self._tail = 0  # buffer indices
@@ -132,8 +141,27 @@ class LiveBlinks:
             lid[self._agents[head : head + ended]] = 0.0
             head = self._head = head + ended
         if head < tail:
-            elapsed_ns = (t - self._onsets[head:tail]).astype(np.float64)  # np.interp is fastest on floats
-            lid[self._agents[head:tail]] = np.interp(elapsed_ns, self._curve_ns, self._closure, left=0.0, right=0.0)
+            lid[self._agents[head:tail]] = self._closures(t, self._onsets[head:tail])
+
+    def _closures(self, t: int, onsets: np.ndarray) -> np.ndarray:
+        """The lid curve at t - onsets (ascending onsets, none before t - the curve's length), piece by
+        piece: each piece is a run of the window, so a line per run replaces a search per blink."""
+        if self._elapsed.size < onsets.size:
+            self._elapsed = np.empty(2 * onsets.size)
+        out = self._elapsed[: onsets.size]
+        np.subtract(t, onsets, out=out)  # exact: nanosecond counts stay far below 2**53
+        # At exactly the curve's end a blink reads the last value, like np.interp.
+        stop = int(np.searchsorted(onsets, t - self._duration_ns, side="right"))
+        out[:stop] = self._closure[-1]
+        for knot_ns, slope, offset in self._pieces:
+            start = stop
+            stop = int(np.searchsorted(onsets, t - knot_ns, side="right"))
+            if stop > start:
+                piece = out[start:stop]
+                piece *= slope
+                piece += offset
+        out[stop:] = 0.0  # before the curve starts (np.interp's left)
+        return out
 
     def _retire(self, agents: np.ndarray) -> None:
         position = self._position[agents]
