@@ -13,12 +13,12 @@ The face is split in two vertex sets:
   rigid "bones" (jaw, eyes, lids) blended per vertex in the vertex shader, so a frame uploads only a
   few matrices;
 - dynamic: brows and mouth (lips, cavity, teeth, tongue), whose shapes depend on several flexors at
-  once in non-linear ways. They are small (about 350 vertices), rebuilt in numpy each frame
-  (build_dynamic). The renderer uploads only the points they are built from (curve_block), and its
-  vertex shader builds the brow and lip tubes and the mouth's inner strips on the head's surface
-  from them. The lower lip, the
-  tongue and the lower edge of the mouth cavity also ride on the jaw bone, so the jaw and the lips
-  can never disagree.
+  once in non-linear ways. They are small (about 350 vertices). Each frame build_dynamic works out
+  the points they are built from (curve_block), which the renderer uploads and its vertex shader
+  turns into the brow and lip tubes and the mouth's inner strips on the head's surface; without a
+  curve block, build_dynamic builds the same vertices in numpy (the reference the tests use). The
+  lower lip, the tongue and the lower edge of the mouth cavity also ride on the jaw bone, so the jaw
+  and the lips can never disagree.
 """
 
 from __future__ import annotations
