@@ -20,8 +20,17 @@ from services.renderer import (
     load_render_config,
     read_rgb,
 )
-from services.renderer.mesh import EYE_RADIUS, eye_centre
-from services.renderer.renderer import SURFACE
+from services.renderer.mesh import (
+    CURVE_POINTS,
+    EYE_RADIUS,
+    N_BONES,
+    TUBE_POINTS,
+    FacePoser,
+    eye_centre,
+    shader_template,
+)
+from services.renderer.renderer import SURFACE, VERTEX_FORMAT
+from services.renderer.shaders import FACE_VERTEX
 
 SURFACE_FACE = (SURFACE, "face")
 
@@ -261,8 +270,6 @@ def test_gl_objects_are_made_once_not_per_frame(ctx) -> None:
 
 def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
     """The silhouette quads draw the line an inverted hull of the static parts would (the old way)."""
-    import moderngl
-
     import services.renderer.renderer as module
 
     r = Renderer(ctx, SIZE)
@@ -336,10 +343,6 @@ def test_the_vertex_shader_builds_the_brows_and_mouth_where_numpy_does(ctx) -> N
     """The real FACE_VERTEX, by transform feedback, over the dynamic vertices built from the uploaded
     curve block: positions and normals where build_dynamic puts them, and the jaw weights, read through
     a jaw bone that only lifts by 1 in z."""
-    from services.renderer.mesh import CURVE_POINTS, N_BONES, TUBE_POINTS, FacePoser, shader_template
-    from services.renderer.renderer import VERTEX_FORMAT
-    from services.renderer.shaders import FACE_VERTEX
-
     poser = FacePoser()
     template = shader_template(poser.layout).astype(np.float32)
     n = template.shape[0]
