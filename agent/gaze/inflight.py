@@ -102,12 +102,11 @@ class LiveBlinks:
         # The curve's pieces as lines closure = slope * elapsed + offset, latest piece first (the window
         # holds onsets in ascending order, so elapsed times descend): (first ns, slope, offset) each.
         knots, values = np.asarray(curve_s, dtype=np.float64) * 1e9, self._closure
-        self._pieces = [
-            (int(round(knots[j])), slope, float(values[j] - slope * knots[j]))
-            for j in range(len(knots) - 2, -1, -1)
-            if knots[j + 1] > knots[j]
-            for slope in [float((values[j + 1] - values[j]) / (knots[j + 1] - knots[j]))]
-        ]
+        self._pieces: list[tuple[int, float, float]] = []
+        for j in range(len(knots) - 2, -1, -1):
+            if knots[j + 1] > knots[j]:
+                slope = float((values[j + 1] - values[j]) / (knots[j + 1] - knots[j]))
+                self._pieces.append((int(round(knots[j])), slope, float(values[j] - slope * knots[j])))
         self._elapsed = np.empty(1024)  # scratch for the window's elapsed times
         self._agents = np.empty(1024, np.int64)
         self._onsets = np.empty(1024, np.int64)
