@@ -268,6 +268,42 @@ def test_gl_objects_are_made_once_not_per_frame(ctx) -> None:
     assert counting.created == after_init
 
 
+def test_the_head_outline_lies_only_along_the_background(ctx, monkeypatch) -> None:
+    """The head's outline is its contour against what lies behind it: where the head folds away (a pole
+    of its grid near the silhouette), an edge between a front and a back face runs across the visible
+    surface, and no line may be drawn along it."""
+    import services.renderer.renderer as module
+
+    config = load_render_config()
+    r = Renderer(ctx, (640, 480), dataclasses.replace(config, colors=dict(config.colors, outline=MAGENTA)))
+    draw = r._draw
+
+    def head_outline_only(mesh: str, prog: str, groups: list[str], kind: str = module.SURFACE) -> None:
+        if kind == module.OUTLINE:
+            groups = [g for g in groups if mesh == "static" and g == "face"]
+        return draw(mesh, prog, groups, kind)
+
+    monkeypatch.setattr(r, "_draw", head_outline_only)
+    background = np.array(r.config.colors["background"]) * 255
+    outline = np.array(MAGENTA) * 255
+    reach = int(np.ceil(r.config.outline_px)) + 1
+    poses = [flexors(turn=-0.5, tilt=0.5), flexors(turn=0.9, nod=-0.4), flexors(turn=-0.9, nod=0.5, tilt=-0.6)]
+    poses += [flexors(turn=t, nod=n, tilt=-t) for t in (-1.0, 1.0) for n in (-1.0, 1.0)]
+    for f in poses:
+        img = image(r, f)
+        lines = np.abs(img - outline).max(-1) < 30
+        near_background = np.abs(img - background).max(-1) < 3
+        grown = near_background.copy()
+        for _ in range(reach):
+            grown[1:] |= grown[:-1].copy()
+            grown[:-1] |= grown[1:].copy()
+            grown[:, 1:] |= grown[:, :-1].copy()
+            grown[:, :-1] |= grown[:, 1:].copy()
+        assert lines.sum() > 500
+        assert not (lines & ~grown).any(), f"an outline crosses the head at {np.argwhere(lines & ~grown)[:3]}"
+    r.release()
+
+
 def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
     """The silhouette quads draw the line an inverted hull of the static parts would (the old way)."""
     import services.renderer.renderer as module
@@ -276,7 +312,7 @@ def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
     hull = np.concatenate([r.static.indices, r.static.indices + np.uint32(r.static.vertices.shape[0])])
     hull_ibo = ctx.buffer(hull.astype(np.uint32).tobytes())
     hull_vao = ctx.vertex_array(
-        r.flat_prog,
+        r.flat_progs[0],
         [(r.static_vbo, *module.VERTEX_FORMAT)],
         index_buffer=hull_ibo,
         index_element_size=4,

@@ -37,11 +37,11 @@ from services.renderer.mesh import (
 )
 from services.renderer.shaders import (
     EYE_FRAGMENT,
-    FACE_VERTEX,
     FLAT_FRAGMENT,
     OVERLAY_FRAGMENT,
     OVERLAY_VERTEX,
     SURFACE_FRAGMENT,
+    face_vertex,
     variant,
 )
 
@@ -97,15 +97,23 @@ class Renderer:
         cfg = self.config
 
         # Cel and smooth ("3D surface") shading are separate programs rather than a branch: software
-        # GL pays for both sides of a branch on every pixel.
-        self.programs: dict[str, moderngl.Program] = {
-            "surface": ctx.program(vertex_shader=FACE_VERTEX, fragment_shader=variant(SURFACE_FRAGMENT, False)),
-            "surface_3d": ctx.program(vertex_shader=FACE_VERTEX, fragment_shader=variant(SURFACE_FRAGMENT, True)),
-            "eye": ctx.program(vertex_shader=FACE_VERTEX, fragment_shader=variant(EYE_FRAGMENT, False)),
-            "eye_3d": ctx.program(vertex_shader=FACE_VERTEX, fragment_shader=variant(EYE_FRAGMENT, True)),
-            "flat": ctx.program(vertex_shader=FACE_VERTEX, fragment_shader=FLAT_FRAGMENT),
+        # GL pays for both sides of a branch on every pixel, and on every vertex, so the static parts'
+        # programs leave out how the brows and mouth are built (shaders.face_vertex).
+        fragments = {
+            "surface": variant(SURFACE_FRAGMENT, False),
+            "surface_3d": variant(SURFACE_FRAGMENT, True),
+            "eye": variant(EYE_FRAGMENT, False),
+            "eye_3d": variant(EYE_FRAGMENT, True),
+            "flat": FLAT_FRAGMENT,
         }
-        self.flat_prog = self.programs["flat"]
+        self.programs: dict[tuple[str, str], moderngl.Program] = {}
+        for mesh_name, curves in (("static", False), ("dynamic", True)):
+            vertex = face_vertex(curves)
+            for prog_name, fragment in fragments.items():
+                if mesh_name == "dynamic" and prog_name.startswith("eye"):
+                    continue
+                self.programs[mesh_name, prog_name] = ctx.program(vertex_shader=vertex, fragment_shader=fragment)
+        self.flat_progs = (self.programs["static", "flat"], self.programs["dynamic", "flat"])
         self.overlay_prog = ctx.program(vertex_shader=OVERLAY_VERTEX, fragment_shader=OVERLAY_FRAGMENT)
         self._programs = tuple(self.programs.values())
         # Bones and camera go in one uniform block that every program reads: one write per frame.
@@ -116,7 +124,8 @@ class Renderer:
         self.curve_ubo = ctx.buffer(reserve=self._curves.nbytes, dynamic=True)
         for prog in self._programs:
             prog["Frame"].binding = _FRAME_BLOCK
-            prog["Curves"].binding = _CURVES_BLOCK
+            if "Curves" in prog:
+                prog["Curves"].binding = _CURVES_BLOCK
 
         static = build_static_mesh(self.config.mesh_detail)
         self.static = static
@@ -135,21 +144,16 @@ class Renderer:
             "dynamic": HullIndices(ctx, dyn_indices, dyn_ranges, sample.dynamic.shape[0], ("brows", "lips")),
         }
         self._vaos: dict[tuple[str, str, str], moderngl.VertexArray] = {}  # (mesh, program, index set)
-        for mesh_name, vbo in (("static", self.static_vbo), ("dynamic", self.dynamic_vbo)):
-            mesh = self.meshes[mesh_name]
-            for prog_name, prog in self.programs.items():
-                if mesh_name == "dynamic" and prog_name.startswith("eye"):
-                    continue
-                for kind in (SURFACE, OUTLINE):
-                    if kind == OUTLINE and prog_name != "flat":
-                        continue
-                    self._vaos[mesh_name, prog_name, kind] = ctx.vertex_array(
-                        prog,
-                        [(vbo, *VERTEX_FORMAT)],
-                        index_buffer=mesh.ibos[kind],
-                        index_element_size=4,
-                        skip_errors=True,
-                    )
+        for (mesh_name, prog_name), prog in self.programs.items():
+            vbo = self.static_vbo if mesh_name == "static" else self.dynamic_vbo
+            for kind in (SURFACE, OUTLINE) if prog_name == "flat" else (SURFACE,):
+                self._vaos[mesh_name, prog_name, kind] = ctx.vertex_array(
+                    prog,
+                    [(vbo, *VERTEX_FORMAT)],
+                    index_buffer=self.meshes[mesh_name].ibos[kind],
+                    index_element_size=4,
+                    skip_errors=True,
+                )
         # Overlay: two polylines (one per eye) as quads, plus two cross markers.
         self._overlay_capacity = (2 * (MAX_TRAJECTORY_POINTS - 1) + 4) * 6
         self.overlay_vbo = ctx.buffer(reserve=self._overlay_capacity * _OVERLAY_FLOATS * 4, dynamic=True)
@@ -307,8 +311,7 @@ class Renderer:
         eye = -modelview[:3, :3].T @ modelview[:3, 3]
         self.meshes["static"].update(self.static_facing.distances(pose.bones, eye))
         suffix = "_3d" if toggles.surface_3d else ""
-        flat = self.flat_prog
-        flat["u_viewport"].value = (float(width), float(height))
+        self._set_flat("u_viewport", (float(width), float(height)))
 
         ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         ctx.wireframe = False
@@ -325,8 +328,8 @@ class Renderer:
         # Outlines, a fixed number of pixels wide; the depth test hides what lies behind nearer surfaces.
         outline_px = self.config.outline_px * height / REFERENCE_HEIGHT
         if outline_px > 0:
-            flat["u_outline"].value = outline_px
-            flat["u_flat"].value = self.config.colors["outline"]
+            self._set_flat("u_outline", outline_px)
+            self._set_flat("u_flat", self.config.colors["outline"])
             # The static parts: a quad along each silhouette edge, pushed outward; they wind either way,
             # so nothing is culled. Closed lids hide the eyeballs' silhouettes: outline the eyes only
             # when the lids are off.
@@ -338,16 +341,16 @@ class Renderer:
             ctx.cull_face = "front"
             self._draw("dynamic", "flat", [g for g in dynamic_groups if g != "inner"], OUTLINE)
             ctx.cull_face = "back"
-            flat["u_outline"].value = 0.0
+            self._set_flat("u_outline", 0.0)
 
         if toggles.wireframe:
             ctx.wireframe = True
-            flat["u_flat"].value = self.config.colors["wireframe"]
-            flat["u_depth_bias"].value = 0.002
+            self._set_flat("u_flat", self.config.colors["wireframe"])
+            self._set_flat("u_depth_bias", 0.002)
             self._draw("static", "flat", ["decals", "nose", "face", "eyes"] + (["lids"] if toggles.eye_cover else []))
             self._draw("dynamic", "flat", dynamic_groups)
             ctx.wireframe = False
-            flat["u_depth_bias"].value = 0.0
+            self._set_flat("u_depth_bias", 0.0)
 
         overlay = self._overlay(pose, proj @ view_m, toggles, overlay_points, height)
         if overlay is not None:
@@ -356,6 +359,11 @@ class Renderer:
             self.overlay_vao.render(moderngl.TRIANGLES, vertices=overlay.shape[0])
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         return fbo
+
+    def _set_flat(self, name: str, value: object) -> None:
+        """Set a uniform of the flat programs (outlines, wireframe) of both meshes."""
+        for prog in self.flat_progs:
+            prog[name].value = value
 
     def _draw(self, mesh_name: str, prog_name: str, groups: list[str], kind: str = SURFACE) -> None:
         vao = self._vaos[mesh_name, prog_name, kind]

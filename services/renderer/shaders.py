@@ -14,6 +14,7 @@ from services.renderer.mesh import (
     HEAD_C,
     HEAD_N,
     HEAD_TAPER,
+    MAT,
     N_BONES,
     SEGMENTS,
     TUBE_POINTS,
@@ -21,12 +22,16 @@ from services.renderer.mesh import (
 
 FACE_VERTEX = """
 #version 330
+#define CURVES 1  // 0 for the static parts: no vertex of theirs is built from the Curves block
 #define EXTRUDED __EXTRUDED__  // mesh.EXTRUDED: added to the material of an outline quad's outer corners
 #define SEGMENTS __SEGMENTS__  // mesh.SEGMENTS: points per tube centre line and per strip edge
 #define CURVE_POINTS __CURVE_POINTS__  // mesh.CURVE_POINTS
+#define MAT_SKIN __MAT_SKIN__  // mesh.MAT: the head's two materials
+#define MAT_HAIR __MAT_HAIR__
 // The head's surface (mesh._on_face): |x / (A t(y))|^N + |y / B|^N + |z / C|^N = 1, t(y) = 1 - T u^2.
 const float HEAD_A = __HEAD_A__, HEAD_B = __HEAD_B__, HEAD_C = __HEAD_C__;
 const float HEAD_N = __HEAD_N__, HEAD_TAPER = __HEAD_TAPER__;
+const float OUTLINE_FAR = 0.999999;  // NDC depth just short of the cleared 1.0, which the test must pass
 layout(std140) uniform Frame {  // written once per frame, shared by every program
     mat4 u_bones[__N_BONES__];  // rest head frame -> camera, per bone (the head's modelview times the bone)
     mat4 u_proj;
@@ -77,6 +82,7 @@ void main() {
     vec3 pos = in_pos;
     vec3 normal = in_normal;
     float w = in_info.w;
+#if CURVES
     if (code >= int(4.0 * EXTRUDED)) {
         // A vertex of the mouth's inner strips: its point on the face; the normal faces the camera.
         vec4 q = u_curves[int(in_pos.x + 0.5)];
@@ -99,6 +105,7 @@ void main() {
         normal = normalize((in_pos.y * section.z) * side + in_pos.z * o);
         w = q.w;
     }
+#endif
     int b0 = int(in_info.y + 0.5);
     int b1 = int(in_info.z + 0.5);
     mat4 bone = u_bones[b0] * (1.0 - w) + u_bones[b1] * w;
@@ -115,6 +122,13 @@ void main() {
             clip.xy += dir / len * (2.0 * u_outline / u_viewport) * clip.w;
         }
     }
+    if (u_outline > 0.0 && (mat == MAT_SKIN || mat == MAT_HAIR)) {
+        // The head's outline quads go to the back of the depth range: the head has nothing behind it,
+        // so its line belongs only where nothing else was drawn. Where the head folds away from the
+        // camera (a pole of its grid near the silhouette) an edge between a front and a back face runs
+        // across the visible surface; at its own depth its quad would draw a stray line there.
+        clip.z = clip.w * OUTLINE_FAR;
+    }
     clip.z -= u_depth_bias * clip.w;
     gl_Position = clip;
     v_normal = n;
@@ -130,6 +144,8 @@ for _name, _value in (
     ("__SEGMENTS__", str(SEGMENTS)),
     ("__CURVE_POINTS__", str(CURVE_POINTS)),
     ("__N_BONES__", str(N_BONES)),
+    ("__MAT_SKIN__", str(MAT["skin"])),
+    ("__MAT_HAIR__", str(MAT["hair"])),
     ("__TUBE_POINTS__", str(TUBE_POINTS)),
     ("__HEAD_A__", repr(float(HEAD_A))),
     ("__HEAD_B__", repr(float(HEAD_B))),
@@ -242,6 +258,13 @@ void main() {
     f_color = vec4(v_color, 1.0);
 }
 """
+
+
+def face_vertex(curves: bool) -> str:
+    """FACE_VERTEX with (curves=True) or without the code that builds the brows and the mouth from the
+    Curves block: software GL runs both sides of a branch for every vertex, so the static parts, none of
+    whose vertices is built there, get a program without it."""
+    return FACE_VERTEX if curves else FACE_VERTEX.replace("#define CURVES 1", "#define CURVES 0", 1)
 
 
 def variant(source: str, smooth: bool) -> str:
