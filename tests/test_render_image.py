@@ -375,6 +375,29 @@ def test_leaving_out_the_triangles_that_face_away_changes_no_pixel(ctx) -> None:
     r.release()
 
 
+def test_the_compiled_facing_pass_selects_what_the_numpy_reference_does(ctx) -> None:
+    """FrameIndices.update_for (compiled) uploads the same triangles and outline quads, in the same groups,
+    as update() given RigidFacing.distances, over random poses, the jaw (blended triangles) included."""
+    r = Renderer(ctx, SIZE)
+    static = r.meshes["static"]
+    rng = np.random.default_rng(5)
+    for i in range(40):
+        f = rng.uniform(-1, 1, N_FLEXORS) * (1.0 if i % 2 else 0.4)
+        pose = r.poser.pose(f, dynamic=False)
+        view_m, _ = r.camera(("full", "upper")[i % 2], 4 / 3, pose.model)
+        modelview = view_m @ pose.model
+        eye = -modelview[:3, :3].T @ modelview[:3, 3]
+        static.update_for(pose.bones, eye)
+        ranges, buffers = dict(static.ranges), {kind: ibo.read() for kind, ibo in static.ibos.items()}
+        static.update(r.static_facing.distances(pose.bones, eye))
+        expected_ranges, expected_buffers = static.ranges, {kind: ibo.read() for kind, ibo in static.ibos.items()}
+        assert ranges == expected_ranges
+        for kind in (SURFACE, "outline"):
+            used = sum(count for (k, _), (_, count) in ranges.items() if k == kind) * 4
+            assert used > 0 and buffers[kind][:used] == expected_buffers[kind][:used], kind
+    r.release()
+
+
 def test_the_vertex_shader_builds_the_brows_and_mouth_where_numpy_does(ctx) -> None:
     """The real FACE_VERTEX, by transform feedback, over the dynamic vertices built from the uploaded
     curve block: positions and normals where build_dynamic puts them, and the jaw weights, read through

@@ -495,6 +495,17 @@ class RigidFacing:
         ]
         self._mixed_w = info[used, 2].astype(np.float64)
         self._mixed_scale = self._inverse_length[self.mixed]
+        self._compiled_inputs = (
+            np.ascontiguousarray(self.normal),
+            np.ascontiguousarray(self.offset),
+            self.bone.astype(np.int64),
+            self.mixed.astype(np.int64),
+            local.reshape(-1, 3).astype(np.int64),
+            np.ascontiguousarray(pos[used]),
+            pairs.astype(np.int64),
+            self._mixed_w,
+            np.ascontiguousarray(self._mixed_scale),
+        )
         # The parts ride one bone each and lie one after another, so the rigid test is one small matrix
         # product per run of triangles on the same bone, into views made once.
         self._s = np.empty(tri.shape[0])
@@ -504,6 +515,12 @@ class RigidFacing:
             (int(self.bone[a]), self.normal[a:b], self._s[a:b])
             for a, b in zip(starts.tolist(), stops.tolist(), strict=True)
         ]
+
+    def compiled_inputs(self) -> tuple[np.ndarray, ...]:
+        """What kernels.static_frame_indices needs of this mesh, after bones and eye: every triangle's unit
+        rest normal, its offset and bone; the blended triangles, their corners (rows of the next three
+        arrays), the corners' rest positions, bone pairs and weights, and the triangles' area scales."""
+        return self._compiled_inputs
 
     def front(self, bones: np.ndarray, eye: np.ndarray) -> np.ndarray:
         """Which triangles face `eye` (the camera's position in the posed head frame)."""

@@ -140,7 +140,9 @@ class Renderer:
         # The static outline quads are chosen each frame; the dynamic parts keep an inverted hull. Face and
         # lids side by side in the outline buffer: the outline pass draws both with one call.
         self.meshes: dict[str, FrameIndices | HullIndices] = {
-            "static": FrameIndices(ctx, static.indices, static.ranges, static.vertices, ("face", "lids", "eyes")),
+            "static": FrameIndices(
+                ctx, static.indices, static.ranges, static.vertices, ("face", "lids", "eyes"), self.static_facing
+            ),
             "dynamic": HullIndices(ctx, dyn_indices, dyn_ranges, sample.dynamic.shape[0], ("brows", "lips")),
         }
         self._vaos: dict[tuple[str, str, str], moderngl.VertexArray] = {}  # (mesh, program, index set)
@@ -309,7 +311,7 @@ class Renderer:
         self.curve_ubo.bind_to_uniform_block(_CURVES_BLOCK)
         # The eye in the head frame (modelview is a rigid motion): where every facing test looks from.
         eye = -modelview[:3, :3].T @ modelview[:3, 3]
-        self.meshes["static"].update(self.static_facing.distances(pose.bones, eye))
+        self.meshes["static"].update_for(pose.bones, eye)
         suffix = "_3d" if toggles.surface_3d else ""
         self._set_flat("u_viewport", (float(width), float(height)))
 
@@ -423,7 +425,10 @@ class FrameIndices:
     back faces, and about half of the static triangles face away in any frame, so they are left out of
     the surface buffer. A triangle within EDGE_ON_SLACK of edge-on stays in (GL culls it by its
     projected area in single precision, the test here is in double), so the picture is the same as
-    drawing them all."""
+    drawing them all.
+
+    update_for(bones, eye) does it per frame in one compiled pass (kernels.py); update(distances) is
+    the same in numpy, from RigidFacing.distances: the reference the compiled pass is tested against."""
 
     EDGE_ON_SLACK = 1e-4  # head-frame units of the eye's distance from a triangle's plane (the head is ~2 wide)
 
@@ -434,6 +439,7 @@ class FrameIndices:
         ranges: dict[str, tuple[int, int]],
         vertices: np.ndarray,
         outlined: tuple[str, ...],
+        facing: RigidFacing,
     ) -> None:
         indices = np.ascontiguousarray(indices, dtype=np.uint32)
         triangles = indices.reshape(-1, 3)
@@ -442,7 +448,7 @@ class FrameIndices:
         # per-frame selection is one compress).
         by_start = sorted(ranges.items(), key=lambda item: item[1][0])
         self._groups = [name for name, _ in by_start]
-        self._group_starts = np.array([first // 3 for _, (first, _) in by_start])
+        self._group_starts = np.array([first // 3 for _, (first, _) in by_start], dtype=np.int64)
         bounds = [0]
         for name, (first, count) in by_start:
             if first != bounds[-1] or count <= 0 or count % 3:
@@ -450,7 +456,7 @@ class FrameIndices:
             bounds.append(first + count)
         if bounds[-1] != indices.size:
             raise ValueError("the surface groups must cover the whole index buffer")
-        self._triangles = triangles.copy().view(np.dtype((np.void, 12))).reshape(-1)
+        self._triangles = triangles.copy()
         # One table of the outlined groups' edges, group after group, with the triangles on each side
         # numbered across the whole mesh (len(triangles) where the mesh ends: never facing).
         t0, t1, quads, self._names, bounds = [], [], [], [], [0]
@@ -463,40 +469,77 @@ class FrameIndices:
             quads.append(sil.quads)
             self._names.append(name)
             bounds.append(bounds[-1] + len(sil.quads))
-        self._t0, self._t1 = np.concatenate(t0), np.concatenate(t1)
-        self._quads = np.concatenate(quads)
-        self._starts = np.array(bounds[:-1])  # each group's first edge
+        self._t0, self._t1 = np.concatenate(t0).astype(np.int64), np.concatenate(t1).astype(np.int64)
+        self._quads = np.ascontiguousarray(np.concatenate(quads), dtype=np.uint32)
+        self._starts = np.array(bounds[:-1], dtype=np.int64)  # each group's first edge
         self._front = np.zeros(len(triangles) + 1, dtype=bool)
+        self._facing = facing
+        # What a frame selects, written in place by update or update_for and then uploaded.
+        self._surface = np.empty_like(self._triangles)
+        self._surface_counts = np.zeros(len(self._groups), dtype=np.int64)
+        self._quads_on = np.empty_like(self._quads)
+        self._quad_counts = np.zeros(len(self._names), dtype=np.int64)
         # The outline quads, rewritten each frame, have a buffer of their own.
         self.ibos = {
             SURFACE: ctx.buffer(indices.tobytes(), dynamic=True),
             OUTLINE: ctx.buffer(reserve=self._quads.nbytes, dynamic=True),
         }
-        self.update(np.full(len(triangles), np.inf))
+        # Compiled (or loaded from numba's cache) now, not in the middle of the first frame.
+        self.update_for(np.tile(np.eye(4), (N_BONES, 1, 1)), np.array([0.0, 0.0, 10.0]))
+
+    def update_for(self, bones: np.ndarray, eye: np.ndarray) -> None:
+        """Upload the triangles that may face `eye` (the camera's position in the posed head frame) under
+        `bones`, and the outline quads: update(facing.distances(bones, eye)), compiled."""
+        from services.renderer.kernels import static_frame_indices  # numba loads only when a renderer does
+
+        static_frame_indices(
+            np.ascontiguousarray(bones, dtype=np.float64),
+            np.ascontiguousarray(eye, dtype=np.float64),
+            *self._facing.compiled_inputs(),
+            self.EDGE_ON_SLACK,
+            self._triangles,
+            self._group_starts,
+            self._t0,
+            self._t1,
+            self._quads,
+            self._starts,
+            self._surface,
+            self._surface_counts,
+            self._quads_on,
+            self._quad_counts,
+            self._front,
+        )
+        self._upload()
 
     def update(self, distances: np.ndarray) -> None:
         """Upload the triangles that may face the camera and the outline quads of the edges between a
         triangle facing it and one not, from the eye's signed distance to each triangle's plane
         (RigidFacing.distances)."""
         maybe = distances > -self.EDGE_ON_SLACK
-        counts = np.add.reduceat(maybe.view(np.uint8), self._group_starts, dtype=np.intp)
-        offset = 0
-        for name, count in zip(self._groups, counts.tolist(), strict=True):
-            self.ranges[SURFACE, name] = (offset, 3 * count)
-            offset += 3 * count
-        if offset:
-            self.ibos[SURFACE].write(np.compress(maybe, self._triangles))
+        self._surface_counts[:] = np.add.reduceat(maybe.view(np.uint8), self._group_starts, dtype=np.intp)
+        rows = np.dtype((np.void, self._triangles.itemsize * 3))
+        kept = int(self._surface_counts.sum())
+        np.compress(maybe, self._triangles.view(rows).reshape(-1), out=self._surface[:kept].view(rows).reshape(-1))
         f = self._front
         np.greater(distances, 0.0, out=f[:-1])
         on = f[self._t0] != f[self._t1]
-        counts = np.add.reduceat(on.view(np.uint8), self._starts, dtype=np.intp)
+        self._quad_counts[:] = np.add.reduceat(on.view(np.uint8), self._starts, dtype=np.intp)
+        self._quads_on[: int(self._quad_counts.sum())] = self._quads[on]
+        self._upload()
+
+    def _upload(self) -> None:
         offset = 0
-        for name, count in zip(self._names, counts.tolist(), strict=True):
+        for name, count in zip(self._groups, self._surface_counts.tolist(), strict=True):
+            self.ranges[SURFACE, name] = (offset, 3 * count)
+            offset += 3 * count
+        if offset:
+            self.ibos[SURFACE].write(self._surface[: offset // 3])
+        offset = 0
+        for name, count in zip(self._names, self._quad_counts.tolist(), strict=True):
             self.ranges[OUTLINE, name] = (offset, 6 * count)
             offset += 6 * count
-        quads = self._quads[on]
-        if quads.size:
-            self.ibos[OUTLINE].write(quads)
+        if offset:
+            self.ibos[OUTLINE].write(self._quads_on[: offset // 6])
 
 
 class HullIndices:
