@@ -1,4 +1,5 @@
-"""Procedural geometry of the cartoon face, and how each flexor moves it (pure numpy).
+"""Procedural geometry of the cartoon face, and how each flexor moves it (numpy; the per-frame posing
+compiled with numba).
 
 Frame: the head's own frame. x points to the viewer's right in a front view, which is the AGENT's
 LEFT (the face looks at the camera); y is up; z comes out of the face toward the camera. The head is
@@ -26,9 +27,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
-from agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES, N_FLEXORS
+from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
 
 # Vertex layout shared with the shaders: position(3) normal(3) aux(3) info(4) as float32, where
 # info = (material, bone0, bone1, weight of bone1) and aux is a rest-frame direction or position a
@@ -118,34 +120,6 @@ def _head_radius(directions: np.ndarray) -> np.ndarray:
         lo = np.where(inside, mid, lo)
         hi = np.where(inside, hi, mid)
     return 0.5 * (lo + hi)
-
-
-def rot_x(deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
-
-
-def rot_y(deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[c, 0, s, 0], [0, 1.0, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1]])
-
-
-def rot_z(deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1]])
-
-
-def translate(v: np.ndarray | tuple[float, float, float]) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, 3] = v
-    return m
-
-
-def about(pivot: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """`rotation` (4x4, no translation) about `pivot` instead of the origin."""
-    m = rotation.copy()
-    m[:3, 3] = pivot - rotation[:3, :3] @ pivot
-    return m
 
 
 @dataclass
@@ -600,8 +574,8 @@ class Silhouette:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Dynamic parts: brows and mouth, rebuilt each frame from the flexors in one vectorised pass (numpy's
-# per-call overhead, not arithmetic, is what costs here, so every part goes through the same calls).
+# Dynamic parts: brows and mouth, rebuilt each frame from the flexors: the points they are built from
+# (compiled, below), then in numpy the vertices themselves (the reference for the vertex shader's build).
 
 SEGMENTS, RING = 13, 5  # points along each brow or lip, and around its section
 TUBES: tuple[str, ...] = ("brow_l", "brow_r", "lip_u", "lip_l")
@@ -653,13 +627,15 @@ def _tubes(
     return pos, normal
 
 
-TUBE_POINTS = len(TUBES) * SEGMENTS  # centre-line points of all tubes, tube after tube
+N_TUBES = len(TUBES)
+TUBE_POINTS = N_TUBES * SEGMENTS  # centre-line points of all tubes, tube after tube
 CURVE_ROWS = len(TUBES) + 2 * len(STRIPS)  # rows of points: each tube's centre line, each strip's two edges
 CURVE_POINTS = CURVE_ROWS * SEGMENTS
 TUBE_CODE = 2 * EXTRUDED  # added to the material of a tube vertex the vertex shader builds (shader_template)
 STRIP_CODE = 4 * EXTRUDED  # likewise for a vertex of the mouth's strips
 
 
+@numba.njit(cache=True)
 def curve_block(
     x: np.ndarray,
     y: np.ndarray,
@@ -678,7 +654,7 @@ def curve_block(
     points[..., 1] = y
     points[..., 2] = lift
     points[..., 3] = jaw_weight
-    sections = block[CURVE_POINTS:].reshape(len(TUBES), SEGMENTS, 4)
+    sections = block[CURVE_POINTS:].reshape(N_TUBES, SEGMENTS, 4)
     sections[..., 0] = half_h
     sections[..., 1] = half_d
     sections[..., 2] = (half_d.sum(1) / np.maximum(half_h.sum(1), 1e-9))[:, None]
@@ -817,17 +793,25 @@ def brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, 
     the brows down it also pulls the inner ends down (the anger V), with the brows up it lifts the inner
     end more than the outer (the oblique brow of worry, sadness and fear). knit (-) arches them apart.
     """
+    return _brow_curves(float(brow_l), float(brow_r), float(knit))
+
+
+# The per-frame shapes of the brows and mouth are compiled (numba): a frame runs them once on arrays of
+# 13 points, where numpy's per-call overhead, not the arithmetic, was the cost.
+@numba.njit(cache=True)
+def _brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, np.ndarray]:
     k, arch_k = max(knit, 0.0), max(-knit, 0.0)
-    # Per brow: arch height, inner end's lift, and the outer end's lift relative to it. Plain floats:
-    # this runs every frame, and numpy's per-call overhead dwarfs arithmetic on two values.
-    rows = []
-    for brow in (brow_l, brow_r):
+    # Per brow: arch height, inner end's lift, and the outer end's lift relative to it.
+    c = np.empty((2, 3))
+    for row in range(2):
+        brow = brow_l if row == 0 else brow_r
         up, down = max(brow, 0.0), max(-brow, 0.0)
         worry = min(up / 0.3, 1.0)
         inner_dy = 0.15 * up - 0.08 * down + 0.1 * k * worry - 0.17 * k * (1 - worry)
         outer_dy = 0.15 * up * (1 - 0.6 * k * worry) - 0.05 * down + 0.06 * k * (1 - worry)
-        rows.append((0.045 + 0.05 * arch_k + 0.02 * up, inner_dy, outer_dy - inner_dy))
-    c = np.array(rows)
+        c[row, 0] = 0.045 + 0.05 * arch_k + 0.02 * up
+        c[row, 1] = inner_dy
+        c[row, 2] = outer_dy - inner_dy
     inner_x = BROW_INNER - 0.05 * k + 0.03 * arch_k
     x = _BROW_SIDE * (inner_x + (BROW_OUTER - inner_x) * _T)
     y = _BROW_BASE + c[:, 0:1] * _BROW_ARC + c[:, 1:2] + c[:, 2:3] * _T
@@ -856,10 +840,21 @@ _MOUTH_BUMP = np.exp(-(((_MOUTH_A - 0.45) / 0.28) ** 2))
 
 
 def mouth_shape(f: np.ndarray) -> MouthShape:
-    ah, oo, ee, mm, ff = (max(_f(f, n), 0.0) for n in ("say_ah", "say_oo", "say_ee", "say_mm", "say_ff"))
-    smile_l, smile_r = _f(f, "smile_l"), _f(f, "smile_r")
+    """The mouth for the (clean, see clean_flexors) flexor vector f."""
+    return MouthShape(*_mouth_shape(np.asarray(f, dtype=np.float64)))
+
+
+_SAY_AH, _SAY_OO, _SAY_EE, _SAY_MM, _SAY_FF = (FLEXOR_INDEX["say_" + n] for n in ("ah", "oo", "ee", "mm", "ff"))
+_SMILE_L, _SMILE_R, _SNEER_L, _SNEER_R = (FLEXOR_INDEX[n] for n in ("smile_l", "smile_r", "sneer_l", "sneer_r"))
+
+
+@numba.njit(cache=True)
+def _mouth_shape(f: np.ndarray) -> tuple:  # MouthShape's fields, in order
+    ah, oo, ee = max(f[_SAY_AH], 0.0), max(f[_SAY_OO], 0.0), max(f[_SAY_EE], 0.0)
+    mm, ff = max(f[_SAY_MM], 0.0), max(f[_SAY_FF], 0.0)
+    smile_l, smile_r = f[_SMILE_L], f[_SMILE_R]
     sm = np.where(_MOUTH_RIGHT, smile_l, smile_r)
-    sn = np.where(_MOUTH_RIGHT, max(_f(f, "sneer_l"), 0.0), max(_f(f, "sneer_r"), 0.0))
+    sn = np.where(_MOUTH_RIGHT, max(f[_SNEER_L], 0.0), max(f[_SNEER_R], 0.0))
     # Corner half-width: spread widens, rounding narrows a lot, a smile pulls the corners out (a frown
     # pulls them in a little). The smile is one value per side, so this is too.
     pull_l = 0.22 * smile_l if smile_l > 0 else 0.05 * smile_l
@@ -874,15 +869,15 @@ def mouth_shape(f: np.ndarray) -> MouthShape:
     upper = centre_line + (0.45 * opening) * profile + sn * (0.09 * press * _MOUTH_BUMP + 0.02 * _MOUTH_A)
     lower = np.minimum(centre_line + (0.035 * ff - 0.55 * opening) * profile, upper)
     thin = 1.0 - 0.45 * mm + 0.2 * oo - 0.2 * ee
-    return MouthShape(
-        x=_S * half,
-        upper=upper,
-        lower=lower,
-        jaw_weight=profile**1.2,
-        protrude=(0.03 + 0.09 * oo - 0.01 * mm) * profile + 0.012,
-        thick_u=0.03 * thin,
-        thick_l=0.037 * thin * (1.0 - 0.3 * ff),
-        jaw_deg=JAW_MAX_DEG * press * (ah + 0.22 * oo + 0.06 * ee),
+    return (
+        _S * half,
+        upper,
+        lower,
+        profile**1.2,
+        (0.03 + 0.09 * oo - 0.01 * mm) * profile + 0.012,
+        0.03 * thin,
+        0.037 * thin * (1.0 - 0.3 * ff),
+        JAW_MAX_DEG * press * (ah + 0.22 * oo + 0.06 * ee),
     )
 
 
@@ -900,42 +895,10 @@ def build_dynamic(
     With `curves` ((CURVE_POINTS + TUBE_POINTS, 4) float32, see curve_block) nothing is built here: the
     points the vertex shader builds them from go into `curves`, and `out` is left as it was.
     """
-    bx, by = brow_curves(_f(f, "brow_l"), _f(f, "brow_r"), _f(f, "brows_knit"))
-    lip_h_u = shape.thick_u * _LIP_TAPER
-    lip_h_l = shape.thick_l * _LIP_TAPER
-    inset = shape.protrude * 0.5
-    top = shape.upper + 0.01 * _LIP_TAPER
-    bottom = shape.lower - 0.01 * _LIP_TAPER
-    # Rows: brow l, brow r, upper lip, lower lip, then the two edges of cavity, teeth and tongue.
-    x = np.empty((CURVE_ROWS, SEGMENTS))
-    y = np.empty((CURVE_ROWS, SEGMENTS))
-    lift = np.empty((CURVE_ROWS, SEGMENTS))
-    x[0:2] = bx
-    x[2:] = shape.x
-    y[0:2] = by
-    y[2] = shape.upper + 0.85 * lip_h_u
-    y[3] = shape.lower - 0.85 * lip_h_l
-    y[4], y[5] = top, bottom  # cavity
-    y[6], y[7] = top, shape.upper - _TEETH_H  # teeth
-    y[8], y[9] = shape.lower + _TONGUE_H, bottom  # tongue
-    lift[0:2] = 0.006
-    lift[2] = shape.protrude + 0.3 * lip_h_u
-    lift[3] = shape.protrude + 0.3 * lip_h_l
-    # the cavity lies behind the teeth and tongue, both behind the lips
-    lift[4:6] = inset - 0.004
-    lift[6:8] = inset + 0.002
-    lift[8:10] = inset + 0.001
-    half_h = np.empty((len(TUBES), SEGMENTS))
-    half_d = np.empty((len(TUBES), SEGMENTS))
-    half_h[0:2] = _BROW_HALF_H
-    half_d[0:2] = _BROW_HALF_D
-    half_h[2], half_h[3] = lip_h_u, lip_h_l
-    half_d[2], half_d[3] = 0.6 * lip_h_u + 0.004, 0.6 * lip_h_l + 0.004
-    # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
-    w = shape.jaw_weight
-    weight = np.zeros((CURVE_ROWS, SEGMENTS))
-    weight[3] = weight[5] = weight[9] = w
-    weight[8] = 0.85 * w
+    bx, by = _brow_curves(_f(f, "brow_l"), _f(f, "brow_r"), _f(f, "brows_knit"))
+    x, y, lift, weight, half_h, half_d = _curve_rows(
+        bx, by, shape.x, shape.upper, shape.lower, shape.jaw_weight, shape.protrude, shape.thick_u, shape.thick_l
+    )
     if curves is not None:
         curve_block(x, y, lift, weight, half_h, half_d, curves)
         return
@@ -947,6 +910,58 @@ def build_dynamic(
     out[tb, 12] = np.repeat(weight[: len(TUBES)].reshape(-1), RING)
     out[sb, 0:3] = p[len(TUBES) :].reshape(-1, 3)
     out[sb, 12] = weight[len(TUBES) :].reshape(-1)
+
+
+@numba.njit(cache=True)
+def _curve_rows(
+    bx: np.ndarray,
+    by: np.ndarray,
+    mouth_x: np.ndarray,
+    upper: np.ndarray,
+    lower: np.ndarray,
+    jaw_weight: np.ndarray,
+    protrude: np.ndarray,
+    thick_u: float,
+    thick_l: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rows build_dynamic works from (see curve_block): x, y, lift and jaw weight per point, and the
+    tubes' half height and depth."""
+    lip_h_u = thick_u * _LIP_TAPER
+    lip_h_l = thick_l * _LIP_TAPER
+    inset = protrude * 0.5
+    top = upper + 0.01 * _LIP_TAPER
+    bottom = lower - 0.01 * _LIP_TAPER
+    # Rows: brow l, brow r, upper lip, lower lip, then the two edges of cavity, teeth and tongue.
+    x = np.empty((CURVE_ROWS, SEGMENTS))
+    y = np.empty((CURVE_ROWS, SEGMENTS))
+    lift = np.empty((CURVE_ROWS, SEGMENTS))
+    x[0:2] = bx
+    for row in range(2, CURVE_ROWS):
+        x[row] = mouth_x
+    y[0:2] = by
+    y[2] = upper + 0.85 * lip_h_u
+    y[3] = lower - 0.85 * lip_h_l
+    y[4], y[5] = top, bottom  # cavity
+    y[6], y[7] = top, upper - _TEETH_H  # teeth
+    y[8], y[9] = lower + _TONGUE_H, bottom  # tongue
+    lift[0:2] = 0.006
+    lift[2] = protrude + 0.3 * lip_h_u
+    lift[3] = protrude + 0.3 * lip_h_l
+    # the cavity lies behind the teeth and tongue, both behind the lips
+    lift[4] = lift[5] = inset - 0.004
+    lift[6] = lift[7] = inset + 0.002
+    lift[8] = lift[9] = inset + 0.001
+    half_h = np.empty((N_TUBES, SEGMENTS))
+    half_d = np.empty((N_TUBES, SEGMENTS))
+    half_h[0] = half_h[1] = _BROW_HALF_H
+    half_d[0] = half_d[1] = _BROW_HALF_D
+    half_h[2], half_h[3] = lip_h_u, lip_h_l
+    half_d[2], half_d[3] = 0.6 * lip_h_u + 0.004, 0.6 * lip_h_l + 0.004
+    # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
+    weight = np.zeros((CURVE_ROWS, SEGMENTS))
+    weight[3] = weight[5] = weight[9] = jaw_weight
+    weight[8] = 0.85 * jaw_weight
+    return x, y, lift, weight, half_h, half_d
 
 
 @dataclass
@@ -972,21 +987,7 @@ class Units:
     tilt: float = 20.0
 
 
-def head_model(f: np.ndarray, units: Units) -> np.ndarray:
-    return np.array(_head_matrix(_f(f, "turn"), _f(f, "nod"), _f(f, "tilt"), units)).reshape(4, 4)
-
-
-def _head_matrix(turn: float, nod: float, tilt: float, units: Units) -> list[float]:
-    # turn +1 = toward the agent's right (-x): a negative yaw about +y; nod +1 = chin up: a negative
-    # rotation about +x; tilt +1 = toward the agent's right shoulder: the top of the head moves to -x.
-    rot = _mul3(_mul3(_ry3(-turn * units.turn), _rx3(-nod * units.nod)), _rz3(tilt * units.tilt))
-    return _about(_NECK_PIVOT, rot)
-
-
-def eye_rotation(look_x: float, look_y: float, units: Units) -> np.ndarray:
-    return rot_y(-look_x * units.look_x) @ rot_x(-look_y * units.look_y)
-
-
+@numba.njit(cache=True)
 def lid_elevations(blink: float, lids: float, pitch_deg: float) -> tuple[float, float]:
     """Upper and lower rim elevations (degrees) for one eye."""
     blink = min(max(blink, 0.0), 1.0)
@@ -1001,47 +1002,74 @@ def lid_elevations(blink: float, lids: float, pitch_deg: float) -> tuple[float, 
     return upper, lower
 
 
-# Bones are posed in plain floats: a frame needs a dozen 3x3 products, and on arrays that small numpy's
-# per-call overhead costs far more than the arithmetic.
-Mat3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
-_NECK_PIVOT = tuple(float(v) for v in NECK_PIVOT)
-_JAW_PIVOT = tuple(float(v) for v in JAW_PIVOT)
-_IDENTITY = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+# The bones are posed by compiled code (numba): a frame needs a dozen 3x3 products, where Python's and
+# numpy's per-call costs, not the arithmetic, would be the cost.
+_TURN, _NOD, _TILT, _LOOK_X, _LOOK_Y = (FLEXOR_INDEX[n] for n in ("turn", "nod", "tilt", "look_x", "look_y"))
+_BLINK = (FLEXOR_INDEX["blink_l"], FLEXOR_INDEX["blink_r"])  # the agent's left eye (+x) first
+_LIDS = (FLEXOR_INDEX["lids_l"], FLEXOR_INDEX["lids_r"])
 
 
-def _rx3(deg: float) -> Mat3:
+@numba.njit(cache=True)
+def _rotation(axis: int, deg: float) -> np.ndarray:
+    """The 3x3 rotation by `deg` about x (axis 0), y (1) or z (2)."""
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return ((1.0, 0.0, 0.0), (0.0, c, -s), (0.0, s, c))
+    i, j = (1, 2) if axis == 0 else ((2, 0) if axis == 1 else (0, 1))
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
 
 
-def _ry3(deg: float) -> Mat3:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return ((c, 0.0, s), (0.0, 1.0, 0.0), (-s, 0.0, c))
+@numba.njit(cache=True)
+def _mul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+    return out
 
 
-def _rz3(deg: float) -> Mat3:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return ((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0))
+@numba.njit(cache=True)
+def _about(pivot: np.ndarray, rotation: np.ndarray, out: np.ndarray) -> None:
+    """Write into `out` the 4x4 matrix of `rotation` about `pivot` instead of the origin."""
+    for k in range(3):
+        out[k, :3] = rotation[k]
+        out[k, 3] = pivot[k] - (rotation[k, 0] * pivot[0] + rotation[k, 1] * pivot[1] + rotation[k, 2] * pivot[2])
+    out[3] = 0.0
+    out[3, 3] = 1.0
 
 
-def _mul3(a: Mat3, b: Mat3) -> Mat3:
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
-    return tuple(  # type: ignore[return-value]
-        (r0 * b00 + r1 * b10 + r2 * b20, r0 * b01 + r1 * b11 + r2 * b21, r0 * b02 + r1 * b12 + r2 * b22)
-        for r0, r1, r2 in a
-    )
-
-
-def _about(pivot: tuple[float, ...], rotation: Mat3) -> list[float]:
-    """The 4x4 matrix of `rotation` about `pivot` instead of the origin (see about()), row-major, flat."""
-    px, py, pz = pivot
-    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = rotation
-    return [
-        *(a0, b0, c0, px - (a0 * px + b0 * py + c0 * pz)),
-        *(a1, b1, c1, py - (a1 * px + b1 * py + c1 * pz)),
-        *(a2, b2, c2, pz - (a2 * px + b2 * py + c2 * pz)),
-        *(0.0, 0.0, 0.0, 1.0),
-    ]
+@numba.njit(cache=True)
+def _pose_bones(
+    f: np.ndarray,
+    degrees: np.ndarray,
+    centres: np.ndarray,
+    jaw_deg: float,
+    bones: np.ndarray,
+    model: np.ndarray,
+    pupils: np.ndarray,
+) -> None:
+    """Bones (N_BONES, 4, 4), the head's model matrix and the pupils' world positions (agent's left eye
+    first) for the clean flexors f; `degrees` per flexor unit: look_x, look_y, turn, nod, tilt."""
+    # turn +1 = toward the agent's right (-x): a negative yaw about +y; nod +1 = chin up: a negative
+    # rotation about +x; tilt +1 = toward the agent's right shoulder: the top of the head moves to -x.
+    head = _mul3(_mul3(_rotation(1, -f[_TURN] * degrees[2]), _rotation(0, -f[_NOD] * degrees[3])),
+                 _rotation(2, f[_TILT] * degrees[4]))  # fmt: skip
+    _about(NECK_PIVOT, head, model)
+    pitch = f[_LOOK_Y] * degrees[1]
+    eye = _mul3(_rotation(1, -f[_LOOK_X] * degrees[0]), _rotation(0, -pitch))
+    bones[BONE_HEAD] = np.eye(4)
+    # Rotating the jaw about +x by a positive angle swings the chin down and back.
+    _about(JAW_PIVOT, _rotation(0, jaw_deg), bones[BONE_JAW])
+    for side in range(2):
+        c = centres[side]
+        _about(c, eye, bones[BONE_EYE_L + side])
+        up, low = lid_elevations(f[_BLINK[side]], f[_LIDS[side]], pitch)
+        _about(c, _rotation(0, -up), bones[BONE_ULID_L + side])
+        _about(c, _rotation(0, -low), bones[BONE_LLID_L + side])
+        # The pupil: the eye's forward pole, rotated about its centre, then moved with the head.
+        x, y, z = c[0] + EYE_RADIUS * eye[0, 2], c[1] + EYE_RADIUS * eye[1, 2], c[2] + EYE_RADIUS * eye[2, 2]
+        for k in range(3):
+            pupils[side, k] = model[k, 0] * x + model[k, 1] * y + model[k, 2] * z + model[k, 3]
 
 
 class FacePoser:
@@ -1052,46 +1080,18 @@ class FacePoser:
         self.layout = DynamicLayout()
         self._dynamic = self.layout.template()
         self._centres = {1: eye_centre(1), -1: eye_centre(-1)}
-        self._centre_tuples = {side: tuple(float(v) for v in c) for side, c in self._centres.items()}
+        self._centre_rows = np.array([self._centres[1], self._centres[-1]])  # the agent's left eye first
+        u = self.units
+        self._degrees = np.array([u.look_x, u.look_y, u.turn, u.nod, u.tilt], dtype=np.float64)
 
     def pose(self, flexors: np.ndarray, dynamic: bool = True) -> Pose:
         """The pose for `flexors`. With dynamic=False the brows and mouth are left for build_dynamic(),
         which a renderer can ask for only what its vertex shader needs."""
         f = clean_flexors(flexors)
-        u = self.units
-        values = dict(zip(FLEXOR_NAMES, f.tolist(), strict=True))
         shape = mouth_shape(f)
-        head = _head_matrix(values["turn"], values["nod"], values["tilt"], u)
-        m00, m01, m02, m03, m10, m11, m12, m13, m20, m21, m22, m23 = head[:12]
-        ly = values["look_y"]
-        eye_rot = _mul3(_ry3(-values["look_x"] * u.look_x), _rx3(-ly * u.look_y))
-        forward = [row[2] for row in eye_rot]  # the eye's forward pole, rotated about its centre
-        # Rotating the jaw about +x by a positive angle swings the chin down and back.
-        bones: list[list[float]] = [_IDENTITY, _about(_JAW_PIVOT, _rx3(shape.jaw_deg)), [], [], [], [], [], []]
-        pupils = []
-        for side, suffix in ((1, "l"), (-1, "r")):
-            left = side > 0
-            c = self._centre_tuples[side]
-            bones[BONE_EYE_L if left else BONE_EYE_R] = _about(c, eye_rot)
-            up, low = lid_elevations(values["blink_" + suffix], values["lids_" + suffix], ly * u.look_y)
-            bones[BONE_ULID_L if left else BONE_ULID_R] = _about(c, _rx3(-up))
-            bones[BONE_LLID_L if left else BONE_LLID_R] = _about(c, _rx3(-low))
-            x, y, z = (ci + EYE_RADIUS * fi for ci, fi in zip(c, forward, strict=True))
-            pupils.append(
-                (
-                    m00 * x + m01 * y + m02 * z + m03,
-                    m10 * x + m11 * y + m12 * z + m13,
-                    m20 * x + m21 * y + m22 * z + m23,
-                )
-            )
-        pose = Pose(
-            bones=np.array([x for bone in bones for x in bone]).reshape(N_BONES, 4, 4),
-            model=np.array(head).reshape(4, 4),
-            dynamic=self._dynamic,
-            pupils=np.array(pupils),
-            flexors=f,
-            mouth=shape,
-        )
+        bones, model, pupils = np.empty((N_BONES, 4, 4)), np.empty((4, 4)), np.empty((2, 3))
+        _pose_bones(f, self._degrees, self._centre_rows, shape.jaw_deg, bones, model, pupils)
+        pose = Pose(bones=bones, model=model, dynamic=self._dynamic, pupils=pupils, flexors=f, mouth=shape)
         if dynamic:
             self.build_dynamic(pose)
         return pose
