@@ -58,8 +58,10 @@ def static_frame_indices(
     n = normal.shape[0]
     distance = np.empty(n)
     for i in range(n):
-        e = eye_in_bone[bone[i]]
-        distance[i] = normal[i, 0] * e[0] + normal[i, 1] * e[1] + normal[i, 2] * e[2] - offset[i]
+        b = bone[i]
+        distance[i] = (
+            normal[i, 0] * eye_in_bone[b, 0] + normal[i, 1] * eye_in_bone[b, 1] + normal[i, 2] * eye_in_bone[b, 2]
+        ) - offset[i]
     # The triangles that blend two bones: skin their corners and take the plane through them.
     posed = np.empty((mixed_rest.shape[0], 3))
     for v in range(mixed_rest.shape[0]):
@@ -70,10 +72,11 @@ def static_frame_indices(
             c = bones[b1, k, 0] * x + bones[b1, k, 1] * y + bones[b1, k, 2] * z + bones[b1, k, 3]
             posed[v, k] = a + (c - a) * w
     for j in range(mixed.shape[0]):
-        q0, q1, q2 = posed[mixed_corners[j, 0]], posed[mixed_corners[j, 1]], posed[mixed_corners[j, 2]]
-        ux, uy, uz = q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]
-        vx, vy, vz = q2[0] - q0[0], q2[1] - q0[1], q2[2] - q0[2]
-        dx, dy, dz = eye[0] - q0[0], eye[1] - q0[1], eye[2] - q0[2]
+        c0, c1, c2 = mixed_corners[j, 0], mixed_corners[j, 1], mixed_corners[j, 2]
+        x0, y0, z0 = posed[c0, 0], posed[c0, 1], posed[c0, 2]
+        ux, uy, uz = posed[c1, 0] - x0, posed[c1, 1] - y0, posed[c1, 2] - z0
+        vx, vy, vz = posed[c2, 0] - x0, posed[c2, 1] - y0, posed[c2, 2] - z0
+        dx, dy, dz = eye[0] - x0, eye[1] - y0, eye[2] - z0
         cross_dot = (uy * vz - uz * vy) * dx + (uz * vx - ux * vz) * dy + (ux * vy - uy * vx) * dz
         distance[mixed[j]] = cross_dot * mixed_scale[j]
     # The surface: each group's triangles that may face the camera, in mesh order.
@@ -83,7 +86,8 @@ def static_frame_indices(
         first = kept
         for i in range(group_starts[g], stop):
             if distance[i] > -slack:
-                surface_out[kept] = triangles[i]
+                for k in range(3):
+                    surface_out[kept, k] = triangles[i, k]
                 kept += 1
         surface_counts[g] = kept - first
     # The outline: the edges between a triangle facing the camera and one not.
@@ -95,6 +99,7 @@ def static_frame_indices(
         first = kept
         for e in range(edge_starts[g], stop):
             if front[edge_t0[e]] != front[edge_t1[e]]:
-                quads_out[kept] = edge_quads[e]
+                for k in range(6):
+                    quads_out[kept, k] = edge_quads[e, k]
                 kept += 1
         quad_counts[g] = kept - first
