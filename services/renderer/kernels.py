@@ -6,13 +6,18 @@ done with numpy it took about 0.2 ms of a 4 ms software-GL frame, nearly all of 
 on small arrays; as one compiled loop it is a few microseconds. The numpy code stays as the reference
 the tests hold this to, operation for operation.
 
-Compiled on first use and cached on disk (numba's cache=True), so only the first run on a machine pays.
+Compiled on first use and cached on disk (numba's cache=True), so only the first run on a machine pays:
+setup runs warm_up() (python -m services.renderer.kernels) for everything the renderer compiles.
 """
 
 from __future__ import annotations
 
+import time
+
 import numba
 import numpy as np
+
+from agent.face.flexors import N_FLEXORS
 
 
 @numba.njit(cache=True)
@@ -103,3 +108,28 @@ def static_frame_indices(
                     quads_out[kept, k] = edge_quads[e, k]
                 kept += 1
         quad_counts[g] = kept - first
+
+
+def warm_up() -> float:
+    """Compile (or load from numba's cache) everything the renderer runs compiled, outside any frame;
+    returns the seconds it took. Setup runs it once, so a renderer's first start is not the one to pay."""
+    from services.renderer.mesh import CURVE_POINTS, N_BONES, TUBE_POINTS, FacePoser
+
+    began = time.perf_counter()
+    poser = FacePoser()
+    pose = poser.pose(np.zeros(N_FLEXORS))  # the bones, the mouth and the numpy build's rows
+    poser.build_dynamic(pose, np.zeros((CURVE_POINTS + TUBE_POINTS, 4), dtype=np.float32))
+    # The facing pass on a one-triangle mesh of the real call's types.
+    f8, i8, u4 = np.float64, np.int64, np.uint32
+    static_frame_indices(
+        np.tile(np.eye(4), (N_BONES, 1, 1)), np.zeros(3), np.zeros((1, 3)), np.zeros(1), np.zeros(1, i8),
+        np.zeros(0, i8), np.zeros((0, 3), i8), np.zeros((0, 3)), np.zeros((0, 2), i8), np.zeros(0, f8),
+        np.zeros(0, f8), 1e-4, np.zeros((1, 3), u4), np.zeros(1, i8), np.zeros(1, i8), np.ones(1, i8),
+        np.zeros((1, 6), u4), np.zeros(1, i8), np.zeros((1, 3), u4), np.zeros(1, i8), np.zeros((1, 6), u4),
+        np.zeros(1, i8), np.zeros(2, dtype=bool),
+    )  # fmt: skip
+    return time.perf_counter() - began
+
+
+if __name__ == "__main__":
+    print(f"compiled the renderer's per-frame code in {warm_up():.1f} s")

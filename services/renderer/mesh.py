@@ -649,16 +649,15 @@ def curve_block(
     per point of the CURVE_ROWS rows, (x, y, lift off the head's surface, jaw weight); then per tube
     centre-line point, (half height, half depth, section aspect, 0). `block` is (CURVE_POINTS +
     TUBE_POINTS, 4) float32."""
-    points = block[:CURVE_POINTS].reshape(CURVE_ROWS, SEGMENTS, 4)
-    points[..., 0] = x
-    points[..., 1] = y
-    points[..., 2] = lift
-    points[..., 3] = jaw_weight
-    sections = block[CURVE_POINTS:].reshape(N_TUBES, SEGMENTS, 4)
-    sections[..., 0] = half_h
-    sections[..., 1] = half_d
-    sections[..., 2] = (half_d.sum(1) / np.maximum(half_h.sum(1), 1e-9))[:, None]
-    sections[..., 3] = 0.0
+    for row in range(CURVE_ROWS):
+        for j in range(SEGMENTS):
+            k = row * SEGMENTS + j
+            block[k, 0], block[k, 1], block[k, 2], block[k, 3] = x[row, j], y[row, j], lift[row, j], jaw_weight[row, j]
+    for tube in range(N_TUBES):
+        aspect = half_d[tube].sum() / max(half_h[tube].sum(), 1e-9)
+        for j in range(SEGMENTS):
+            k = CURVE_POINTS + tube * SEGMENTS + j
+            block[k, 0], block[k, 1], block[k, 2], block[k, 3] = half_h[tube, j], half_d[tube, j], aspect, 0.0
 
 
 def shader_template(layout: DynamicLayout) -> np.ndarray:
@@ -801,20 +800,20 @@ def brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, 
 @numba.njit(cache=True)
 def _brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, np.ndarray]:
     k, arch_k = max(knit, 0.0), max(-knit, 0.0)
-    # Per brow: arch height, inner end's lift, and the outer end's lift relative to it.
-    c = np.empty((2, 3))
+    inner_x = BROW_INNER - 0.05 * k + 0.03 * arch_k
+    x = np.empty((2, SEGMENTS))
+    y = np.empty((2, SEGMENTS))
     for row in range(2):
         brow = brow_l if row == 0 else brow_r
         up, down = max(brow, 0.0), max(-brow, 0.0)
         worry = min(up / 0.3, 1.0)
+        # Per brow: arch height, inner end's lift, and the outer end's lift relative to it.
+        arch = 0.045 + 0.05 * arch_k + 0.02 * up
         inner_dy = 0.15 * up - 0.08 * down + 0.1 * k * worry - 0.17 * k * (1 - worry)
         outer_dy = 0.15 * up * (1 - 0.6 * k * worry) - 0.05 * down + 0.06 * k * (1 - worry)
-        c[row, 0] = 0.045 + 0.05 * arch_k + 0.02 * up
-        c[row, 1] = inner_dy
-        c[row, 2] = outer_dy - inner_dy
-    inner_x = BROW_INNER - 0.05 * k + 0.03 * arch_k
-    x = _BROW_SIDE * (inner_x + (BROW_OUTER - inner_x) * _T)
-    y = _BROW_BASE + c[:, 0:1] * _BROW_ARC + c[:, 1:2] + c[:, 2:3] * _T
+        for j in range(SEGMENTS):
+            x[row, j] = _BROW_SIDE[row, 0] * (inner_x + (BROW_OUTER - inner_x) * _T[j])
+            y[row, j] = _BROW_BASE[j] + arch * _BROW_ARC[j] + inner_dy + (outer_dy - inner_dy) * _T[j]
     return x, y
 
 
@@ -853,32 +852,32 @@ def _mouth_shape(f: np.ndarray) -> tuple:  # MouthShape's fields, in order
     ah, oo, ee = max(f[_SAY_AH], 0.0), max(f[_SAY_OO], 0.0), max(f[_SAY_EE], 0.0)
     mm, ff = max(f[_SAY_MM], 0.0), max(f[_SAY_FF], 0.0)
     smile_l, smile_r = f[_SMILE_L], f[_SMILE_R]
-    sm = np.where(_MOUTH_RIGHT, smile_l, smile_r)
-    sn = np.where(_MOUTH_RIGHT, max(f[_SNEER_L], 0.0), max(f[_SNEER_R], 0.0))
+    sneer_l, sneer_r = max(f[_SNEER_L], 0.0), max(f[_SNEER_R], 0.0)
     # Corner half-width: spread widens, rounding narrows a lot, a smile pulls the corners out (a frown
     # pulls them in a little). The smile is one value per side, so this is too.
     pull_l = 0.22 * smile_l if smile_l > 0 else 0.05 * smile_l
     pull_r = 0.22 * smile_r if smile_r > 0 else 0.05 * smile_r
     spread = 1.0 + 0.35 * ee - 0.5 * oo - 0.12 * ff + 0.04 * mm
-    half = MOUTH_HALF_WIDTH * (spread + np.where(_MOUTH_RIGHT, pull_l, pull_r))
-    # Corners up for a smile, down for a frown; flatter in the middle, like a real mouth.
-    centre_line = MOUTH_Y + sm * _MOUTH_CURVE
     press = 1.0 - 0.9 * mm
     opening = press * (0.05 * oo + 0.022 * ee + 0.018 * ff + 0.012 * ah)
-    profile = _MOUTH_ROUND ** (1.0 - 0.5 * min(oo, 1.0))
-    upper = centre_line + (0.45 * opening) * profile + sn * (0.09 * press * _MOUTH_BUMP + 0.02 * _MOUTH_A)
-    lower = np.minimum(centre_line + (0.035 * ff - 0.55 * opening) * profile, upper)
+    rounding = 1.0 - 0.5 * min(oo, 1.0)
+    x, upper, lower = np.empty(SEGMENTS), np.empty(SEGMENTS), np.empty(SEGMENTS)
+    jaw_weight, protrude = np.empty(SEGMENTS), np.empty(SEGMENTS)
+    for j in range(SEGMENTS):
+        right = _MOUTH_RIGHT[j]  # +x: the agent's left side
+        x[j] = _S[j] * (MOUTH_HALF_WIDTH * (spread + (pull_l if right else pull_r)))
+        # Corners up for a smile, down for a frown; flatter in the middle, like a real mouth.
+        centre_line = MOUTH_Y + (smile_l if right else smile_r) * _MOUTH_CURVE[j]
+        profile = _MOUTH_ROUND[j] ** rounding
+        sneer = sneer_l if right else sneer_r
+        bump = 0.09 * press * _MOUTH_BUMP[j] + 0.02 * _MOUTH_A[j]
+        upper[j] = centre_line + (0.45 * opening) * profile + sneer * bump
+        lower[j] = min(centre_line + (0.035 * ff - 0.55 * opening) * profile, upper[j])
+        jaw_weight[j] = profile**1.2
+        protrude[j] = (0.03 + 0.09 * oo - 0.01 * mm) * profile + 0.012
     thin = 1.0 - 0.45 * mm + 0.2 * oo - 0.2 * ee
-    return (
-        _S * half,
-        upper,
-        lower,
-        profile**1.2,
-        (0.03 + 0.09 * oo - 0.01 * mm) * profile + 0.012,
-        0.03 * thin,
-        0.037 * thin * (1.0 - 0.3 * ff),
-        JAW_MAX_DEG * press * (ah + 0.22 * oo + 0.06 * ee),
-    )
+    jaw_deg = JAW_MAX_DEG * press * (ah + 0.22 * oo + 0.06 * ee)
+    return x, upper, lower, jaw_weight, protrude, 0.03 * thin, 0.037 * thin * (1.0 - 0.3 * ff), jaw_deg
 
 
 _TEETH_H = 0.05 * (1 - _S**2) + 0.005
@@ -925,42 +924,42 @@ def _curve_rows(
     thick_l: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The rows build_dynamic works from (see curve_block): x, y, lift and jaw weight per point, and the
-    tubes' half height and depth."""
-    lip_h_u = thick_u * _LIP_TAPER
-    lip_h_l = thick_l * _LIP_TAPER
-    inset = protrude * 0.5
-    top = upper + 0.01 * _LIP_TAPER
-    bottom = lower - 0.01 * _LIP_TAPER
-    # Rows: brow l, brow r, upper lip, lower lip, then the two edges of cavity, teeth and tongue.
+    tubes' half height and depth. Rows: brow l, brow r, upper lip, lower lip, then the two edges of the
+    cavity, the teeth and the tongue."""
     x = np.empty((CURVE_ROWS, SEGMENTS))
     y = np.empty((CURVE_ROWS, SEGMENTS))
     lift = np.empty((CURVE_ROWS, SEGMENTS))
-    x[0:2] = bx
-    for row in range(2, CURVE_ROWS):
-        x[row] = mouth_x
-    y[0:2] = by
-    y[2] = upper + 0.85 * lip_h_u
-    y[3] = lower - 0.85 * lip_h_l
-    y[4], y[5] = top, bottom  # cavity
-    y[6], y[7] = top, upper - _TEETH_H  # teeth
-    y[8], y[9] = lower + _TONGUE_H, bottom  # tongue
-    lift[0:2] = 0.006
-    lift[2] = protrude + 0.3 * lip_h_u
-    lift[3] = protrude + 0.3 * lip_h_l
-    # the cavity lies behind the teeth and tongue, both behind the lips
-    lift[4] = lift[5] = inset - 0.004
-    lift[6] = lift[7] = inset + 0.002
-    lift[8] = lift[9] = inset + 0.001
+    weight = np.zeros((CURVE_ROWS, SEGMENTS))
     half_h = np.empty((N_TUBES, SEGMENTS))
     half_d = np.empty((N_TUBES, SEGMENTS))
-    half_h[0] = half_h[1] = _BROW_HALF_H
-    half_d[0] = half_d[1] = _BROW_HALF_D
-    half_h[2], half_h[3] = lip_h_u, lip_h_l
-    half_d[2], half_d[3] = 0.6 * lip_h_u + 0.004, 0.6 * lip_h_l + 0.004
-    # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
-    weight = np.zeros((CURVE_ROWS, SEGMENTS))
-    weight[3] = weight[5] = weight[9] = jaw_weight
-    weight[8] = 0.85 * jaw_weight
+    for j in range(SEGMENTS):
+        lip_h_u = thick_u * _LIP_TAPER[j]
+        lip_h_l = thick_l * _LIP_TAPER[j]
+        inset = protrude[j] * 0.5
+        top = upper[j] + 0.01 * _LIP_TAPER[j]
+        bottom = lower[j] - 0.01 * _LIP_TAPER[j]
+        for row in range(CURVE_ROWS):
+            x[row, j] = bx[row, j] if row < 2 else mouth_x[j]
+        y[0, j], y[1, j] = by[0, j], by[1, j]
+        y[2, j] = upper[j] + 0.85 * lip_h_u
+        y[3, j] = lower[j] - 0.85 * lip_h_l
+        y[4, j], y[5, j] = top, bottom  # cavity
+        y[6, j], y[7, j] = top, upper[j] - _TEETH_H[j]  # teeth
+        y[8, j], y[9, j] = lower[j] + _TONGUE_H[j], bottom  # tongue
+        lift[0, j] = lift[1, j] = 0.006
+        lift[2, j] = protrude[j] + 0.3 * lip_h_u
+        lift[3, j] = protrude[j] + 0.3 * lip_h_l
+        # the cavity lies behind the teeth and tongue, both behind the lips
+        lift[4, j] = lift[5, j] = inset - 0.004
+        lift[6, j] = lift[7, j] = inset + 0.002
+        lift[8, j] = lift[9, j] = inset + 0.001
+        half_h[0, j] = half_h[1, j] = _BROW_HALF_H[j]
+        half_d[0, j] = half_d[1, j] = _BROW_HALF_D[j]
+        half_h[2, j], half_h[3, j] = lip_h_u, lip_h_l
+        half_d[2, j], half_d[3, j] = 0.6 * lip_h_u + 0.004, 0.6 * lip_h_l + 0.004
+        # Jaw weights: the lower lip, the cavity's lower edge and the tongue ride on the jaw.
+        weight[3, j] = weight[5, j] = weight[9, j] = jaw_weight[j]
+        weight[8, j] = 0.85 * jaw_weight[j]
     return x, y, lift, weight, half_h, half_d
 
 
@@ -1015,7 +1014,10 @@ def _rotation(axis: int, deg: float) -> np.ndarray:
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
     i, j = (1, 2) if axis == 0 else ((2, 0) if axis == 1 else (0, 1))
     r = np.eye(3)
-    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    r[i, i] = c
+    r[i, j] = -s
+    r[j, i] = s
+    r[j, j] = c
     return r
 
 
@@ -1032,9 +1034,10 @@ def _mul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _about(pivot: np.ndarray, rotation: np.ndarray, out: np.ndarray) -> None:
     """Write into `out` the 4x4 matrix of `rotation` about `pivot` instead of the origin."""
     for k in range(3):
-        out[k, :3] = rotation[k]
+        for j in range(3):
+            out[k, j] = rotation[k, j]
         out[k, 3] = pivot[k] - (rotation[k, 0] * pivot[0] + rotation[k, 1] * pivot[1] + rotation[k, 2] * pivot[2])
-    out[3] = 0.0
+        out[3, k] = 0.0
     out[3, 3] = 1.0
 
 
@@ -1057,7 +1060,7 @@ def _pose_bones(
     _about(NECK_PIVOT, head, model)
     pitch = f[_LOOK_Y] * degrees[1]
     eye = _mul3(_rotation(1, -f[_LOOK_X] * degrees[0]), _rotation(0, -pitch))
-    bones[BONE_HEAD] = np.eye(4)
+    _about(NECK_PIVOT, np.eye(3), bones[BONE_HEAD])  # the identity
     # Rotating the jaw about +x by a positive angle swings the chin down and back.
     _about(JAW_PIVOT, _rotation(0, jaw_deg), bones[BONE_JAW])
     for side in range(2):
