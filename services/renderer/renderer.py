@@ -97,8 +97,8 @@ class Renderer:
         cfg = self.config
 
         # Cel and smooth ("3D surface") shading are separate programs rather than a branch: software
-        # GL pays for both sides of a branch on every pixel, and on every vertex, so the static parts'
-        # programs leave out how the brows and mouth are built (shaders.face_vertex).
+        # GL pays for both sides of a branch on every pixel. The static parts' programs also leave out
+        # how the brows and mouth are built (shaders.face_vertex), which none of their vertices needs.
         fragments = {
             "surface": variant(SURFACE_FRAGMENT, False),
             "surface_3d": variant(SURFACE_FRAGMENT, True),

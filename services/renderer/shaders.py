@@ -262,8 +262,8 @@ void main() {
 
 def face_vertex(curves: bool) -> str:
     """FACE_VERTEX with (curves=True) or without the code that builds the brows and the mouth from the
-    Curves block: software GL runs both sides of a branch for every vertex, so the static parts, none of
-    whose vertices is built there, get a program without it."""
+    Curves block: the static parts, none of whose vertices is built there, get a program without it
+    (measured: a few hundredths of a millisecond per frame on software GL)."""
     return FACE_VERTEX if curves else FACE_VERTEX.replace("#define CURVES 1", "#define CURVES 0", 1)
 
 
