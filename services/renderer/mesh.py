@@ -785,6 +785,9 @@ _BROW_ARC = np.sin(np.pi * (0.15 + 0.85 * _T))
 _BROW_BASE = BROW_Y - 0.06 * _T**2
 
 
+# The per-frame shapes of the brows and mouth are compiled (numba): a frame runs them once on arrays of
+# 13 points, where numpy's per-call overhead, not the arithmetic, was the cost.
+@numba.njit(cache=True)
 def brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, np.ndarray]:
     """Centre lines (x, y) of the agent's left (+x, row 0) and right (row 1) brows, each (2, SEGMENTS).
 
@@ -792,13 +795,6 @@ def brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, 
     the brows down it also pulls the inner ends down (the anger V), with the brows up it lifts the inner
     end more than the outer (the oblique brow of worry, sadness and fear). knit (-) arches them apart.
     """
-    return _brow_curves(float(brow_l), float(brow_r), float(knit))
-
-
-# The per-frame shapes of the brows and mouth are compiled (numba): a frame runs them once on arrays of
-# 13 points, where numpy's per-call overhead, not the arithmetic, was the cost.
-@numba.njit(cache=True)
-def _brow_curves(brow_l: float, brow_r: float, knit: float) -> tuple[np.ndarray, np.ndarray]:
     k, arch_k = max(knit, 0.0), max(-knit, 0.0)
     inner_x = BROW_INNER - 0.05 * k + 0.03 * arch_k
     x = np.empty((2, SEGMENTS))
@@ -894,7 +890,7 @@ def build_dynamic(
     With `curves` ((CURVE_POINTS + TUBE_POINTS, 4) float32, see curve_block) nothing is built here: the
     points the vertex shader builds them from go into `curves`, and `out` is left as it was.
     """
-    bx, by = _brow_curves(_f(f, "brow_l"), _f(f, "brow_r"), _f(f, "brows_knit"))
+    bx, by = brow_curves(_f(f, "brow_l"), _f(f, "brow_r"), _f(f, "brows_knit"))
     x, y, lift, weight, half_h, half_d = _curve_rows(
         bx, by, shape.x, shape.upper, shape.lower, shape.jaw_weight, shape.protrude, shape.thick_u, shape.thick_l
     )
