@@ -398,6 +398,23 @@ def test_the_compiled_facing_pass_selects_what_the_numpy_reference_does(ctx) -> 
     r.release()
 
 
+def test_the_warm_up_compiles_what_a_frame_runs(ctx) -> None:
+    """kernels.warm_up (which setup runs) compiles each compiled function for the very argument types a
+    renderer's frame passes it, so that no frame compiles anything."""
+    from services.renderer import kernels, mesh
+
+    compiled = [kernels.static_frame_indices, mesh.brow_curves, mesh._mouth_shape, mesh._curve_rows,
+                mesh.curve_block, mesh._pose_bones]  # fmt: skip
+    kernels.warm_up()
+    before = [list(fn.signatures) for fn in compiled]
+    r = Renderer(ctx, SIZE)
+    for view in ("full", "upper"):
+        image(r, flexors(say_ah=0.5, turn=0.3, blink_l=1.0), view=view)
+    assert [list(fn.signatures) for fn in compiled] == before
+    assert all(len(signatures) >= 1 for signatures in before)
+    r.release()
+
+
 def test_the_vertex_shader_builds_the_brows_and_mouth_where_numpy_does(ctx) -> None:
     """The real FACE_VERTEX, by transform feedback, over the dynamic vertices built from the uploaded
     curve block: positions and normals where build_dynamic puts them, and the jaw weights, read through
