@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.gaze.synth import eye_position_at, saccade_progress, saccade_velocity
+from agent.gaze.synth import eye_position_at, eye_position_one, saccade_progress, saccade_velocity
 
 
 def _closed_form(tau: float) -> float:
@@ -71,3 +71,21 @@ def test_progress_is_monotone_and_bounded(taus: list[float]) -> None:
     assert np.all(np.diff(p) >= -1e-15)
     assert np.all((p >= 0.0) & (p <= 1.0))
     assert np.all(p[tau <= 0.0] == 0.0) and np.all(p[tau >= 1.0] == 1.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    t_ns=st.integers(-(10**12), 10**12),
+    onset_ns=st.integers(-(10**12), 10**12),
+    angles=st.tuples(*[st.floats(-90.0, 90.0, allow_nan=False)] * 4),
+    duration_s=st.one_of(st.just(0.0), st.floats(1e-4, 0.5)),
+    near=st.booleans(),
+)
+def test_one_eye_in_plain_floats_is_the_array_version_bit_for_bit(
+    t_ns: int, onset_ns: int, angles: tuple[float, ...], duration_s: float, near: bool
+) -> None:
+    if near:  # most draws land far from any saccade: put half of them inside one
+        t_ns = onset_ns + t_ns % max(1, round(duration_s * 1.2e9))
+    start, end = angles[:2], angles[2:]
+    expected = eye_position_at(t_ns, onset_ns, start, end, duration_s)
+    assert eye_position_one(t_ns, onset_ns, start, end, duration_s) == (float(expected[0]), float(expected[1]))

@@ -29,7 +29,7 @@ import numpy as np
 
 from agent.face.frame import FlexorFrame
 from agent.face.model import MOUTH_FLEXORS, FaceModel
-from agent.gaze.synth import eye_position_at
+from agent.gaze.synth import eye_position_one
 
 SACCADE_MODES: frozenset[str] = frozenset({"saccade", "saccade+blink"})
 EYE_MODES: tuple[str, ...] = ("static", "noise", "saccade", "saccade+blink")
@@ -51,8 +51,7 @@ class SaccadeEvent:
         return self.onset_ns + round(self.duration_s * 1e9)
 
     def position_at(self, t_ns: int) -> tuple[float, float]:
-        yaw, pitch = eye_position_at(t_ns, self.onset_ns, self.from_deg, self.to_deg, self.duration_s)
-        return float(yaw), float(pitch)
+        return eye_position_one(t_ns, self.onset_ns, self.from_deg, self.to_deg, self.duration_s)
 
 
 @dataclass(frozen=True)

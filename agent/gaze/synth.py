@@ -59,6 +59,35 @@ def saccade_progress(tau: np.ndarray | float, centre: float = PAPER_CENTRE, span
     return progress
 
 
+def eye_position_one(
+    t_ns: int,
+    onset_ns: int,
+    from_deg: tuple[float, float],
+    to_deg: tuple[float, float],
+    duration_s: float,
+) -> tuple[float, float]:
+    """eye_position_at for one eye, in plain floats, the same arithmetic step for step (so the same values
+    bit for bit): a renderer asks once per frame, where numpy's per-call costs are most of the work."""
+    elapsed_s = (int(t_ns) - int(onset_ns)) * 1e-9
+    duration = float(duration_s)
+    if elapsed_s < 0.0:
+        tau = 0.0
+    elif duration > 0.0:
+        tau = elapsed_s / duration
+    else:
+        tau = 1.0
+    a, b, c = _table(PAPER_CENTRE, PAPER_SPAN)
+    x = min(max(tau, 0.0), 1.0) * _TABLE_INTERVALS
+    cell = int(x)
+    x -= cell
+    progress = (float(c[cell]) * x + float(b[cell])) * x + float(a[cell])
+    remaining = 1.0 - progress
+    return (
+        float(from_deg[0]) * remaining + float(to_deg[0]) * progress,
+        float(from_deg[1]) * remaining + float(to_deg[1]) * progress,
+    )
+
+
 def saccade_velocity(tau: np.ndarray | float, centre: float = PAPER_CENTRE, span: float = PAPER_SPAN) -> np.ndarray:
     """d progress / d tau: paper eq. 3 normalised to unit area over the saccade; 0 outside it."""
     k = math.sqrt(_WIDTH)
