@@ -75,6 +75,19 @@ def mask_of(img: np.ndarray, color: tuple[float, float, float], tol: int = 60) -
     return (np.abs(img[None] - lit[:, None, None, :]).max(-1) < tol).any(0)
 
 
+def dilated(mask: np.ndarray, steps: int) -> np.ndarray:
+    """The mask grown by `steps` pixels in every direction (diagonals included)."""
+    grown = mask.copy()
+    for _ in range(steps):
+        before = grown.copy()
+        grown[1:] |= before[:-1]
+        grown[:-1] |= before[1:]
+        before = grown.copy()
+        grown[:, 1:] |= before[:, :-1]
+        grown[:, :-1] |= before[:, 1:]
+    return grown
+
+
 def centroid(mask: np.ndarray) -> np.ndarray:
     ys, xs = np.nonzero(mask)
     assert xs.size > 5, "colour not found in the image"
@@ -269,9 +282,9 @@ def test_gl_objects_are_made_once_not_per_frame(ctx) -> None:
 
 
 def test_the_head_outline_lies_only_along_the_background(ctx, monkeypatch) -> None:
-    """The head's outline is its contour against what lies behind it: where the head folds away (a pole
-    of its grid near the silhouette), an edge between a front and a back face runs across the visible
-    surface, and no line may be drawn along it."""
+    """The head's outline is its contour against what lies behind it: where the head folds away (the
+    hair's ledge, the chin's blend into the jaw), an edge between a front and a back face runs across the
+    visible surface, and no line may be drawn along it."""
     import services.renderer.renderer as module
 
     config = load_render_config()
@@ -293,12 +306,7 @@ def test_the_head_outline_lies_only_along_the_background(ctx, monkeypatch) -> No
         img = image(r, f)
         lines = np.abs(img - outline).max(-1) < 30
         near_background = np.abs(img - background).max(-1) < 3
-        grown = near_background.copy()
-        for _ in range(reach):
-            grown[1:] |= grown[:-1].copy()
-            grown[:-1] |= grown[1:].copy()
-            grown[:, 1:] |= grown[:, :-1].copy()
-            grown[:, :-1] |= grown[:, 1:].copy()
+        grown = dilated(near_background, reach)
         assert lines.sum() > 500
         assert not (lines & ~grown).any(), f"an outline crosses the head at {np.argwhere(lines & ~grown)[:3]}"
     r.release()
@@ -341,10 +349,7 @@ def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
         dark_q = np.abs(expected - outline).max(-1) < 40
         dark_h = np.abs(hulled - outline).max(-1) < 40
         # The same lines: nearly every outline pixel of one lies within a pixel of the other's.
-        near_h = np.zeros_like(dark_h)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                near_h |= np.roll(np.roll(dark_h, dy, 0), dx, 1)
+        near_h = dilated(dark_h, 1)
         assert dark_q.sum() > 100 and (dark_q & ~near_h).sum() < 0.1 * dark_q.sum(), view
     hull_vao.release()
     hull_ibo.release()

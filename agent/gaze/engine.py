@@ -411,16 +411,9 @@ class GazeEngine:
         self._live_blinks.update(t, lid, agents, onsets)
 
     def _resting(self, agents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Where the agents' eyes rest once their current saccade has landed (both in one cache line).
-
-        np.take on flat offsets: 2-D fancy indexing costs more per element, and a whole-row gather
-        reads three lines where one is needed."""
-        flat = self._rows.view(np.float64).reshape(-1)
-        offsets = agents * _N_COLUMNS
-        offsets += TO_YAW
-        yaw = flat.take(offsets)
-        offsets += TO_PITCH - TO_YAW
-        return yaw, flat.take(offsets)
+        """Where the agents' eyes rest once their current saccade has landed (both in one cache line; a
+        whole-row gather would read three)."""
+        return _column_pair(self._rows.view(np.float64), agents, TO_YAW, TO_PITCH)
 
     # ------------------------------------------------------------------ events
 
@@ -500,12 +493,8 @@ class GazeEngine:
         if idx.size <= _ONE_BATCH_ROWS:
             groups: tuple[np.ndarray, ...] = (idx,)
         else:
-            flat = self._rows.reshape(-1)
-            offsets = idx * _N_COLUMNS
-            offsets += NEXT_SACCADE
-            next_saccade = flat.take(offsets)
-            offsets += NEXT_BLINK - NEXT_SACCADE
-            blink_first = flat.take(offsets) < next_saccade
+            next_saccade, next_blink = _column_pair(self._rows, idx, NEXT_SACCADE, NEXT_BLINK)
+            blink_first = next_blink < next_saccade
             count = int(np.count_nonzero(blink_first))
             groups = (idx,) if count in (0, idx.size) else (idx[blink_first], idx[~blink_first])
         for group in groups:
@@ -807,6 +796,17 @@ def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndar
         if np.all(ordered[1:] > ordered[:-1]):
             return order
     return np.lexsort((agent, onset))
+
+
+def _column_pair(matrix: np.ndarray, rows: np.ndarray, first: int, second: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two columns of the given rows of a C-contiguous (n, _N_COLUMNS) matrix: np.take on flat offsets,
+    cheaper per element than 2-D fancy indexing, and reading only the lines that hold them."""
+    flat = matrix.reshape(-1)
+    offsets = rows * _N_COLUMNS
+    offsets += first
+    a = flat.take(offsets)
+    offsets += second - first
+    return a, flat.take(offsets)
 
 
 def _aligned_rows(count: int) -> np.ndarray:

@@ -8,7 +8,7 @@ reference the tests hold this to, operation for operation. (The per-frame posing
 compiled too.)
 
 Compiled on first use and cached on disk (numba's cache=True), so only the first run on a machine pays:
-setup runs warm_up() (python -m services.renderer.kernels) for everything the renderer compiles.
+setup runs warm_up() for everything the renderer compiles.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import numba
 import numpy as np
 
 from agent.face.flexors import N_FLEXORS
+from services.renderer.mesh import CURVE_POINTS, N_BONES, TUBE_POINTS, FacePoser
 
 
 @numba.njit(cache=True)
@@ -114,8 +115,6 @@ def static_frame_indices(
 def warm_up() -> float:
     """Compile (or load from numba's cache) everything the renderer runs compiled, outside any frame;
     returns the seconds it took. Setup runs it once, so a renderer's first start is not the one to pay."""
-    from services.renderer.mesh import CURVE_POINTS, N_BONES, TUBE_POINTS, FacePoser
-
     began = time.perf_counter()
     poser = FacePoser()
     pose = poser.pose(np.zeros(N_FLEXORS))  # the bones, the mouth and the numpy build's rows
@@ -131,6 +130,3 @@ def warm_up() -> float:
     )  # fmt: skip
     return time.perf_counter() - began
 
-
-if __name__ == "__main__":
-    print(f"compiled the renderer's per-frame code in {warm_up():.1f} s")

@@ -629,7 +629,7 @@ def _tubes(
 
 N_TUBES = len(TUBES)
 TUBE_POINTS = N_TUBES * SEGMENTS  # centre-line points of all tubes, tube after tube
-CURVE_ROWS = len(TUBES) + 2 * len(STRIPS)  # rows of points: each tube's centre line, each strip's two edges
+CURVE_ROWS = N_TUBES + 2 * len(STRIPS)  # rows of points: each tube's centre line, each strip's two edges
 CURVE_POINTS = CURVE_ROWS * SEGMENTS
 TUBE_CODE = 2 * EXTRUDED  # added to the material of a tube vertex the vertex shader builds (shader_template)
 STRIP_CODE = 4 * EXTRUDED  # likewise for a vertex of the mouth's strips

@@ -18,6 +18,7 @@ import numpy as np
 from agent.face.flexors import N_FLEXORS
 from services.renderer.config import VIEWS, Framing, RenderConfig, load_render_config
 from services.renderer.context import check_size, create_offscreen_target
+from services.renderer.kernels import static_frame_indices
 from services.renderer.mesh import (
     CURVE_POINTS,
     EYE_Y,
@@ -444,8 +445,7 @@ class FrameIndices:
         indices = np.ascontiguousarray(indices, dtype=np.uint32)
         triangles = indices.reshape(-1, 3)
         self.ranges: dict[tuple[str, str], tuple[int, int]] = {(SURFACE, name): r for name, r in ranges.items()}
-        # The surface groups in index order, each a run of whole triangles (one void element each, so the
-        # per-frame selection is one compress).
+        # The surface groups in index order, each a run of whole triangles.
         by_start = sorted(ranges.items(), key=lambda item: item[1][0])
         self._groups = [name for name, _ in by_start]
         self._group_starts = np.array([first // 3 for _, (first, _) in by_start], dtype=np.int64)
@@ -490,8 +490,6 @@ class FrameIndices:
     def update_for(self, bones: np.ndarray, eye: np.ndarray) -> None:
         """Upload the triangles that may face `eye` (the camera's position in the posed head frame) under
         `bones`, and the outline quads: update(facing.distances(bones, eye)), compiled."""
-        from services.renderer.kernels import static_frame_indices  # numba loads only when a renderer does
-
         static_frame_indices(
             np.ascontiguousarray(bones, dtype=np.float64),
             np.ascontiguousarray(eye, dtype=np.float64),
@@ -528,18 +526,18 @@ class FrameIndices:
         self._upload()
 
     def _upload(self) -> None:
+        self._upload_kind(SURFACE, self._groups, self._surface_counts, self._surface)
+        self._upload_kind(OUTLINE, self._names, self._quad_counts, self._quads_on)
+
+    def _upload_kind(self, kind: str, names: list[str], counts: np.ndarray, rows: np.ndarray) -> None:
+        """Name each group's run of the selected rows (triangles or quads) and upload them."""
+        per_row = rows.shape[1]  # indices per row: 3 for a triangle, 6 for a quad
         offset = 0
-        for name, count in zip(self._groups, self._surface_counts.tolist(), strict=True):
-            self.ranges[SURFACE, name] = (offset, 3 * count)
-            offset += 3 * count
+        for name, count in zip(names, counts.tolist(), strict=True):
+            self.ranges[kind, name] = (offset, per_row * count)
+            offset += per_row * count
         if offset:
-            self.ibos[SURFACE].write(self._surface[: offset // 3])
-        offset = 0
-        for name, count in zip(self._names, self._quad_counts.tolist(), strict=True):
-            self.ranges[OUTLINE, name] = (offset, 6 * count)
-            offset += 6 * count
-        if offset:
-            self.ibos[OUTLINE].write(self._quads_on[: offset // 6])
+            self.ibos[kind].write(rows[: offset // per_row])
 
 
 class HullIndices:

@@ -125,8 +125,8 @@ void main() {
     if (u_outline > 0.0 && (mat == MAT_SKIN || mat == MAT_HAIR)) {
         // The head's outline quads go to the back of the depth range: the head has nothing behind it,
         // so its line belongs only where nothing else was drawn. Where the head folds away from the
-        // camera (a pole of its grid near the silhouette) an edge between a front and a back face runs
-        // across the visible surface; at its own depth its quad would draw a stray line there.
+        // camera (the hair's ledge, the chin's blend into the jaw) an edge between a front and a back
+        // face runs across the visible surface; at its own depth its quad would draw a stray line there.
         clip.z = clip.w * OUTLINE_FAR;
     }
     clip.z -= u_depth_bias * clip.w;
