@@ -83,5 +83,5 @@ def test_engine_draws_are_the_counter_rng_streams() -> None:
     expected = uniform01(
         derive_seed(99, 1), agents[:, None].astype(np.uint64), before[:, None] + np.arange(3, dtype=np.uint64)
     )
-    np.testing.assert_array_equal(drawn, expected)
+    np.testing.assert_array_equal(drawn, expected.T)  # one row per draw
     assert np.all(rows[:, COUNTER_SACCADE].view(np.uint64) == before + 3)

@@ -150,8 +150,7 @@ class GazeEngine:
         cumulative = np.cumsum(p.direction_probability)
         self._direction_cumulative = cumulative[:-1]  # a uniform beyond the last edge falls in the last bin
         bins = np.deg2rad(p.direction_bins_deg)
-        self._bin_steps = np.stack([np.cos(bins), np.sin(bins)], axis=1)
-        self._eye_limits = np.array([p.eye_yaw_limit_deg, p.eye_pitch_limit_deg])
+        self._bin_yaw_steps, self._bin_pitch_steps = np.cos(bins), np.sin(bins)
         self._biased_agents = 0  # how many agents' emotion tilts the direction bins
         self._n = 0
         self._rows = np.empty((0, _N_COLUMNS), np.int64)
@@ -330,15 +329,13 @@ class GazeEngine:
         rows = self._rows[idx]
         floats = rows.view(np.float64)
         amplitude = np.minimum(turn, self._max_magnitude[rows[:, ROLE]])
-        to = np.stack(
-            [self._clip_yaw(floats[:, TARGET_YAW] + amplitude * d_yaw / turn),
-             self._clip_pitch(floats[:, TARGET_PITCH] + amplitude * d_pitch / turn)], axis=1
-        )  # fmt: skip
+        to_yaw = self._clip_yaw(floats[:, TARGET_YAW] + amplitude * d_yaw / turn)
+        to_pitch = self._clip_pitch(floats[:, TARGET_PITCH] + amplitude * d_pitch / turn)
         u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)  # hold, blink pull, blink follower
-        hold = self._hold_s(rows, u[:, 0], None)
+        hold = self._hold_s(rows, u[0], None)
         kind = np.full(idx.size, HEAD, np.int8)
         times = np.full(idx.size, t, dtype=np.int64)
-        self._launch(idx, rows, times, to, kind, hold, u[:, 1], u[:, 2], magnitude=amplitude, head=True)
+        self._launch(idx, rows, times, to_yaw, to_pitch, kind, hold, u[1], u[2], magnitude=amplitude, head=True)
         self._store(idx, rows)
 
     def set_target(
@@ -363,11 +360,11 @@ class GazeEngine:
         j = np.flatnonzero(follow)
         if j.size:
             moving = rows[j]
-            to = moving.view(np.float64)[:, [TARGET_YAW, TARGET_PITCH]]
+            to_yaw, to_pitch = moving.view(np.float64)[:, TARGET_YAW], moving.view(np.float64)[:, TARGET_PITCH]
             u = self._uniforms(moving, KEY_SACCADE, COUNTER_SACCADE, 2)  # blink pull, blink follower
             times = np.full(j.size, t, dtype=np.int64)
             kind = np.full(j.size, MUTUAL, np.int8)
-            self._launch(idx[j], moving, times, to, kind, None, u[:, 0], u[:, 1])
+            self._launch(idx[j], moving, times, to_yaw, to_pitch, kind, None, u[0], u[1])
             rows[j] = moving
         self._store(idx, rows)
 
@@ -457,13 +454,14 @@ class GazeEngine:
         rows[idx, BLINK_SPREAD_NS] = _float_bits(self._blink_spread_ns[role])
 
     def _uniforms(self, rows: np.ndarray, key: int, counter: int, count: int) -> np.ndarray:
-        """`count` uniforms in [0, 1) per row from the agent's own stream: shape (len(rows), count).
+        """`count` uniforms in [0, 1) per row from the agent's own stream: shape (count, len(rows)), so
+        each draw is one contiguous row and the broadcasts run along the agents, not along a few draws.
 
         Bit for bit counter_rng.uniform01(stream seed, agent index, counter), with the per-agent key in
         the row; the row's counter advances by `count`.
         """
-        z = rows[:, counter].view(np.uint64)[:, None] + _COUNTER_STEPS[:count]
-        z ^= rows[:, key].view(np.uint64)[:, None]
+        z = rows[:, counter].view(np.uint64) + _COUNTER_STEPS[:count, None]
+        z ^= rows[:, key].view(np.uint64)
         _splitmix64_inplace(z, scratch := np.empty_like(z))
         rows[:, counter] += count
         np.right_shift(z, np.uint64(11), out=scratch)
@@ -474,7 +472,7 @@ class GazeEngine:
         with_model = np.flatnonzero(rows[:, MODE] == SACCADE_BLINK)
         if with_model.size:
             sub = rows[with_model]
-            u = self._uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[:, 0]
+            u = self._uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[0]
             sub[:, NEXT_BLINK] = t + self._blink_interval_ns(sub.view(np.float64)[:, BLINK_SPREAD_NS], u)
             rows[with_model] = sub
 
@@ -523,14 +521,14 @@ class GazeEngine:
         if count == mask.size:
             handler(agents, rows)
         elif count:
-            sub = np.compress(mask, rows, axis=0)
+            sub = _as_rows(rows)[mask].view(np.int64).reshape(count, _N_COLUMNS)  # faster than np.compress
             handler(agents[mask], sub)
             _as_rows(rows)[mask] = _as_rows(sub)
 
     def _blink(self, agents: np.ndarray, rows: np.ndarray) -> None:
         """The blink timer expired: blink now and draw the next spontaneous blink."""
         times = rows[:, NEXT_BLINK].copy()
-        u = self._uniforms(rows, KEY_BLINK, COUNTER_BLINK, 1)[:, 0]
+        u = self._uniforms(rows, KEY_BLINK, COUNTER_BLINK, 1)[0]
         rows[:, NEXT_BLINK] = times + self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS], u)
         rows[:, BLINK_ONSET] = times
         self._blink_chunks.append((agents, times))
@@ -539,25 +537,32 @@ class GazeEngine:
         """The gaze timer expired (or the regime changed): choose mutual or away and launch the saccade.
 
         Six uniforms per agent in one draw: mutual or away, magnitude, direction, hold, and the gaze-evoked
-        blink's chance and follower interval. Yaw and pitch go as the two columns of one array."""
+        blink's chance and follower interval. Yaw and pitch go as separate 1-D arrays: numpy broadcasts
+        over a trailing axis of two (yaw, pitch) several times slower than it runs along one column."""
         times = rows[:, NEXT_SACCADE].copy()
         floats = rows.view(np.float64)
         u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 6)
-        away = u[:, 0] >= floats[:, P_MUTUAL]
-        magnitude = u[:, 1] * floats[:, MAG_SPAN]
+        away = u[0] >= floats[:, P_MUTUAL]
+        magnitude = u[1] * floats[:, MAG_SPAN]
         np.subtract(self._magnitude_top, magnitude, out=magnitude)
         np.log(magnitude, out=magnitude)
         magnitude *= floats[:, MAG_SCALE]
-        to = floats[:, TARGET_YAW : TARGET_PITCH + 1].copy()
-        step = self._direction(agents, u[:, 2])
-        step *= magnitude[:, None]
-        step += to
-        np.copyto(to, self._clip(step), where=away[:, None])
-        hold = self._hold_s(rows, u[:, 3], away)
+        step_yaw, step_pitch = self._direction(agents, u[2])
+        to = []
+        for step, target, limit in (
+            (step_yaw, floats[:, TARGET_YAW], self.params.eye_yaw_limit_deg),
+            (step_pitch, floats[:, TARGET_PITCH], self.params.eye_pitch_limit_deg),
+        ):
+            step *= magnitude
+            step += target
+            np.maximum(step, -limit, out=step)
+            np.minimum(step, limit, out=step)
+            to.append(np.where(away, step, target))
+        hold = self._hold_s(rows, u[3], away)
         kind = away.view(np.int8)
-        self._launch(agents, rows, times, to, kind, hold, u[:, 4], u[:, 5], magnitude, away)
+        self._launch(agents, rows, times, to[0], to[1], kind, hold, u[4], u[5], magnitude, away)
 
-    def _direction(self, agents: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def _direction(self, agents: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The unit step (yaw, pitch) of the drawn direction bin, tilted by the agents' emotions where they
         have one."""
         if self._biased_agents:
@@ -565,8 +570,10 @@ class GazeEngine:
             if strength.any():
                 weights = direction_weights(self.params, self._bias_direction[agents], strength)
                 index = (u[:, None] >= np.cumsum(weights, axis=-1)).sum(axis=-1)
-                return self._bin_steps[np.minimum(index, self._bin_steps.shape[0] - 1)]
-        return self._bin_steps[np.searchsorted(self._direction_cumulative, u, side="right")]
+                index = np.minimum(index, self._bin_yaw_steps.size - 1)
+                return self._bin_yaw_steps.take(index), self._bin_pitch_steps.take(index)
+        index = np.searchsorted(self._direction_cumulative, u, side="right")
+        return self._bin_yaw_steps.take(index), self._bin_pitch_steps.take(index)
 
     def _hold_s(self, rows: np.ndarray, u: np.ndarray, away: np.ndarray | None) -> np.ndarray:
         """Inverse-CDF hold times (s) from the quantile table of each agent's (role, mutual/away), scaled by
@@ -578,7 +585,7 @@ class GazeEngine:
         if away is None:
             cell += _HOLD_ROW
         else:
-            np.add(cell, _HOLD_ROW, out=cell, where=away)
+            cell += away * _HOLD_ROW  # a masked add (where=) is several times slower
         pairs = self._hold.take(cell, axis=0)
         hold = pairs[:, 0] * x
         hold += pairs[:, 1]
@@ -590,7 +597,8 @@ class GazeEngine:
         agents: np.ndarray,
         rows: np.ndarray,
         times: np.ndarray,
-        to: np.ndarray,
+        to_yaw: np.ndarray,
+        to_pitch: np.ndarray,
         kind: np.ndarray,
         hold_s: np.ndarray | None,
         u_pull: np.ndarray,
@@ -599,15 +607,15 @@ class GazeEngine:
         drawn: np.ndarray | None = None,
         head: bool = False,
     ) -> None:
-        """Start saccades at `times` from where each eye is then to `to` (yaw, pitch columns). Without
+        """Start saccades at `times` from where each eye is then to (`to_yaw`, `to_pitch`). Without
         `hold_s` the hold timer is kept.
 
         `magnitude` is the drawn Eyes Alive magnitude to report, where `drawn` (default: everywhere); the
         others report the amplitude moved."""
         floats = rows.view(np.float64)
-        start = self._position(rows, times)
-        delta = to - start
-        amplitude = np.hypot(delta[:, 0], delta[:, 1])
+        start_yaw, start_pitch = self._position(rows, times)
+        delta_yaw, delta_pitch = to_yaw - start_yaw, to_pitch - start_pitch
+        amplitude = np.hypot(delta_yaw, delta_pitch)
         duration = amplitude * self._d_ns_per_deg
         duration += self._d0_ns
         duration_ns = np.rint(duration, out=duration).astype(np.int64)
@@ -619,8 +627,8 @@ class GazeEngine:
             next_saccade = np.maximum(rows[:, NEXT_SACCADE], end)
             hold_s = (next_saccade - end) * 1e-9
         rows[:, ONSET], rows[:, END], rows[:, NEXT_SACCADE] = times, end, next_saccade
-        floats[:, FROM_YAW : FROM_PITCH + 1] = start
-        floats[:, TO_YAW : TO_PITCH + 1] = to
+        floats[:, FROM_YAW], floats[:, FROM_PITCH] = start_yaw, start_pitch
+        floats[:, TO_YAW], floats[:, TO_PITCH] = to_yaw, to_pitch
         rows[:, KIND] = kind
         self._couple_blinks(agents, rows, times, amplitude, u_pull, u_follow, head)
         self._flights.add(agents, rows[:, _FLIGHT])
@@ -628,15 +636,14 @@ class GazeEngine:
             magnitude = amplitude
         elif drawn is not None:
             magnitude = np.where(drawn, magnitude, amplitude)
-        direction = np.arctan2(delta[:, 1], delta[:, 0])
+        direction = np.arctan2(delta_pitch, delta_yaw)
         np.rad2deg(direction, out=direction)
         # np.mod(direction, 360) for angles within one turn, without its slow floating remainder: negative
-        # angles go up a turn, and adding 0.0 turns -0.0 into 0.0 as np.mod does.
-        np.add(direction, 360.0, out=direction, where=direction < 0.0)
-        direction += 0.0
+        # angles go up a turn, the others get 0.0 added, which turns -0.0 into 0.0 as np.mod does.
+        direction += (direction < 0.0) * 360.0
         duration *= 1e-9
         floats_out = np.array(
-            (start[:, 0], start[:, 1], to[:, 0], to[:, 1], magnitude, amplitude, direction, duration, hold_s)
+            (start_yaw, start_pitch, to_yaw, to_pitch, magnitude, amplitude, direction, duration, hold_s)
         )
         self._saccade_chunks.append((agents, times, kind, floats_out))
 
@@ -658,7 +665,7 @@ class GazeEngine:
         else:
             chance = amplitude - blink.evoked_min_deg
             chance *= self._evoked_slope
-            pull = u_pull < np.clip(chance, 0.0, blink.evoked_max_probability, out=chance)
+            pull = u_pull < np.minimum(np.maximum(chance, 0.0, out=chance), blink.evoked_max_probability, out=chance)
         next_blink = rows[:, NEXT_BLINK]
         pull &= next_blink - times <= self._pull_window_ns
         pull &= rows[:, MODE] == SACCADE_BLINK
@@ -676,20 +683,22 @@ class GazeEngine:
 
     # ------------------------------------------------------------------ positions
 
-    def _position(self, rows: np.ndarray, times: np.ndarray) -> np.ndarray:
-        """Eye (yaw, pitch) at `times` along each row's current saccade; landed eyes skip the velocity
+    def _position(self, rows: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eye yaw and pitch at `times` along each row's current saccade; landed eyes skip the velocity
         profile."""
         floats = rows.view(np.float64)
-        position = floats[:, TO_YAW : TO_PITCH + 1].copy()
+        yaw, pitch = floats[:, TO_YAW].copy(), floats[:, TO_PITCH].copy()
         in_flight = np.flatnonzero(times < rows[:, END])
         if in_flight.size:
             self._flight_stale = True  # these eyes are relaunched or stopped mid-flight
-            onset = rows[in_flight, ONSET]
-            progress = saccade_progress((times[in_flight] - onset) / (rows[in_flight, END] - onset))[:, None]
+            flying = rows.take(in_flight, axis=0)
+            onset = flying[:, ONSET]
+            progress = saccade_progress((times.take(in_flight) - onset) / (flying[:, END] - onset))
             remaining = 1.0 - progress  # this form is exact at both ends of the saccade
-            start = floats[in_flight, FROM_YAW : FROM_PITCH + 1]
-            position[in_flight] = start * remaining + position[in_flight] * progress
-        return position
+            flying_floats = flying.view(np.float64)
+            for position, start, end in ((yaw, FROM_YAW, TO_YAW), (pitch, FROM_PITCH, TO_PITCH)):
+                position[in_flight] = flying_floats[:, start] * remaining + flying_floats[:, end] * progress
+        return yaw, pitch
 
     def _noise_position(self, idx: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
@@ -706,8 +715,7 @@ class GazeEngine:
         """Where each eye is at `t` in its current mode."""
         rows = self._rows[idx]
         stale = self._flight_stale  # only looking: nothing is relaunched here
-        position = self._position(rows, np.full(idx.size, t, dtype=np.int64))
-        yaw, pitch = position[:, 0], position[:, 1]
+        yaw, pitch = self._position(rows, np.full(idx.size, t, dtype=np.int64))
         self._flight_stale = stale
         mode = self._mode[idx]
         static = mode == STATIC
@@ -742,32 +750,33 @@ class GazeEngine:
         chunks = self._saccade_chunks
         if not chunks:
             return SaccadeOnsets.empty()
-        if len(chunks) == 1:
+        # One chunk is one launch over distinct agents (a batch, or one call from outside), so its
+        # (onset, agent) pairs are distinct.
+        distinct = len(chunks) == 1
+        if distinct:
             agent, onset, kind, floats = chunks[0]
         else:
             agent, onset, kind = (np.concatenate(column) for column in list(zip(*chunks, strict=True))[:3])
             floats = np.concatenate([chunk[3] for chunk in chunks], axis=1)
         chunks.clear()
-        order = _onset_order(agent, onset, self._n)
-        return SaccadeOnsets.from_columns(agent[order], onset[order], kind[order], floats[:, order])
+        order = _onset_order(agent, onset, self._n, distinct)
+        return SaccadeOnsets.from_columns(
+            agent.take(order), onset.take(order), kind.take(order), floats.take(order, axis=1)
+        )  # take: several times faster than fancy indexing, most of all on the 2-D floats
 
     def _take_blinks(self) -> BlinkOnsets:
         chunks = self._blink_chunks
         if not chunks:
             return BlinkOnsets.empty()
-        if len(chunks) == 1:
+        distinct = len(chunks) == 1  # one batch's blinks, or one launch's pulled blinks: distinct agents
+        if distinct:
             agent, onset = chunks[0]
         else:
             agent = np.concatenate([c[0] for c in chunks])
             onset = np.concatenate([c[1] for c in chunks])
         chunks.clear()
-        order = _onset_order(agent, onset, self._n)
-        return BlinkOnsets(agent[order], onset[order])
-
-    def _clip(self, position: np.ndarray) -> np.ndarray:
-        """Clip (yaw, pitch) columns to the eye's range, in place."""
-        np.maximum(position, -self._eye_limits, out=position)
-        return np.minimum(position, self._eye_limits, out=position)
+        order = _onset_order(agent, onset, self._n, distinct)
+        return BlinkOnsets(agent.take(order), onset.take(order))
 
     def _clip_yaw(self, yaw: np.ndarray) -> np.ndarray:
         limit = self.params.eye_yaw_limit_deg
@@ -778,12 +787,13 @@ class GazeEngine:
         return np.clip(np.asarray(pitch, dtype=np.float64), -limit, limit)
 
 
-def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndarray:
+def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int, distinct: bool = False) -> np.ndarray:
     """The order that sorts onsets by (onset, agent), ties kept in the order given: np.lexsort((agent, onset)).
 
     One unstable sort of the combined key (onset - first) * n_agents + agent is several times faster than
     the two-key stable sort; it is used when the key cannot overflow and is unique (two launches of one
-    agent at one instant, rare, take the stable sort)."""
+    agent at one instant, rare, take the stable sort). `distinct` says the agents are distinct, so the key
+    is unique without checking."""
     if agent.size < 512:  # a few numpy calls cost more than the sort here
         return np.lexsort((agent, onset))
     first = int(onset.min())
@@ -792,7 +802,9 @@ def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndar
         key *= n_agents
         key += agent
         order = np.argsort(key)
-        ordered = key[order]
+        if distinct:
+            return order
+        ordered = key.take(order)
         if np.all(ordered[1:] > ordered[:-1]):
             return order
     return np.lexsort((agent, onset))

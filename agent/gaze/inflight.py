@@ -18,6 +18,7 @@ from agent.gaze.synth import saccade_progress
 FLIGHT_WIDTH = 7
 _AGENT = 6
 _FLIGHT_ROW = np.dtype((np.void, FLIGHT_WIDTH * 8))
+_SACCADE = np.dtype((np.void, _AGENT * 8))  # a flight's saccade columns as one element
 
 # (agents) -> their resting yaw and pitch: where the current saccade lands.
 RestingPosition = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -39,7 +40,8 @@ class Flights:
             grown = np.empty((capacity, FLIGHT_WIDTH), np.int64)
             grown[: self._count] = self._buffer[: self._count]
             self._buffer, self._spare = grown, np.empty_like(grown)
-        self._buffer[self._count : end, :_AGENT] = saccades
+        # As one 48-byte element per row: numpy copies those by memcpy, six int64 columns one by one.
+        self._buffer[self._count : end, :_AGENT].view(_SACCADE)[:, 0] = saccades.view(_SACCADE)[:, 0]
         self._buffer[self._count : end, _AGENT] = agents
         self._count = end
 
@@ -63,7 +65,7 @@ class Flights:
         if not flying.all():
             # A relaunch by the timer comes after landing, so a landed copy never hides a newer flight;
             # the resting position is the agent's current one, so duplicates write the same value.
-            landed = live[~flying, _AGENT]
+            landed = live[:, _AGENT][~flying]
             yaw[landed], pitch[landed] = resting(landed)
             live = self._trim(flying)
         if not live.size:

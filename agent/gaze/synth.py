@@ -47,15 +47,15 @@ def _table(centre: float, span: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
 def saccade_progress(tau: np.ndarray | float, centre: float = PAPER_CENTRE, span: float = PAPER_SPAN) -> np.ndarray:
     """Fraction of the saccade covered at normalised time tau = (t - t0) / D; 0 before, 1 after."""
     a, b, c = _table(centre, span)
-    x = np.clip(np.asarray(tau, dtype=np.float64), 0.0, 1.0)
+    x = np.minimum(np.maximum(tau, 0.0), 1.0)  # np.clip's Python wrapper costs more than this on 1000 eyes
     x *= _TABLE_INTERVALS
     cell = x.astype(np.int64)
     x -= cell
-    progress = c[cell]
+    progress = c.take(cell)
     progress *= x
-    progress += b[cell]
+    progress += b.take(cell)
     progress *= x
-    progress += a[cell]  # exact at both ends: 0 + 0 at tau = 0, and 1 + 0 at tau = 1
+    progress += a.take(cell)  # exact at both ends: 0 + 0 at tau = 0, and 1 + 0 at tau = 1
     return progress
 
 
