@@ -670,11 +670,11 @@ class GazeEngine:
         pull &= next_blink - times <= self._pull_window_ns
         pull &= rows[:, MODE] == SACCADE_BLINK
         j = np.flatnonzero(pull)
-        if j.size:
-            interval = self._blink_interval_ns(rows.view(np.float64)[j, BLINK_SPREAD_NS], u_follow[j])
-            rows[j, NEXT_BLINK] = next_blink[j] + interval
+        if j.size:  # through 1-D column views: a (rows, column) fancy index takes the slow general path
+            interval = self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS][j], u_follow[j])
+            next_blink[j] += interval
             pulled, onset = agents[j], times[j]
-            rows[j, BLINK_ONSET] = onset
+            rows[:, BLINK_ONSET][j] = onset
             self._blink_chunks.append((pulled, onset))
 
     def _blink_interval_ns(self, spread_ns: np.ndarray, u: np.ndarray) -> np.ndarray:

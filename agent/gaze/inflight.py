@@ -82,7 +82,8 @@ class Flights:
     def _trim(self, keep: np.ndarray) -> np.ndarray:
         count = int(np.count_nonzero(keep))
         rows = self._buffer[: self._count].view(_FLIGHT_ROW).reshape(-1)
-        np.compress(keep, rows, out=self._spare[:count].view(_FLIGHT_ROW).reshape(-1))
+        # A boolean index and a copy: np.compress into `out` takes about twice as long.
+        self._spare[:count].view(_FLIGHT_ROW).reshape(-1)[:] = rows[keep]
         self._buffer, self._spare = self._spare, self._buffer
         self._count = count
         return self._buffer[:count]
