@@ -796,8 +796,9 @@ def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int, distinct: 
     is unique without checking."""
     if agent.size < 512:  # a few numpy calls cost more than the sort here
         return np.lexsort((agent, onset))
-    first = int(onset.min())
-    if (int(onset.max()) - first + 1) * max(n_agents, 1) < 1 << 62:
+    # The ufuncs' reductions themselves: ndarray.min, .max and np.all go through Python wrappers.
+    first = int(np.minimum.reduce(onset))
+    if (int(np.maximum.reduce(onset)) - first + 1) * max(n_agents, 1) < 1 << 62:
         key = onset - first
         key *= n_agents
         key += agent
@@ -805,7 +806,7 @@ def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int, distinct: 
         if distinct:
             return order
         ordered = key.take(order)
-        if np.all(ordered[1:] > ordered[:-1]):
+        if not np.count_nonzero(ordered[1:] <= ordered[:-1]):
             return order
     return np.lexsort((agent, onset))
 

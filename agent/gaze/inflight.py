@@ -62,7 +62,7 @@ class Flights:
         """Write every eye in flight at `t`; eyes that landed since go to their resting position and leave."""
         live = self._buffer[: self._count]
         flying = live[:, 1] > t
-        if not flying.all():
+        if np.count_nonzero(flying) < flying.size:
             # A relaunch by the timer comes after landing, so a landed copy never hides a newer flight;
             # the resting position is the agent's current one, so duplicates write the same value.
             landed = live[:, _AGENT][~flying]
