@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.gaze.engine import GazeEngine
+from agent.gaze.engine import GazeEngine, _onset_order
 from agent.gaze.params import MODES, ROLES, GazeParams
 
 PARAMS = GazeParams.load()
@@ -69,3 +69,19 @@ def test_any_input_sequence_gives_valid_reproducible_output(
     assert len(first) == len(second)
     for a, b in zip(first, second, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(min_value=1, max_value=3000),  # onsets
+    st.integers(min_value=1, max_value=1_000_000),  # agents in the engine
+    st.sampled_from([1, 50, 16_666_667, 1 << 40, 1 << 61]),  # span of the onsets, ns
+    st.integers(min_value=0, max_value=2**32 - 1),
+)
+def test_onsets_are_ordered_by_time_then_agent_ties_as_given(size: int, n_agents: int, span: int, seed: int) -> None:
+    """The packed-key sort of a tick's onsets is np.lexsort((agent, onset)) exactly: ties (one agent launched
+    twice at one instant) keep their order, and spans too wide to pack take the two-key sort."""
+    rng = np.random.default_rng(seed)
+    agent = rng.integers(0, n_agents, size)
+    onset = rng.integers(0, span, size, endpoint=True) + int(rng.integers(-(1 << 61), 1 << 61))
+    np.testing.assert_array_equal(_onset_order(agent, onset, n_agents), np.lexsort((agent, onset)))
