@@ -22,7 +22,8 @@ arithmetic, sets the tick time):
 - Eyes in flight keep a compact copy of their saccade, so a tick interpolates them without touching
   the per-agent rows; they and the blinks in progress live in persistent buffers (inflight.py) that a
   tick appends to and trims instead of rebuilding.
-- Small event batches are processed as one; onsets are ordered by one sort of a combined key.
+- A blink that comes before any saccade is processed on its agent's columns in place (it touches five of
+  them); the other events gather whole rows. Onsets are ordered by one sort of a packed key.
 
 Events from outside (role, emotion, mode, head, target) take effect at their own timestamp; one stamped
 before the last tick is applied at the last tick's time.
@@ -48,7 +49,6 @@ NEVER_NS = 1 << 62
 _NS = 1_000_000_000
 _TWO_POW_MINUS_53 = 1.0 / float(1 << 53)
 _COUNTER_STEPS = np.arange(8, dtype=np.uint64)  # a draw of k uniforms reads counters c .. c + k - 1
-_ONE_BATCH_ROWS = 8192  # up to this many agents with events due are processed as one batch
 _HOLD_TABLE_INTERVALS = 32_768
 _HOLD_ROW = _HOLD_TABLE_INTERVALS + 1
 
@@ -460,12 +460,9 @@ class GazeEngine:
         Bit for bit counter_rng.uniform01(stream seed, agent index, counter), with the per-agent key in
         the row; the row's counter advances by `count`.
         """
-        z = rows[:, counter].view(np.uint64) + _COUNTER_STEPS[:count, None]
-        z ^= rows[:, key].view(np.uint64)
-        _splitmix64_inplace(z, scratch := np.empty_like(z))
+        u = _uniform_draws(rows[:, counter].view(np.uint64), rows[:, key].view(np.uint64), count)
         rows[:, counter] += count
-        np.right_shift(z, np.uint64(11), out=scratch)
-        return np.multiply(scratch, _TWO_POW_MINUS_53)  # converts the 53-bit integers exactly
+        return u
 
     def _schedule_blinks(self, rows: np.ndarray, t: int) -> None:
         """Draw a fresh next blink from `t` for the rows with the statistical blink model."""
@@ -484,21 +481,21 @@ class GazeEngine:
                 self._advance_due(idx, t)
 
     def _advance_due(self, idx: np.ndarray, t: int) -> None:
-        # Gathering the blink-first and the saccade-first agents' rows apart saves copying each kind out of
-        # one mixed batch and back. Which is which is read from the rows' timers, a line the gather then
-        # finds in cache, rather than kept in an array of its own that every stored row would write.
-        # Small batches go as one: there the fixed cost of the numpy calls of a second pass outweighs it.
-        if idx.size <= _ONE_BATCH_ROWS:
-            groups: tuple[np.ndarray, ...] = (idx,)
-        else:
-            next_saccade, next_blink = _column_pair(self._rows, idx, NEXT_SACCADE, NEXT_BLINK)
-            blink_first = next_blink < next_saccade
-            count = int(np.count_nonzero(blink_first))
-            groups = (idx,) if count in (0, idx.size) else (idx[blink_first], idx[~blink_first])
-        for group in groups:
-            rows = self._rows.take(group, axis=0)
-            self._process(group, rows, t)
-            self._store(group, rows)
+        # Agents whose blink comes first blink on the row matrix's columns in place: a blink reads and writes
+        # five of a row's columns, where gathering whole rows, copying them out of the batch and back and
+        # storing them costs more. The rest, and the blinkers with more due, go through whole rows; which is
+        # which is read from the rows' timers, lines the blink and the gather then find in cache.
+        next_saccade, next_blink = _column_pair(self._rows, idx, NEXT_SACCADE, NEXT_BLINK)
+        blink_first = next_blink < next_saccade
+        if np.count_nonzero(blink_first):
+            blinking = idx[blink_first]
+            next_event = np.minimum(next_saccade[blink_first], self._blink_in_place(blinking))
+            self._next_event[blinking] = next_event
+            idx = np.concatenate([idx[~blink_first], blinking[next_event <= t]])
+        if idx.size:
+            rows = self._rows.take(idx, axis=0)
+            self._process(idx, rows, t)
+            self._store(idx, rows)
 
     def _process(self, agents: np.ndarray, rows: np.ndarray, t: int) -> None:
         """One pass over agents with events due: a blink, then a saccade decision, then a blink, each only
@@ -524,6 +521,29 @@ class GazeEngine:
             sub = _as_rows(rows)[mask].view(np.int64).reshape(count, _N_COLUMNS)  # faster than np.compress
             handler(agents[mask], sub)
             _as_rows(rows)[mask] = _as_rows(sub)
+
+    def _blink_in_place(self, agents: np.ndarray) -> np.ndarray:
+        """_blink for agents whose blink timer expired, on their columns of the row matrix; returns their next
+        blink times."""
+        flat = self._rows.reshape(-1)
+        cells = agents * _N_COLUMNS
+        cells += NEXT_BLINK
+        times = flat.take(cells)
+        flat[cells] = times + self._blink_interval_ns(
+            flat.take(cells + (BLINK_SPREAD_NS - NEXT_BLINK)).view(np.float64),
+            _uniform_draws(
+                flat.take(cells + (COUNTER_BLINK - NEXT_BLINK)).view(np.uint64),
+                flat.take(cells + (KEY_BLINK - NEXT_BLINK)).view(np.uint64),
+                1,
+            )[0],
+        )
+        next_blink = flat.take(cells)
+        cells += COUNTER_BLINK - NEXT_BLINK
+        flat[cells] += 1
+        cells += BLINK_ONSET - COUNTER_BLINK
+        flat[cells] = times
+        self._blink_chunks.append((agents, times))
+        return next_blink
 
     def _blink(self, agents: np.ndarray, rows: np.ndarray) -> None:
         """The blink timer expired: blink now and draw the next spontaneous blink."""
@@ -806,6 +826,16 @@ def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndar
     key.sort()
     key &= (1 << position_bits) - 1
     return key
+
+
+def _uniform_draws(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+    """`count` uniforms in [0, 1) per agent from its stream's counters c .. c + count - 1 (uint64 counters and
+    keys): shape (count, agents). Bit for bit counter_rng.uniform01."""
+    z = counters + _COUNTER_STEPS[:count, None]
+    z ^= keys
+    _splitmix64_inplace(z, scratch := np.empty_like(z))
+    np.right_shift(z, np.uint64(11), out=scratch)
+    return np.multiply(scratch, _TWO_POW_MINUS_53)  # converts the 53-bit integers exactly
 
 
 def _column_pair(matrix: np.ndarray, rows: np.ndarray, first: int, second: int) -> tuple[np.ndarray, np.ndarray]:
