@@ -529,7 +529,7 @@ class GazeEngine:
         cells = agents * _N_COLUMNS
         cells += NEXT_BLINK
         times = flat.take(cells)
-        flat[cells] = times + self._blink_interval_ns(
+        next_blink = times + self._blink_interval_ns(
             flat.take(cells + (BLINK_SPREAD_NS - NEXT_BLINK)).view(np.float64),
             _uniform_draws(
                 flat.take(cells + (COUNTER_BLINK - NEXT_BLINK)).view(np.uint64),
@@ -537,7 +537,7 @@ class GazeEngine:
                 1,
             )[0],
         )
-        next_blink = flat.take(cells)
+        flat[cells] = next_blink  # flat is a view: the matrix is C-contiguous (_aligned_rows)
         cells += COUNTER_BLINK - NEXT_BLINK
         flat[cells] += 1
         cells += BLINK_ONSET - COUNTER_BLINK
