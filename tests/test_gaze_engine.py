@@ -365,3 +365,18 @@ def test_lids_of_blinks_in_progress_follow_the_curve_piece_by_piece(curve_s: lis
     curve_ns = np.array(curve_s) * 1e9  # in nanoseconds, so the curve's end is exactly representable
     expected = np.interp((t - onsets).astype(float), curve_ns, closure, left=0.0, right=0.0)
     np.testing.assert_allclose(lid[:n], expected, rtol=0, atol=1e-12)
+
+
+def test_events_stamped_out_of_order_between_ticks_divide_by_no_zero(params: GazeParams) -> None:
+    """A mode switch stamped ahead of the last tick leaves a zero-length fixation starting in the future; an
+    event stamped before it asks where the eye is then. No division by zero, and the eye is where the static
+    mode put it (the gaze target) when the return to saccades launches the next one."""
+    engine = GazeEngine(2, seed=1, params=params, role="talking")
+    engine.tick(1 * S)
+    engine.set_mode([0], "static", 5 * S)
+    with np.errstate(all="raise"):
+        engine.set_mode([0], "saccade", 4 * S)
+        onsets = engine.tick(4 * S).saccades
+    launched = np.flatnonzero((onsets.agent == 0) & (onsets.onset_ns == 4 * S))
+    assert launched.size == 1
+    assert (onsets.from_yaw_deg[launched[0]], onsets.from_pitch_deg[launched[0]]) == (0.0, 0.0)

@@ -713,7 +713,11 @@ class GazeEngine:
             self._flight_stale = True  # these eyes are relaunched or stopped mid-flight
             flying = rows.take(in_flight, axis=0)
             onset = flying[:, ONSET]
-            progress = saccade_progress((times.take(in_flight) - onset) / (flying[:, END] - onset))
+            # A mode switch stamped ahead of the last tick leaves a zero-length "saccade" (a fixation)
+            # starting in the future: asked before it, the eye is at its start (tau < 0), so dividing by at
+            # least 1 ns gives the same position without a division by zero.
+            duration = np.maximum(flying[:, END] - onset, 1)
+            progress = saccade_progress((times.take(in_flight) - onset) / duration)
             remaining = 1.0 - progress  # this form is exact at both ends of the saccade
             flying_floats = flying.view(np.float64)
             for position, start, end in ((yaw, FROM_YAW, TO_YAW), (pitch, FROM_PITCH, TO_PITCH)):
