@@ -17,6 +17,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from scipy import stats
 
 PLAY_S = 1.5
 
@@ -96,11 +97,13 @@ def test_clock_anchors_advance_at_the_wall_clock_rate(jack_server: str) -> None:
     span_s = (wall_ns[-1] - wall_ns[0]) / 1e9
     assert span_s > 0.8 * PLAY_S
     assert len(a) / span_s >= 60.0
-    # Audio seconds per wall-clock second, from when the anchors arrived: 1 within 1%.
-    rate_wall = np.polyfit(wall_ns / 1e9, sample / 48_000, 1)[0]
+    # Audio seconds per wall-clock second, from when the anchors arrived: 1 within 1%. Theil-Sen slopes (the
+    # median of the pairwise slopes): on a loaded machine a few anchors come late or carry a DAC time the
+    # server's clock estimate has not settled yet, and a least-squares line let them tilt it past 1%.
+    rate_wall = stats.theilslopes(sample / 48_000, wall_ns / 1e9)[0]
     assert rate_wall == pytest.approx(1.0, rel=0.01)
     # The anchors themselves: DAC time per sample on the monotonic clock, also within 1%.
-    rate_dac = np.polyfit(dac_ns / 1e9, sample / 48_000, 1)[0]
+    rate_dac = stats.theilslopes(sample / 48_000, dac_ns / 1e9)[0]
     assert rate_dac == pytest.approx(1.0, rel=0.01)
     # Each anchor names a DAC time a little ahead of when it was published, never far off.
     lead_ms = (dac_ns - wall_ns) / 1e6
