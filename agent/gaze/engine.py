@@ -31,7 +31,7 @@ before the last tick is applied at the last tick's time.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -57,7 +57,6 @@ MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))
 assert (MUTUAL, AWAY) == (0, 1)  # a decision's kind is its "away" flag read as int8
 DEFAULT_ROLE = "silence"
 
-_RowHandler = Callable[[np.ndarray, np.ndarray], None]  # (agents, their gathered rows)
 
 # Columns of the per-agent row matrix; float fields hold float64 bit patterns. The current saccade
 # comes first, so its compact copy for the eyes in flight is one slice of the row.
@@ -481,50 +480,37 @@ class GazeEngine:
                 self._advance_due(idx, t)
 
     def _advance_due(self, idx: np.ndarray, t: int) -> None:
-        # Agents whose blink comes first blink on the row matrix's columns in place: a blink reads and writes
-        # five of a row's columns, where gathering whole rows, copying them out of the batch and back and
-        # storing them costs more. The rest, and the blinkers with more due, go through whole rows; which is
-        # which is read from the rows' timers, lines the blink and the gather then find in cache.
-        next_saccade, next_blink = _column_pair(self._rows, idx, NEXT_SACCADE, NEXT_BLINK)
-        blink_first = next_blink < next_saccade
-        if np.count_nonzero(blink_first):
-            blinking = idx[blink_first]
-            next_event = np.minimum(next_saccade[blink_first], self._blink_in_place(blinking))
-            self._next_event[blinking] = next_event
-            idx = np.concatenate([idx[~blink_first], blinking[next_event <= t]])
-        if idx.size:
-            rows = self._rows.take(idx, axis=0)
-            self._process(idx, rows, t)
-            self._store(idx, rows)
+        """Process the due agents' timer events in rounds until none is left at or before `t`: each round
+        takes every agent's earliest event, a blink (a tie goes to the saccade, which may carry the blink)
+        and, if that leaves its saccade the earliest and due, the saccade decision. At video rates one
+        round does nearly everything; the next has the few blinks due after a decision.
 
-    def _process(self, agents: np.ndarray, rows: np.ndarray, t: int) -> None:
-        """One pass over agents with events due: a blink, then a saccade decision, then a blink, each only
-        where it is that agent's earliest pending event (a tie goes to the saccade, which may carry the
-        blink). At video rates one pass suffices; agents with more events due go round again."""
-        next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]  # views: they see the updates
-        self._on_rows(agents, rows, next_blink < next_saccade, self._blink)
-        self._on_rows(agents, rows, (next_saccade <= t) & (next_saccade <= next_blink), self._decide)
-        self._on_rows(agents, rows, (next_blink <= t) & (next_blink < next_saccade), self._blink)
-        more = np.flatnonzero(np.minimum(next_saccade, next_blink) <= t)
-        if more.size:
-            sub = rows.take(more, axis=0)
-            self._process(agents[more], sub, t)
-            _as_rows(rows)[more] = _as_rows(sub)
-
-    @staticmethod
-    def _on_rows(agents: np.ndarray, rows: np.ndarray, mask: np.ndarray, handler: _RowHandler) -> None:
-        """Apply `handler` to the masked rows, on a compact copy unless every row is selected."""
-        count = int(np.count_nonzero(mask))
-        if count == mask.size:
-            handler(agents, rows)
-        elif count:
-            sub = _as_rows(rows)[mask].view(np.int64).reshape(count, _N_COLUMNS)  # faster than np.compress
-            handler(agents[mask], sub)
-            _as_rows(rows)[mask] = _as_rows(sub)
+        A blink works on its five columns of the row matrix in place: gathering whole rows and storing
+        them back costs more. Decisions read and write most of a row, so they gather their rows as one
+        batch. Which is which is read from the rows' timers, lines both then find in cache."""
+        while idx.size:
+            next_saccade, next_blink = _column_pair(self._rows, idx, NEXT_SACCADE, NEXT_BLINK)
+            blink_first = next_blink < next_saccade
+            deciding = idx
+            due: list[np.ndarray] = []
+            if np.count_nonzero(blink_first):
+                blinking = idx[blink_first]
+                saccade_at = next_saccade[blink_first]
+                blink_at = self._blink_in_place(blinking)
+                self._next_event[blinking] = np.minimum(saccade_at, blink_at)
+                decides = (saccade_at <= t) & (saccade_at <= blink_at)
+                due.append(blinking[(blink_at <= t) & (blink_at < saccade_at)])  # another blink first
+                deciding = np.concatenate([idx[~blink_first], blinking[decides]])
+            if deciding.size:
+                rows = self._rows.take(deciding, axis=0)
+                self._decide(deciding, rows)
+                self._store(deciding, rows)
+                due.append(deciding[self._next_event.take(deciding) <= t])
+            idx = np.concatenate(due) if due else deciding[:0]
 
     def _blink_in_place(self, agents: np.ndarray) -> np.ndarray:
-        """_blink for agents whose blink timer expired, on their columns of the row matrix; returns their next
-        blink times."""
+        """The blink timers of these agents expired: blink then and draw each one's next spontaneous blink, on
+        their columns of the row matrix. Returns the next blink times."""
         flat = self._rows.reshape(-1)
         cells = agents * _N_COLUMNS
         cells += NEXT_BLINK
@@ -544,14 +530,6 @@ class GazeEngine:
         flat[cells] = times
         self._blink_chunks.append((agents, times))
         return next_blink
-
-    def _blink(self, agents: np.ndarray, rows: np.ndarray) -> None:
-        """The blink timer expired: blink now and draw the next spontaneous blink."""
-        times = rows[:, NEXT_BLINK].copy()
-        u = self._uniforms(rows, KEY_BLINK, COUNTER_BLINK, 1)[0]
-        rows[:, NEXT_BLINK] = times + self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS], u)
-        rows[:, BLINK_ONSET] = times
-        self._blink_chunks.append((agents, times))
 
     def _decide(self, agents: np.ndarray, rows: np.ndarray) -> None:
         """The gaze timer expired (or the regime changed): choose mutual or away and launch the saccade.
