@@ -22,8 +22,9 @@ arithmetic, sets the tick time):
 - Eyes in flight keep a compact copy of their saccade, so a tick interpolates them without touching
   the per-agent rows; they and the blinks in progress live in persistent buffers (inflight.py) that a
   tick appends to and trims instead of rebuilding.
-- A blink that comes before any saccade is processed on its agent's columns in place (it touches five of
-  them); the other events gather whole rows. Onsets are ordered by one sort of a packed key.
+- Timer events run in rounds of every due agent's earliest event: a blink on its agent's columns in place
+  (it touches five of them), then the decisions as one batch of whole rows. Onsets are ordered by one
+  sort of a packed key.
 
 Events from outside (role, emotion, mode, head, target) take effect at their own timestamp; one stamped
 before the last tick is applied at the last tick's time.
