@@ -2,8 +2,11 @@
 
 Publishers connect an XPUB to the broker's XSUB. The broker subscribes to everything, and an XPUB
 sees that subscription arrive: that is the publisher's readiness barrier (no message sent before it is
-lost to the slow-joiner problem). Subscribers connect a SUB to the broker's XPUB; their barrier is a
-probe subscription `sys.<nonce>.hello` that the broker answers once the subscription is live.
+lost to the slow-joiner problem). The XPUB is verbose, so a broker that restarts (and subscribes again
+over the same reconnected pipe) is seen too: `new_broker()` tells the owner of a state to publish it
+again for the new broker's empty cache (the zguide's Clone pattern).
+Subscribers connect a SUB to the broker's XPUB; their barrier is a probe subscription
+`sys.<nonce>.hello` that the broker answers once the subscription is live.
 Every option (HWM, linger) is set before connect: options set later do not take.
 """
 
@@ -31,40 +34,65 @@ def _now_ns() -> int:
 
 
 class Publisher:
-    """Stamps each message with sequence number, time and source, validates it, and sends it."""
+    """Stamps each message with sequence number, time and source, validates it, and sends it.
+
+    `seq` counts per topic: the n-th message this publisher sent on that topic, so a subscriber of any
+    prefix can tell a lost message (a gap) from messages on topics it does not receive."""
 
     def __init__(self, ctx: zmq.Context, config: BusConfig, source: str,
                  now_ns: Callable[[], int] = _now_ns) -> None:
         self.source = source
         self._now_ns = now_ns
         self._max_bytes = config.max_message_bytes
-        self._seq = 0
+        self._seq: dict[str, int] = {}
+        self.brokers_seen = 0  # subscriptions from a broker: the first connection, then one per restart
         self.socket = ctx.socket(zmq.XPUB)
         self.socket.setsockopt(zmq.SNDHWM, config.hwm)
         self.socket.setsockopt(zmq.LINGER, 500)  # let the last events out on a clean stop
+        # every subscription frame, repeats included: a restarted broker re-subscribes over the same pipe
+        self.socket.setsockopt(zmq.XPUB_VERBOSE, 1)
         self.socket.connect(config.frontend)
 
     def wait_ready(self, timeout_s: float = 5.0) -> None:
         """Block until the broker's subscription arrives, so nothing sent afterwards is lost."""
         if not self.socket.poll(int(timeout_s * 1000), zmq.POLLIN):
-            raise BusTimeout(f"no broker subscription within {timeout_s} s: is the broker running?")
+            raise BusTimeout(f"no broker subscription within {timeout_s:g} s: is the broker running?")
         self._drain_subscriptions()
+
+    def new_broker(self) -> bool:
+        """Whether a broker subscribed since the last call after the first: a broker restarted, and
+        whatever its last-value cache held is gone. Never blocks."""
+        before = self.brokers_seen
+        self._drain_subscriptions()
+        return before > 0 and self.brokers_seen > before
 
     def publish(self, msg: Message, category: str | None = None) -> Message:
         """Send `msg` (stamped); returns the stamped copy. Raises ProtocolError if it is invalid."""
-        self._seq += 1
-        stamped = _stamped(msg, self._seq, msg.t_ns or self._now_ns(), self.source)
-        payload = encode(stamped, self._max_bytes)
-        self.socket.send_multipart([topic_for(stamped, category).encode(), payload])
+        topic, payload, stamped = self.prepare(msg, category)
+        self.socket.send_multipart([topic, payload])
         return stamped
 
+    def prepare(self, msg: Message, category: str | None = None) -> tuple[bytes, bytes, Message]:
+        """Stamp and encode `msg` as `publish` would, without sending it: (topic, payload, stamped copy).
+        Counts toward the topic's `seq`, so send what it returns (with `send_raw`) before anything else
+        on that topic."""
+        topic = topic_for(msg, category)
+        seq = self._seq.get(topic, 0) + 1
+        stamped = _stamped(msg, seq, msg.t_ns or self._now_ns(), self.source)
+        payload = encode(stamped, self._max_bytes)  # an invalid message raises here and leaves no gap in seq
+        self._seq[topic] = seq
+        return topic.encode(), payload, stamped
+
     def send_raw(self, topic: bytes, payload: bytes) -> None:
-        """Send frames as they are (tests of bad input, replay of recordings)."""
+        """Send frames as they are: a state re-published exactly as it was first sent (same seq, time and
+        bytes, so subscribers recognise the repeat), replay of recordings, tests of bad input."""
         self.socket.send_multipart([topic, payload])
 
     def _drain_subscriptions(self) -> None:
         while self.socket.poll(0, zmq.POLLIN):
-            self.socket.recv_multipart(zmq.NOBLOCK)
+            frame = self.socket.recv_multipart(zmq.NOBLOCK)[0]
+            if frame == b"\x01":  # the broker's subscribe-to-everything
+                self.brokers_seen += 1
 
     def close(self) -> None:
         self.socket.close()
@@ -150,6 +178,16 @@ class Subscriber:
                 out.append(got)
         return out
 
+    def read_frames(self, limit: int) -> list[list[bytes]]:
+        """Up to `limit` messages waiting now, undecoded (for callers that choose what to decode)."""
+        frames: list[list[bytes]] = []
+        while len(frames) < limit:
+            try:
+                frames.append(self.socket.recv_multipart(zmq.NOBLOCK))
+            except zmq.Again:
+                break
+        return frames
+
     def _read(self) -> Received | None:
         return self.accept(self.socket.recv_multipart(zmq.NOBLOCK))
 
@@ -172,14 +210,34 @@ class Subscriber:
         self.socket.close()
 
 
+MAX_TOPIC_BYTES = 256  # `<category>.<agent>.<type>` needs far less; the Error message's topic field holds this
+
+
 def parse_frames(frames: list[bytes], max_bytes: int = DEFAULT_MAX_BYTES) -> Received:
-    """Decode [topic, payload]; a message whose topic disagrees with its content is rejected."""
-    if len(frames) != 2:
-        return Received("", None, ProtocolError("bad_frames", f"expected 2 frames, got {len(frames)}"))
+    """Decode [topic, payload]; a message whose topic disagrees with its content is rejected.
+
+    Never raises: whatever the frames hold, the answer is a message or the reason there is none, and
+    the reason's topic is the first frame when that reads as one (so the error reaches the agent's
+    error topic even for a message with the wrong number of frames)."""
     try:
-        topic = frames[0].decode("utf-8")
+        return _parse_frames(frames, max_bytes)
+    except Exception as exc:  # a bug in decoding must cost one message, never the process that reads it
+        return Received(_topic_of(frames), None, ProtocolError(
+            "internal", f"the message could not be decoded (an eca bug: {type(exc).__name__})"))
+
+
+def _parse_frames(frames: list[bytes], max_bytes: int) -> Received:
+    topic = _topic_of(frames)
+    if len(frames) != 2:
+        return Received(topic, None, ProtocolError("bad_frames", f"expected 2 frames (topic, payload), "
+                                                                 f"got {len(frames)}"))
+    if len(frames[0]) > MAX_TOPIC_BYTES:
+        return Received(topic, None, ProtocolError("bad_topic", f"the topic is {len(frames[0])} bytes, over the "
+                                                                f"limit of {MAX_TOPIC_BYTES}"))
+    try:
+        frames[0].decode("utf-8")
     except UnicodeDecodeError:
-        return Received(repr(frames[0][:64]), None, ProtocolError("bad_topic", "topic is not UTF-8"))
+        return Received(topic, None, ProtocolError("bad_topic", "the topic is not UTF-8"))
     try:
         msg = decode(frames[1], max_bytes)
         _, agent, type_name = split_topic(topic)
@@ -189,5 +247,13 @@ def parse_frames(frames: list[bytes], max_bytes: int = DEFAULT_MAX_BYTES) -> Rec
         return Received(topic, None, ProtocolError("bad_topic", str(exc)))
     if agent != msg.agent or type_name != msg.TYPE:
         return Received(topic, None, ProtocolError(
-            "bad_topic", f"topic {topic!r} does not match a '{msg.TYPE}' message for agent '{msg.agent}'"))
+            "bad_topic", f"topic {topic!r} does not match a '{msg.TYPE}' message for agent '{msg.agent}'",
+            agent=msg.agent, request_id=getattr(msg, "request_id", "") or ""))
     return Received(topic, msg)
+
+
+def _topic_of(frames: list[bytes]) -> str:
+    """The first frame as text for reports: cut to the topic limit, undecodable bytes replaced."""
+    if not frames:
+        return ""
+    return bytes(frames[0][:MAX_TOPIC_BYTES]).decode("utf-8", "replace")

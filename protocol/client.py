@@ -5,9 +5,14 @@
         rid = ada.say(audio_path="hello.wav", text="Hello!")
         print(ada.wait_for_speech(rid, timeout_s=30))   # SpeechFinished / Interrupted / Failed
 
-Every command is validated before it is sent (a `ProtocolError` names the bad field). A command the
-dialogue service refuses (say, an unknown emotion) comes back as an `Error` on `error.<agent>.error`;
-`expect_state` and `wait_for_speech` raise `CommandRejected` with its reason.
+Every command is validated before it is sent (a `ProtocolError` names the bad field) and carries a
+request id (a fresh one unless given). The dialogue service answers each with an `ack` once it has
+applied it, after the state it caused, or with an `Error` carrying that id; `wait_applied` waits for
+the one or raises `CommandRejected` for the other, so "applied" never means "the cache said so".
+
+    with AgentClient(agent="ada") as ada:
+        ada.wait_applied(ada.set_emotion("happy", 0.8))   # raises CommandRejected, or BusTimeout
+        print(ada.state["emotion"])                        # the state it caused
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from protocol.bus import BusTimeout, Publisher, Subscriber
 from protocol.endpoints import BusConfig, load_bus_config
 from protocol.messages import (
     TERMINAL_SPEECH_EVENTS,
+    Ack,
     Error,
     Interrupt,
     Message,
@@ -34,6 +40,7 @@ from protocol.messages import (
     SetGazeTarget,
     SetRole,
     SpeechChunk,
+    SpeechState,
     UserSpeech,
 )
 
@@ -49,8 +56,12 @@ class CommandRejected(RuntimeError):
 class AgentClient:
     def __init__(self, config: BusConfig | None = None, agent: str = "ada", source: str | None = None,
                  ctx: zmq.Context | None = None, timeout_s: float = 5.0) -> None:
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         self.config = config or load_bus_config()
         self.agent = agent
+        self._ids = f"{source or 'client'}-{secrets.token_hex(3)}"
+        self._sent = 0
         self._own_ctx = ctx is None
         self.ctx = ctx or zmq.Context()
         self.pub = Publisher(self.ctx, self.config, source or f"client-{secrets.token_hex(3)}")
@@ -66,31 +77,39 @@ class AgentClient:
         for msg in self._inbox:
             self._note(msg)
 
-    # --- commands --------------------------------------------------------------------------------
+    # --- commands ---------------------------------------------------------------------------------
 
     def send(self, msg: Message) -> Message:
         return self.pub.publish(msg)
 
-    def set_role(self, role: str, speaker: str = "", request_id: str = "") -> Message:
-        return self.send(SetRole(agent=self.agent, role=role, speaker=speaker, request_id=request_id))  # type: ignore[arg-type]
+    def new_request_id(self) -> str:
+        self._sent += 1
+        return f"{self._ids}-{self._sent}"
+
+    def _rid(self, request_id: str | None) -> str:
+        return self.new_request_id() if request_id is None else request_id
+
+    def set_role(self, role: str, speaker: str = "", request_id: str | None = None) -> Message:
+        return self.send(SetRole(agent=self.agent, role=role, speaker=speaker,  # type: ignore[arg-type]
+                                 request_id=self._rid(request_id)))
 
     def set_emotion(self, name: str, intensity: float = 1.0, transition_s: float = 0.5,
-                    request_id: str = "") -> Message:
+                    request_id: str | None = None) -> Message:
         return self.send(SetEmotion(agent=self.agent, name=name, intensity=intensity, transition_s=transition_s,
-                                    request_id=request_id))
+                                    request_id=self._rid(request_id)))
 
     def move_head(self, turn: float = 0.0, nod: float = 0.0, tilt: float = 0.0, duration_s: float = 0.5,
-                  request_id: str = "") -> Message:
+                  request_id: str | None = None) -> Message:
         return self.send(MoveHead(agent=self.agent, turn=turn, nod=nod, tilt=tilt, duration_s=duration_s,
-                                  request_id=request_id))
+                                  request_id=self._rid(request_id)))
 
-    def set_eyes(self, mode: str, request_id: str = "") -> Message:
-        return self.send(SetEyes(agent=self.agent, mode=mode, request_id=request_id))  # type: ignore[arg-type]
+    def set_eyes(self, mode: str, request_id: str | None = None) -> Message:
+        return self.send(SetEyes(agent=self.agent, mode=mode, request_id=self._rid(request_id)))  # type: ignore[arg-type]
 
     def set_gaze_target(self, yaw_deg: float, pitch_deg: float = 0.0, target: str = "",
-                        request_id: str = "") -> Message:
+                        request_id: str | None = None) -> Message:
         return self.send(SetGazeTarget(agent=self.agent, yaw_deg=yaw_deg, pitch_deg=pitch_deg, target=target,
-                                       request_id=request_id))
+                                       request_id=self._rid(request_id)))
 
     def say(self, audio_path: str | None = None, pcm: bytes | None = None, sample_rate: int = 0,
             text: str | None = None, request_id: str | None = None) -> str:
@@ -117,8 +136,8 @@ class AgentClient:
     def interrupt(self, request_id: str = "", reason: str = "command") -> Message:
         return self.send(Interrupt(agent=self.agent, request_id=request_id, reason=reason))
 
-    def user_speaking(self, speaking: bool = True) -> Message:
-        return self.send(UserSpeech(agent=self.agent, speaking=speaking))
+    def user_speaking(self, speaking: bool = True, request_id: str | None = None) -> Message:
+        return self.send(UserSpeech(agent=self.agent, speaking=speaking, request_id=self._rid(request_id)))
 
     # --- waiting ---------------------------------------------------------------------------------
 
@@ -141,6 +160,27 @@ class AgentClient:
                 self._inbox.popleft()
         raise BusTimeout(f"nothing matching arrived within {timeout_s} s")
 
+    def wait_applied(self, sent: Message, timeout_s: float = 5.0) -> Ack:
+        """The acknowledgement of a command sent with a request id: the owning service applied it (and the
+        state it caused has arrived before it). Raises CommandRejected when it was refused, BusTimeout
+        when no answer came (the service may be down, or the command lost with a broker)."""
+        request_id = getattr(sent, "request_id", "")
+        command = sent.TYPE
+
+        def match(m: Message) -> bool:
+            if isinstance(m, Error):
+                return bool(request_id) and m.request_id == request_id
+            return isinstance(m, Ack) and m.request_id == request_id and m.command == command
+
+        try:
+            got = self.wait_for(match, timeout_s)
+        except BusTimeout:
+            raise BusTimeout(f"no acknowledgement of {command} within {timeout_s:g} s: is the dialogue service "
+                             "running?") from None
+        if isinstance(got, Error):
+            raise CommandRejected(got)
+        return got  # type: ignore[return-value]
+
     def expect_state(self, cls: type[M], check: Callable[[M], bool] = lambda m: True, timeout_s: float = 5.0,
                      request_id: str = "") -> M:
         """Wait for a state change of type `cls`; raise CommandRejected on an error for this agent."""
@@ -155,15 +195,25 @@ class AgentClient:
         return got  # type: ignore[return-value]
 
     def wait_for_speech(self, request_id: str, timeout_s: float = 60.0) -> Message:
-        """The terminal lifecycle event of a say request (finished, interrupted or failed)."""
+        """The terminal lifecycle event of a say request (finished, interrupted or failed).
+
+        When the event itself was lost (it was published while a broker restarted), the agent's speech
+        state, which lists the latest endings and is cached, gives the same answer."""
         def match(m: Message) -> bool:
             if isinstance(m, Error) and m.request_id == request_id:
                 return True
+            if isinstance(m, SpeechState):
+                return m.ending_of(request_id) is not None
             return isinstance(m, TERMINAL_SPEECH_EVENTS) and getattr(m, "request_id", None) == request_id
 
+        speech = self.state.get("speech")
+        if isinstance(speech, SpeechState) and (ended := speech.ending_of(request_id)) is not None:
+            return ended
         got = self.wait_for(match, timeout_s)
         if isinstance(got, Error):
             raise CommandRejected(got)
+        if isinstance(got, SpeechState):
+            return got.ending_of(request_id)  # type: ignore[return-value]
         return got
 
     def _note(self, msg: Message) -> None:

@@ -32,12 +32,18 @@ def is_agent_id(text: str) -> bool:
 
 
 class ProtocolError(ValueError):
-    """A message that is not valid eca protocol; `field` and `kind` say where and what."""
+    """A message that is not valid eca protocol; `field` and `kind` say where and what.
 
-    def __init__(self, kind: str, problem: str, field: str = "") -> None:
+    `agent` and `request_id` are what the offending map said they were, when that much of it could be
+    read (a valid agent id, a request id string of 1-64 characters), so an error about a command still
+    reaches the agent's error topic with the request's id; empty otherwise."""
+
+    def __init__(self, kind: str, problem: str, field: str = "", *, agent: str = "", request_id: str = "") -> None:
         self.kind = kind
         self.field = field
         self.problem = problem
+        self.agent = agent
+        self.request_id = request_id
         where = f"field '{field}': " if field else ""
         super().__init__(f"{where}{problem}")
 
@@ -50,6 +56,7 @@ class FieldSpec:
     lo: float | None
     hi: float | None
     max_len: int | None
+    item_max_len: int | None = None  # each string of a list of strings
 
 
 @cache
@@ -59,7 +66,7 @@ def field_specs(cls: type[Message]) -> tuple[FieldSpec, ...]:
     for f in dataclasses.fields(cls):
         required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
         specs.append(FieldSpec(f.name, hints[f.name], required, f.metadata.get("lo"), f.metadata.get("hi"),
-                               f.metadata.get("max_len")))
+                               f.metadata.get("max_len"), f.metadata.get("item_max_len")))
     return tuple(specs)
 
 
@@ -83,6 +90,10 @@ def encode(msg: Message, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
 
 
 def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
+    """Unpack and validate one message; every problem is one ProtocolError whose reason is a plain
+    sentence of bounded length. Nothing here walks an untrusted value deeper than the message type's
+    own fields, nor prints one whole (`describe`), so no nesting or size can make decoding fail
+    any other way."""
     if type(data) is not bytes and not isinstance(data, bytes | bytearray | memoryview):
         raise ProtocolError("not_msgpack", f"expected bytes, got {type(data).__name__}")
     if len(data) > max_bytes:
@@ -90,23 +101,22 @@ def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
     try:
         raw = msgpack.unpackb(data, raw=False, strict_map_key=True, use_list=True, timestamp=0)
     except Exception as exc:  # msgpack raises many types (ExtraData, FormatError, StackError, ...)
-        problem = f"bytes are not one msgpack value ({type(exc).__name__}: {exc})"
-        raise ProtocolError("not_msgpack", problem) from None
+        raise ProtocolError("not_msgpack", _unpack_problem(exc)) from None
     if type(raw) is not dict:
-        raise ProtocolError("wrong_type", f"message must be a map, got {_type_name(raw)}")
+        raise ProtocolError("wrong_type", f"the payload must be a msgpack map, got {_type_name(raw)}")
+    agent, request_id = _identity(raw)
     version = raw.get("v")
     if type(version) is not int or version != PROTOCOL_VERSION:
-        raise ProtocolError("unknown_version", f"unsupported protocol version {version!r}, "
-                            f"this side speaks {PROTOCOL_VERSION}", "v")
+        raise ProtocolError("unknown_version", _version_problem(version), "v", agent=agent, request_id=request_id)
     type_name = raw.get("type")
     cls = MESSAGE_TYPES.get(type_name) if type(type_name) is str else None
     if cls is None:
-        raise ProtocolError("unknown_type", f"unknown message type {type_name!r}; known: "
-                            f"{', '.join(sorted(MESSAGE_TYPES))}", "type")
+        raise ProtocolError("unknown_type", _type_problem(type_name), "type", agent=agent, request_id=request_id)
     plan = _plan(cls)
     if not plan.names.issuperset(raw):
-        extra = sorted(str(k) for k in raw if k not in plan.names)
-        raise ProtocolError("extra_field", f"not a field of '{cls.TYPE}'", extra[0])
+        extra = sorted(k[:64] if type(k) is str else describe(k, 64) for k in raw if k not in plan.names)
+        raise ProtocolError("extra_field", f"not a field of '{cls.TYPE}'", extra[0], agent=agent,
+                            request_id=request_id)
     values: dict[str, Any] = {}  # in field order, so the instance reads like one built normally
     defaults = plan.defaults
     name = ""
@@ -121,14 +131,84 @@ def decode(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> Message:
             else:
                 values[name] = plan.factories[name]()  # containers: a new one per message
     except _Bad as bad:
-        raise ProtocolError(bad.kind, bad.problem, name + bad.sub) from None
+        raise ProtocolError(bad.kind, bad.problem, name + bad.sub, agent=agent, request_id=request_id) from None
+    except ProtocolError as exc:
+        exc.agent, exc.request_id = agent, request_id
+        raise
     # Every field is checked above, so the instance is built without re-running the frozen
     # dataclass's __init__ (a large share of the cost of each received message).
     msg = object.__new__(cls)
     msg.__dict__.update(values)
     if plan.cross_checked:
-        _check_consistency(msg)
+        try:
+            _check_consistency(msg)
+        except ProtocolError as exc:
+            exc.agent, exc.request_id = agent, request_id
+            raise
     return msg
+
+
+def describe(value: Any, limit: int = 80) -> str:
+    """A short, bounded description of an untrusted value for an error message: a scalar as itself
+    (strings and binary cut to `limit` characters), a container by its kind and size only, so no
+    nesting or size of what a peer sent can make an error message large or slow, or fail."""
+    kind = type(value)
+    if kind is str:
+        text = value if len(value) <= limit else value[:limit] + f"... ({len(value)} characters)"
+        return repr(text)
+    if kind is bytes:
+        head = value[:limit // 4]
+        return f"binary {head.hex()}{'...' if len(value) > len(head) else ''} ({len(value)} bytes)"
+    if kind is bool or value is None:
+        return _type_name(value) if value is None else ("true" if value else "false")
+    if kind is int or kind is float:
+        text = repr(value)
+        return text if len(text) <= limit else text[:limit] + "..."
+    if kind is list:
+        return f"an array of {len(value)} items"
+    if kind is dict:
+        return f"a map of {len(value)} keys"
+    return f"a value of type {_type_name(value)}"
+
+
+def _identity(raw: dict[Any, Any]) -> tuple[str, str]:
+    """The agent and request id a map claims, when they are well-formed (for error reports only)."""
+    agent = raw.get("agent")
+    request_id = raw.get("request_id")
+    return (agent if type(agent) is str and is_agent_id(agent) else "",
+            request_id if type(request_id) is str and 0 < len(request_id) <= 64 else "")
+
+
+def _unpack_problem(exc: Exception) -> str:
+    """msgpack's failure as a plain sentence (its own messages name its internals)."""
+    if isinstance(exc, msgpack.ExtraData):
+        return "the payload holds more than one msgpack value (extra bytes after the first)"
+    if isinstance(exc, msgpack.StackError):
+        return "the payload is nested too deeply to unpack"
+    if isinstance(exc, UnicodeDecodeError):
+        return "a string in the payload is not valid UTF-8"
+    text = str(exc)
+    if "incomplete input" in text:
+        return "the payload ends in the middle of a msgpack value"
+    if "map key" in text:
+        return "a map key in the payload is not a string"
+    return "the payload is not valid msgpack"
+
+
+def _version_problem(version: Any) -> str:
+    if version is None:
+        return f"the protocol version is missing (this side speaks {PROTOCOL_VERSION})"
+    if type(version) is not int:
+        return f"the protocol version must be the integer {PROTOCOL_VERSION}, got {_type_name(version)}"
+    return f"protocol version {describe(version)} is not supported; this side speaks {PROTOCOL_VERSION}"
+
+
+def _type_problem(type_name: Any) -> str:
+    if type_name is None:
+        return "the message type is missing"
+    if type(type_name) is not str:
+        return f"the message type must be a string, got {_type_name(type_name)}"
+    return f"unknown message type {describe(type_name, 64)}; known: {', '.join(sorted(MESSAGE_TYPES))}"
 
 
 def _check_consistency(msg: Message) -> None:
@@ -172,7 +252,7 @@ def _agent_check(check_str: Check) -> Check:
     def check(v: Any) -> Any:
         v = check_str(v)
         if v != ALL_AGENTS and not _AGENT_ID.fullmatch(v):
-            raise _Bad("out_of_range", f"agent id {v!r} must be 1-32 letters, digits, '_' or '-'")
+            raise _Bad("out_of_range", f"agent id {describe(v, 40)} must be 1-32 letters, digits, '_' or '-'")
         return v
     return check
 
@@ -198,7 +278,7 @@ def _compile(spec: FieldSpec, kind: Any) -> Check:
     if origin is Literal:
         return _choice(typing.get_args(kind))
     if origin is list:
-        return _sequence(spec, _compile(spec, typing.get_args(kind)[0]))
+        return _sequence(spec, _compile(dataclasses.replace(spec, max_len=spec.item_max_len), typing.get_args(kind)[0]))
     if origin is dict:
         # the field's length limit is on the map; its values are bounded by the message size cap
         return _mapping(spec, _compile(dataclasses.replace(spec, max_len=None), typing.get_args(kind)[1]))
@@ -213,7 +293,7 @@ def _choice(allowed: tuple[str, ...]) -> Check:
         if type(v) is not str:
             raise _Bad("wrong_type", f"expected a string (one of {listing}), got {_type_name(v)}")
         if v not in choices:
-            raise _Bad("out_of_range", f"{v!r} is not one of {listing}")
+            raise _Bad("out_of_range", f"{describe(v, 40)} is not one of {listing}")
         return v
     return check
 
@@ -247,7 +327,7 @@ def _mapping(spec: FieldSpec, item: Check) -> Check:
         out = {}
         for key, x in v.items():
             if type(key) is not str or not 0 < len(key) <= 64:
-                raise _Bad("wrong_type", f"map keys must be strings of 1-64 characters, got {key!r}")
+                raise _Bad("wrong_type", f"map keys must be strings of 1-64 characters, got {describe(key, 64)}")
             try:
                 out[key] = item(x)
             except _Bad as bad:

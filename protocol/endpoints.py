@@ -23,11 +23,12 @@ class BusConfig:
     frontend: str  # the broker's XSUB binds here; publishers connect
     backend: str  # the broker's XPUB binds here; subscribers connect
     instance: str
-    runtime_dir: Path | None
+    runtime_dir: Path  # private to the instance (mode 0700), for either transport
     hwm: int
     max_message_bytes: int
     heartbeat_interval_s: float
     heartbeat_timeout_s: float
+    connect_timeout_s: float  # how long a process with no supervisor waits for the broker
     config_path: Path
     raw: dict[str, Any]  # the whole file, for service-specific tables
 
@@ -53,11 +54,12 @@ def load_bus_config(path: str | Path | None = None, instance: str | None = None,
     if not instance.replace("-", "").replace("_", "").isalnum() or len(instance) > 40:
         raise BusConfigError(f"{where}: instance {instance!r} must be 1-40 letters, digits, '-' or '_'")
     transport = _get(bus, "transport", str, where)
-    runtime_dir: Path | None = None
+    # Every instance has its private directory, whatever the transport: the broker's lock, the
+    # supervisor's liveness socket and the dialogue service's state snapshot live there.
+    runtime_dir = Path(_get(bus, "runtime_dir", str, where) or default_runtime_root()) / instance
+    if create_dir:
+        make_private_dir(runtime_dir)
     if transport == "ipc":
-        runtime_dir = Path(_get(bus, "runtime_dir", str, where) or default_runtime_root()) / instance
-        if create_dir:
-            make_private_dir(runtime_dir)
         frontend, backend = f"ipc://{runtime_dir}/pub", f"ipc://{runtime_dir}/sub"
         if len(backend) - len("ipc://") > _MAX_IPC_PATH:
             raise BusConfigError(f"{where}: runtime directory path {runtime_dir} is too long for ipc")
@@ -77,10 +79,14 @@ def load_bus_config(path: str | Path | None = None, instance: str | None = None,
         raise BusConfigError(f"{config_path} [heartbeat]: interval_s must be in (0, 0.5] (2 Hz or more)")
     if timeout <= interval:
         raise BusConfigError(f"{config_path} [heartbeat]: timeout_s must exceed interval_s")
+    connect_timeout = _get(bus, "connect_timeout_s", float, where) if "connect_timeout_s" in bus else 10.0
+    if not 0 < connect_timeout <= 3600:
+        raise BusConfigError(f"{where}: connect_timeout_s must be in (0, 3600], got {connect_timeout}")
     return BusConfig(frontend=frontend, backend=backend, instance=instance, runtime_dir=runtime_dir,
                      hwm=_get(bus, "hwm", int, where),
                      max_message_bytes=_get(bus, "max_message_bytes", int, where),
-                     heartbeat_interval_s=interval, heartbeat_timeout_s=timeout, config_path=config_path,
+                     heartbeat_interval_s=interval, heartbeat_timeout_s=timeout,
+                     connect_timeout_s=connect_timeout, config_path=config_path,
                      raw=raw)
 
 

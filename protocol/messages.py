@@ -22,9 +22,12 @@ ALL_AGENTS = "*"
 
 
 def bounded(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
-            max_len: int | None = None, doc: str = "") -> Any:
-    """A dataclass field with the limits the codec enforces and the protocol document prints."""
-    meta = {"lo": lo, "hi": hi, "max_len": max_len, "doc": doc}
+            max_len: int | None = None, item_max_len: int | None = None, doc: str = "") -> Any:
+    """A dataclass field with the limits the codec enforces and the protocol document prints.
+
+    `max_len` bounds a string's characters or a list's or map's entries; `item_max_len` the characters
+    of each string in a list of strings."""
+    meta = {"lo": lo, "hi": hi, "max_len": max_len, "item_max_len": item_max_len, "doc": doc}
     if isinstance(default, list | dict):
         factory = type(default)
         return dataclasses.field(default_factory=factory, metadata=meta)
@@ -39,7 +42,7 @@ class Message:
     CATEGORY: ClassVar[str] = ""  # first part of the topic: cmd, state, event, stream, sys, error
 
     agent: str = bounded(max_len=32, doc="agent id: letters, digits, '_' and '-'; '*' for all agents")
-    seq: int = bounded(0, lo=0, hi=2**63 - 1, doc="per-publisher sequence number, from 1")
+    seq: int = bounded(0, lo=0, hi=2**63 - 1, doc="the publisher's count of its messages on this topic, from 1")
     t_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="monotonic clock of the publishing host, ns")
     source: str = bounded("", max_len=64, doc="the publishing service or client")
 
@@ -57,7 +60,7 @@ class SetRole(Message):
     CATEGORY = "cmd"
     role: Role = bounded(doc="talking, listening or silence")
     speaker: str = bounded("", max_len=32, doc="who holds the floor (an agent id, 'user', or empty)")
-    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -67,7 +70,7 @@ class SetEmotion(Message):
     name: str = bounded(max_len=32, doc="one of the emotions in configs/emotions.toml")
     intensity: float = bounded(1.0, lo=0.0, hi=1.0, doc="0 = natural, 1 = the full expression")
     transition_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="blend time from the current expression")
-    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -78,7 +81,7 @@ class MoveHead(Message):
     nod: float = bounded(0.0, lo=-1.0, hi=1.0, doc="pitch target, +1 = chin up")
     tilt: float = bounded(0.0, lo=-1.0, hi=1.0, doc="roll target, +1 = toward the right shoulder")
     duration_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="time to reach the targets")
-    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -86,7 +89,7 @@ class SetEyes(Message):
     TYPE = "set_eyes"
     CATEGORY = "cmd"
     mode: EyeMode = bounded(doc="static, noise, saccade or saccade+blink (the paper's conditions)")
-    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -96,7 +99,7 @@ class SetGazeTarget(Message):
     yaw_deg: float = bounded(0.0, lo=-60.0, hi=60.0, doc="where mutual gaze looks, + = agent's right")
     pitch_deg: float = bounded(0.0, lo=-45.0, hi=45.0, doc="+ = up")
     target: str = bounded("", max_len=32, doc="what is there (e.g. 'user' or an agent id)")
-    request_id: str = bounded("", max_len=64, doc="optional; echoed in an error about this command")
+    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -134,6 +137,7 @@ class UserSpeech(Message):
     TYPE = "user_speech"
     CATEGORY = "cmd"
     speaking: bool = bounded(doc="true when the user starts speaking (barge-in), false when done")
+    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 # --- states: the dialogue service's current state per agent (kept by the broker's last-value cache)
@@ -184,18 +188,60 @@ class GazeTargetState(Message):
 
 
 MAX_PENDING_SAYS = 64  # per agent: what one speech state can list
+RECENT_ENDINGS = 16  # per agent: the latest say requests whose ending the playback state remembers
+SpeechEnding = Literal["speech_finished", "speech_interrupted", "speech_failed"]
 
 
 @dataclass(frozen=True, kw_only=True)
-class SpeechState(Message):
-    """The agent's say requests accepted and not yet ended, oldest first, one list entry per request.
+class SpeechEndings(Message):
+    """How an agent's latest say requests ended, oldest first: part of the speech and playback states, so
+    the ending of a request outlives its terminal event when that is lost with a broker (events are
+    delivered once; a state is cached and published again)."""
+
+    ended_ids: list[str] = bounded([], max_len=RECENT_ENDINGS, item_max_len=64,
+                                   doc="the requests that ended last, oldest first (each 1-64 chars)")
+    ended_as: list[SpeechEnding] = bounded([], max_len=RECENT_ENDINGS, doc="how each of them ended")
+    ended_played_s: list[float] = bounded([], lo=0.0, hi=86_400.0, max_len=RECENT_ENDINGS,
+                                          doc="seconds of each played")
+    ended_reasons: list[str] = bounded([], max_len=RECENT_ENDINGS, item_max_len=500,
+                                       doc="each one's reason (interrupted, failed; ≤ 500 chars)")
+
+    def consistency_problem(self) -> tuple[str, str] | None:
+        n = len(self.ended_ids)
+        for name in ("ended_as", "ended_played_s", "ended_reasons"):
+            if len(getattr(self, name)) != n:
+                return name, f"has {len(getattr(self, name))} entries for {n} ended_ids"
+        if "" in self.ended_ids:
+            return "ended_ids", "an empty request id"
+        return None
+
+    def ending_of(self, request_id: str) -> Message | None:
+        """The terminal event of `request_id` as these lists record it (the latest, if listed twice)."""
+        for k in range(len(self.ended_ids) - 1, -1, -1):
+            if self.ended_ids[k] == request_id:
+                played, reason = self.ended_played_s[k], self.ended_reasons[k]
+                common = {"agent": self.agent, "request_id": request_id, "t_ns": self.t_ns, "source": self.source}
+                if self.ended_as[k] == "speech_finished":
+                    return SpeechFinished(**common, played_s=played)
+                if self.ended_as[k] == "speech_interrupted":
+                    return SpeechInterrupted(**common, played_s=played, reason=reason[:200])
+                return SpeechFailed(**common, reason=reason)
+        return None
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeechState(SpeechEndings):
+    """The agent's say requests accepted and not yet ended, oldest first, one list entry per request,
+    and how the latest ones ended.
 
     A restarted dialogue service reads it back from the cache, so it can still interrupt, feed chunks
-    to and end the requests its predecessor handed to the audio service."""
+    to and end the requests its predecessor handed to the audio service; a client that missed a
+    terminal event (it was lost with a broker) finds the ending here."""
 
     TYPE = "speech"
     CATEGORY = "state"
-    request_ids: list[str] = bounded([], max_len=MAX_PENDING_SAYS, doc="the pending requests (each 1-64 chars)")
+    request_ids: list[str] = bounded([], max_len=MAX_PENDING_SAYS, item_max_len=64,
+                                     doc="the pending requests (each 1-64 chars)")
     streamed: list[bool] = bounded([], max_len=MAX_PENDING_SAYS, doc="its audio comes as speech_chunk messages")
     next_chunk: list[int] = bounded([], lo=0, hi=2**31, max_len=MAX_PENDING_SAYS,
                                     doc="index of the next chunk it accepts (streamed)")
@@ -213,19 +259,26 @@ class SpeechState(Message):
             return "request_ids", "an empty request id"
         if len(set(self.request_ids)) != n:
             return "request_ids", "a request id listed twice"
-        return None
+        return super().consistency_problem()
 
 
 @dataclass(frozen=True, kw_only=True)
-class PlaybackState(Message):
+class PlaybackState(SpeechEndings):
     """The say requests the audio service holds for the agent (queued or playing), in the order it took
-    them; published by the audio service at each change. With the dialogue service's speech state it
-    tells a restarted dialogue service which of its predecessor's requests ended while it was away."""
+    them, and how the latest ones ended; published by the audio service at each change. With the
+    dialogue service's speech state it tells a restarted dialogue service which of its predecessor's
+    requests ended while it was away, and how."""
 
     TYPE = "playback"
     CATEGORY = "state"
-    request_ids: list[str] = bounded([], max_len=MAX_PENDING_SAYS, doc="the requests held (each 1-64 chars)")
+    request_ids: list[str] = bounded([], max_len=MAX_PENDING_SAYS, item_max_len=64,
+                                     doc="the requests held (each 1-64 chars)")
     started_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="the audio service instance (its heartbeat's started_ns)")
+
+    def consistency_problem(self) -> tuple[str, str] | None:
+        if "" in self.request_ids:
+            return "request_ids", "an empty request id"
+        return super().consistency_problem()
 
 
 # --- events: things that happened -----------------------------------------------------------------
@@ -262,6 +315,17 @@ class SpeechFailed(Message):
     CATEGORY = "event"
     request_id: str = bounded(max_len=64, doc="the say request (terminal)")
     reason: str = bounded(max_len=500, doc="what went wrong")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Ack(Message):
+    """The owning service applied a command that carried a request id. It follows the state the command
+    produced (same publisher, so a subscriber of both sees the state first)."""
+
+    TYPE = "ack"
+    CATEGORY = "event"
+    request_id: str = bounded(max_len=64, doc="the command's request id (for interrupt: the one it named)")
+    command: str = bounded(max_len=32, doc="the command's type, e.g. set_emotion")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -343,6 +407,8 @@ class Heartbeat(Message):
     pid: int = bounded(lo=0, hi=2**31, doc="its process id")
     started_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when it started (tells a restart)")
     bad_messages: int = bounded(0, lo=0, hi=2**63 - 1, doc="messages rejected so far")
+    coalesced: int = bounded(0, lo=0, hi=2**63 - 1, doc="state updates skipped: a newer one came in the same batch")
+    dropped: int = bounded(0, lo=0, hi=2**63 - 1, doc="messages or reports discarded at a bound (rate limit, queue)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -369,7 +435,7 @@ class Error(Message):
 ALL_MESSAGES: tuple[type[Message], ...] = (
     SetRole, SetEmotion, MoveHead, SetEyes, SetGazeTarget, Say, SpeechChunk, Interrupt, UserSpeech,
     RoleState, EmotionState, HeadState, EyesState, GazeTargetState, SpeechState, PlaybackState,
-    SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Saccade,
+    SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Ack, Saccade,
     ClockAnchor, MouthKeys, EyeState, FaceFrame,
     Heartbeat, Hello, Error,
 )

@@ -24,6 +24,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", default=None, help="runtime config (default configs/default.toml)")
     parser.add_argument("--instance", default=None, help="bus instance name")
     parser.add_argument("--parent-pid", type=int, default=None, help="stop when this process is gone")
+    parser.add_argument("--liveness", default=None, metavar="ENDPOINT",
+                        help="also send heartbeats straight to the supervisor listening here")
     args, extra = parser.parse_known_args(argv)
     setup_logging(args.name)
     try:
@@ -34,11 +36,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.name == "broker":
         from services.broker import run_broker
 
-        return run_broker(config, args.parent_pid)
+        if extra:
+            print(f"[broker] ERROR unknown arguments: {' '.join(extra)}", file=sys.stderr)
+            return 2
+        return run_broker(config, args.parent_pid, args.liveness)
     module_name, class_name = SERVICES[args.name].split(":")
     service_cls = getattr(importlib.import_module(module_name), class_name)
-    service = service_cls.from_args(config, extra, parent_pid=args.parent_pid) if hasattr(
-        service_cls, "from_args") else service_cls(config, parent_pid=args.parent_pid)
+    common = {"parent_pid": args.parent_pid, "liveness": args.liveness}
+    if hasattr(service_cls, "from_args"):
+        service = service_cls.from_args(config, extra, **common)
+    elif extra:
+        print(f"[{args.name}] ERROR unknown arguments: {' '.join(extra)}", file=sys.stderr)
+        return 2
+    else:
+        service = service_cls(config, **common)
     return service.run()
 
 

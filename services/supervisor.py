@@ -63,6 +63,7 @@ class Supervisor:
         self.clock = clock
         self.policy = policy or RestartPolicy()
         self.say = say
+        self.retired: list[ProcessHandle] = []  # killed and replaced, not yet reaped (no zombie outlives them)
 
     def start(self, name: str) -> None:
         svc = self.by_name[name]
@@ -85,9 +86,10 @@ class Supervisor:
         return all(self.by_name[n].ready for n in (names or [s.name for s in self.services]))
 
     def check(self) -> None:
-        """Notice exits and silent services; restart what is due. Call it often."""
+        """Notice exits and silent services; restart what is due; reap what was killed. Call it often."""
         now = self.clock.now_ns()
         p = self.policy
+        self.retired = [proc for proc in self.retired if proc.poll() is None]
         for svc in self.services:
             if svc.given_up:
                 continue
@@ -105,6 +107,7 @@ class Supervisor:
             limit_s = p.heartbeat_timeout_s if svc.last_beat_ns is not None else p.ready_timeout_s
             if now - silent_since > limit_s * 1e9:
                 svc.process.kill()  # hung: only a kill is sure to end it
+                self.retired.append(svc.process)  # polled until the kill has taken: then it is reaped
                 self._failed(svc, f"sent no heartbeat for {limit_s:g} s", now)
 
     def _failed(self, svc: Supervised, why: str, now: int) -> None:
@@ -135,7 +138,8 @@ class Supervisor:
     def finish_stop(self) -> bool:
         """SIGKILL whatever outlived the grace period; True once every process has ended."""
         now = self.clock.now_ns()
-        done = True
+        self.retired = [proc for proc in self.retired if proc.poll() is None]
+        done = not self.retired
         for svc in self.services:
             if svc.process is None or svc.process.poll() is not None:
                 continue

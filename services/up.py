@@ -3,6 +3,12 @@
 Each child is `python -m services.run NAME` in its own process session (so a Ctrl-C reaches only the
 supervisor, which then stops everything in order) and watches the supervisor's pid, so none outlives
 it even if the supervisor is killed. Children's output is printed line by line with their name.
+
+Whether a child is alive is judged by the heartbeats it sends straight to the supervisor
+(services/liveness.py), never through the bus, so a broker that is down or slow to come back gets no
+healthy service killed; the bus is only watched for the summary line, and nothing on it can stop the
+supervisor. On every way out the children are stopped and reaped and the instance's runtime files (the
+sockets, the broker's lock, the state snapshot) are removed.
 """
 
 from __future__ import annotations
@@ -21,9 +27,11 @@ import zmq
 from agent.clock import MonotonicClock
 from protocol.bus import BusTimeout, Subscriber
 from protocol.endpoints import BusConfig
-from protocol.messages import Heartbeat
+from services.broker import BROKER_LOCK
 from services.bus_view import BusView
+from services.liveness import LivenessListener, liveness_endpoint
 from services.run import SERVICES
+from services.state_snapshot import StateSnapshot, snapshot_path
 from services.supervisor import RestartPolicy, Supervisor
 
 _print_lock = threading.Lock()
@@ -45,21 +53,24 @@ def _pump(name: str, stream: object) -> None:
 class InterpreterFactory:
     """Starts `python -m services.run NAME` with the supervisor's config and instance."""
 
-    def __init__(self, config: BusConfig, extra_args: dict[str, list[str]] | None = None) -> None:
+    def __init__(self, config: BusConfig, extra_args: dict[str, list[str]] | None = None,
+                 liveness: str | None = None) -> None:
         self.config = config
         self.extra_args = extra_args or {}
+        self.liveness = liveness
         self.children: list[subprocess.Popen[bytes]] = []
 
     def __call__(self, name: str) -> subprocess.Popen[bytes]:
         argv = [sys.executable, "-m", "services.run", name, "--config", str(self.config.config_path),
                 "--instance", self.config.instance, "--parent-pid", str(os.getpid()),
-                *self.extra_args.get(name, [])]
+                *(["--liveness", self.liveness] if self.liveness else []), *self.extra_args.get(name, [])]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         repo_root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = repo_root + os.pathsep + env.get("PYTHONPATH", "")
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 env=env, start_new_session=True)
         threading.Thread(target=_pump, args=(name, proc.stdout), daemon=True).start()
+        self.children = [p for p in self.children if p.poll() is None]  # the ended ones are reaped now
         self.children.append(proc)
         return proc
 
@@ -108,21 +119,35 @@ def run_up(config: BusConfig, services: Sequence[str], *, view: bool = True, dur
         say(f"instance '{config.instance}' is already running (a broker answers at {config.backend}); "
             "stop it first or pick another --instance")
         return 1
-    factory = InterpreterFactory(config, extra_args)
-    clock = MonotonicClock()
-    supervisor = Supervisor(["broker", *services], factory, clock, policy_from(config), say=say)
     ctx = zmq.Context()
+    try:
+        liveness = LivenessListener(ctx, config)
+    except zmq.ZMQError as exc:
+        say(f"cannot listen for heartbeats in {config.runtime_dir}: {exc}")
+        ctx.term()
+        return 1
+    StateSnapshot(snapshot_path(config)).remove()  # a new instance starts from the defaults, not an old run's
+    factory = InterpreterFactory(config, extra_args, liveness.endpoint)
+    supervisor = Supervisor(["broker", *services], factory, MonotonicClock(), policy_from(config), say=say)
     sub = Subscriber(ctx, config, ["sys.", "state.", "error."])
+    poller = zmq.Poller()
+    poller.register(liveness.socket, zmq.POLLIN)
+    poller.register(sub.socket, zmq.POLLIN)
     bus_view = BusView(config.raw.get("agents", {}).get("ids", []))
     t0 = time.monotonic()
     code = 0
     try:
         supervisor.start("broker")
+        if not _wait_for_broker(supervisor, liveness, stop):
+            if not stop.is_set():
+                say("the broker did not come up; see its output above")
+                code = 1
+            return code
         try:
             for got in sub.wait_ready(timeout_s=supervisor.policy.ready_timeout_s):
                 bus_view.add(got)
         except BusTimeout:
-            say("the broker did not come up; see its output above")
+            say("the broker sends heartbeats but does not answer on the bus; see its output above")
             return 1
         for name in services:
             supervisor.start(name)
@@ -131,12 +156,11 @@ def run_up(config: BusConfig, services: Sequence[str], *, view: bool = True, dur
         while not stop.is_set():
             if duration_s is not None and time.monotonic() - t0 > duration_s:
                 break
-            got = sub.recv(0.05)
-            batch = ([got] if got else []) + sub.drain(5000)
-            for item in batch:
-                if isinstance(item.message, Heartbeat):
-                    supervisor.on_heartbeat(item.message.service, item.message.pid)
-                bus_view.add(item)
+            ready = dict(poller.poll(50))
+            for beat in liveness.drain():
+                supervisor.on_heartbeat(beat.service, beat.pid)
+            if sub.socket in ready:
+                _watch_bus(sub, bus_view)
             supervisor.check()
             if not announced and supervisor.all_ready():
                 announced = True
@@ -152,15 +176,66 @@ def run_up(config: BusConfig, services: Sequence[str], *, view: bool = True, dur
                 say(bus_view.summary())
     finally:
         say("stopping")
-        supervisor.begin_stop()
-        deadline = time.monotonic() + supervisor.policy.stop_grace_s + 2.0
-        while not supervisor.finish_stop() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        for proc in factory.children:
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait(timeout=2.0)
+        all_ended = _stop_all(supervisor, factory)
         sub.close()
+        liveness.close()
         ctx.term()
+        if all_ended:
+            remove_runtime_files(config)
         say("stopped")
     return code
+
+
+def _wait_for_broker(supervisor: Supervisor, liveness: LivenessListener, stop: threading.Event) -> bool:
+    """Until the broker's first heartbeat (True), or it gave up, the ready timeout passed, or a stop."""
+    broker = supervisor.by_name["broker"]
+    deadline = time.monotonic() + supervisor.policy.ready_timeout_s
+    while not stop.is_set() and not broker.given_up and time.monotonic() < deadline:
+        liveness.socket.poll(50)
+        for beat in liveness.drain():
+            supervisor.on_heartbeat(beat.service, beat.pid)
+        if broker.ready:
+            return True
+        supervisor.check()
+    return False
+
+
+def _watch_bus(sub: Subscriber, bus_view: BusView) -> None:
+    """Feed the summary line; whatever arrives, the supervisor goes on (it must outlive any bad message)."""
+    for item in sub.drain(5000):
+        try:
+            bus_view.add(item)
+        except Exception as exc:  # a bug in the summary must not cost the supervisor
+            say(f"could not show one bus message ({type(exc).__name__}); carrying on")
+
+
+def _stop_all(supervisor: Supervisor, factory: InterpreterFactory) -> bool:
+    """Stop every child in reverse order, kill what outlives the grace period, reap all; True when none is
+    left running."""
+    supervisor.begin_stop()
+    deadline = time.monotonic() + supervisor.policy.stop_grace_s + 2.0
+    while not supervisor.finish_stop() and time.monotonic() < deadline:
+        time.sleep(0.02)  # pacing a poll of child processes, not synchronisation
+    ended = True
+    for proc in factory.children:
+        if proc.poll() is None:
+            proc.kill()
+        try:
+            proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            say(f"process {proc.pid} did not end after SIGKILL")
+            ended = False
+    return ended
+
+
+def remove_runtime_files(config: BusConfig) -> None:
+    """The instance's sockets, lock and state snapshot; the directory too when nothing else is in it."""
+    files = [Path(e.removeprefix("ipc://")) for e in (config.frontend, config.backend) if e.startswith("ipc://")]
+    files += [config.runtime_dir / BROKER_LOCK, Path(liveness_endpoint(config).removeprefix("ipc://")),
+              snapshot_path(config)]
+    for path in files:
+        path.unlink(missing_ok=True)
+    try:
+        config.runtime_dir.rmdir()
+    except OSError:
+        pass  # something else lives there (a user's own file): leave the directory

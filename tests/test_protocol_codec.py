@@ -34,6 +34,7 @@ from protocol.messages import (
     FaceFrame,
     Message,
     MouthKeys,
+    PlaybackState,
     Say,
     SetEmotion,
     SpeechState,
@@ -87,7 +88,10 @@ def value_strategy(spec: FieldSpec, kind: Any | None = None) -> st.SearchStrateg
         return st.sampled_from(typing.get_args(kind))
     size = min(spec.max_len or 8, 8)
     if origin is list:
-        return st.lists(_scalar(spec, typing.get_args(kind)[0]), max_size=size)
+        item = typing.get_args(kind)[0]
+        if typing.get_origin(item) is Literal:
+            return st.lists(st.sampled_from(typing.get_args(item)), max_size=size)
+        return st.lists(_scalar(dataclasses.replace(spec, max_len=spec.item_max_len), item), max_size=size)
     if origin is dict:
         item = typing.get_args(kind)[1]
         if typing.get_origin(item) is list:
@@ -109,14 +113,27 @@ def messages(draw: st.DrawFn, cls: type[Message] | None = None) -> Message:
     if cls is MouthKeys:  # one weight per sample position, or the message is inconsistent
         n = len(values.get("sample_index", []))
         values["weights"] = {k: (v * n)[:n] if v else [0.0] * n for k, v in values.get("weights", {}).items()}
-    if cls is SpeechState:  # one entry per request id, each id non-empty and listed once
-        ids = list(dict.fromkeys(i for i in values.get("request_ids", []) if i))
-        values["request_ids"] = ids
+    for key, parallel in PARALLEL_LISTS.get(cls, ()):  # one entry per request id, each id non-empty and once
+        ids = list(dict.fromkeys(i for i in values.get(key, []) if i))
+        values[key] = ids
         for spec in field_specs(cls):
-            if typing.get_origin(spec.kind) is list and spec.name != "request_ids":
-                drawn = values.get(spec.name) or [typing.get_args(spec.kind)[0]()]  # False or 0
+            if spec.name in parallel:
+                item = typing.get_args(spec.kind)[0]
+                default = typing.get_args(item)[0] if typing.get_origin(item) is Literal else item()
+                drawn = values.get(spec.name) or [default]  # False, 0, "" or the first choice
                 values[spec.name] = (drawn * len(ids))[: len(ids)]
+    if cls is PlaybackState:
+        values["request_ids"] = [i for i in values.get("request_ids", []) if i]
     return cls(**values)
+
+
+# Message types whose lists run in parallel: a list of ids, and the lists with one entry per id.
+ENDINGS = ("ended_ids", ("ended_as", "ended_played_s", "ended_reasons"))
+PARALLEL_LISTS: dict[type[Message], tuple[tuple[str, tuple[str, ...]], ...]] = {
+    SpeechState: (("request_ids", ("streamed", "next_chunk", "chunks_done", "started", "audio_started_ns")),
+                  ENDINGS),
+    PlaybackState: (ENDINGS,),
+}
 
 
 def test_mouth_keys_whose_lists_disagree_are_inconsistent() -> None:
@@ -174,7 +191,8 @@ def _subclasses(cls: type) -> set[type]:
 
 
 def test_every_message_class_is_registered_once_under_a_unique_type() -> None:
-    assert _subclasses(Message) == set(ALL_MESSAGES)
+    # a class without a type is a shared base of fields (SpeechEndings), never sent on its own
+    assert {c for c in _subclasses(Message) if c.TYPE} == set(ALL_MESSAGES)
     assert len(MESSAGE_TYPES) == len(ALL_MESSAGES)
     for cls in ALL_MESSAGES:
         assert re.fullmatch(r"[a-z_]+", cls.TYPE), cls

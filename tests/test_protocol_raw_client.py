@@ -190,9 +190,11 @@ def test_garbage_on_a_cmd_topic_yields_errors_and_the_service_keeps_working(clie
     topic, err = client.expect(error_for("not_msgpack"), what="not_msgpack")
     assert topic == f"error.{AGENT}.error" and err["topic"] == f"cmd.{AGENT}.set_emotion"
 
-    client.send("set_emotion", name="happy", intensity=2.0)
-    _, err = client.expect(error_for("out_of_range"), what="out_of_range")
+    client.send("set_emotion", name="happy", intensity=2.0, request_id="r-range")
+    topic, err = client.expect(error_for("out_of_range"), what="out_of_range")
     assert "intensity" in err["reason"]
+    # an error about a command the codec refused still names its request and goes to its agent
+    assert topic == f"error.{AGENT}.error" and err["request_id"] == "r-range"
 
     client.send("set_emotion", name="happy", mood="great")
     _, err = client.expect(error_for("extra_field"), what="extra_field")
@@ -206,8 +208,9 @@ def test_garbage_on_a_cmd_topic_yields_errors_and_the_service_keeps_working(clie
     client.expect(error_for("bad_topic"), what="bad_topic")
 
     client.send_raw([f"cmd.{AGENT}.set_emotion".encode(), payload, b"third frame"])
-    topic, _ = client.expect(error_for("bad_frames"), what="bad_frames")
-    assert topic == "error.*.error"
+    topic, err = client.expect(error_for("bad_frames"), what="bad_frames")
+    # the first frame reads as a topic: the error goes where a client of that agent listens
+    assert topic == f"error.{AGENT}.error" and err["topic"] == f"cmd.{AGENT}.set_emotion"
 
     client.send("set_emotion", name="angry", intensity=0.61)
     _, state = client.expect(lambda t, m: t == f"state.{AGENT}.emotion" and m["intensity"] == 0.61,
@@ -247,6 +250,9 @@ def test_say_without_an_audio_service_ends_in_one_failure_and_a_bad_say_in_an_er
     topic, err = client.expect(lambda t, m: t.startswith("error.") and m.get("request_id") == "bad-1",
                                what="the rejection of the say with two audio sources")
     assert err["kind"] == "rejected" and topic == f"error.{AGENT}.error"
+    topic, ack = client.expect(lambda t, m: t.startswith("event.") and m.get("request_id") == "ok-1",
+                               what="the acknowledgement of the say request")
+    assert topic == f"event.{AGENT}.ack" and ack["command"] == "say"  # accepted and handed on
     topic, ev = client.expect(lambda t, m: t.startswith("event.") and m.get("request_id") == "ok-1",
                               what="the lifecycle of the say request")
     assert topic == f"event.{AGENT}.speech_failed"
@@ -254,8 +260,11 @@ def test_say_without_an_audio_service_ends_in_one_failure_and_a_bad_say_in_an_er
     # one round trip more: anything the dialogue service published about these requests has arrived
     client.send("set_eyes", mode="noise", request_id="after")
     client.expect(lambda t, m: t == f"state.{AGENT}.eyes" and m["mode"] == "noise", what="the eye state")
+    client.expect(lambda t, m: t == f"event.{AGENT}.ack" and m["request_id"] == "after", what="the eyes' ack")
     events = [(t, m["request_id"]) for t, m in client.inbox if t.startswith("event.")]
-    assert events == [(f"event.{AGENT}.speech_failed", "ok-1")]  # exactly one terminal event; none for bad-1
+    # exactly one acknowledgement and one terminal event for ok-1, the acknowledgement first; none for bad-1
+    assert events == [(f"event.{AGENT}.ack", "ok-1"), (f"event.{AGENT}.speech_failed", "ok-1"),
+                      (f"event.{AGENT}.ack", "after")]
 
 
 def test_a_command_for_an_agent_the_instance_does_not_animate_gets_an_error(client: RawClient) -> None:

@@ -209,3 +209,29 @@ def test_a_broker_that_cannot_bind_releases_its_sockets_and_lock(tmp_path) -> No
             with pytest.raises(zmq.ZMQError):
                 Broker(config, ctx)
             ctx.term()  # would hang if a socket had been left open
+
+
+def test_a_killed_service_is_polled_until_its_end_is_collected(rig) -> None:
+    """A hung process killed and replaced is still polled (which reaps it) until it has ended: none stays a
+    zombie for the life of `eca up`."""
+    sup, factory, clock, _ = rig
+    beat_all(sup, factory)
+    hung = factory.latest("dialogue")
+    hung.kill = lambda: hung.signals.append(signal.SIGKILL)  # type: ignore[method-assign]  # takes effect later
+    polls: list[int] = []
+    hung.poll = lambda: polls.append(1) or hung.code  # type: ignore[method-assign]
+    clock.advance_s(1.6)
+    sup.on_heartbeat("broker", factory.latest("broker").pid)
+    sup.check()
+    assert hung.signals == [signal.SIGKILL] and hung in sup.retired
+    clock.advance_s(0.2)
+    sup.check()
+    assert factory.latest("dialogue") is not hung  # replaced already
+    before = len(polls)
+    sup.check()
+    assert len(polls) > before and hung in sup.retired  # not ended yet: polled again
+    sup.begin_stop()
+    assert not sup.finish_stop()  # a stop waits for it too
+    hung.code = -9
+    sup.check()
+    assert hung not in sup.retired

@@ -1,7 +1,9 @@
 """`eca send role|emotion|head|eyes|gaze|say|interrupt|user ...`: one command to a running instance.
 
-Each waits for the result it should cause (the new state, or the say request's terminal event with
---wait) and prints it, or the dialogue service's error, so scripts can check the exit code.
+Each waits for the dialogue service's acknowledgement of that very command (by its request id, never a
+value the cache happens to hold) and prints the state it caused; `say --wait` waits on for the
+request's terminal event. Exit codes: 0 applied (with --wait: spoken to the end), 1 refused, not
+answered in time, interrupted or failed, 2 bad arguments or config.
 """
 
 from __future__ import annotations
@@ -11,13 +13,23 @@ import sys
 import tempfile
 from pathlib import Path
 
-from agent.face.emotions import canonical_emotion_name
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient, CommandRejected
 from protocol.codec import ProtocolError
 from protocol.endpoints import BusConfigError, load_bus_config
-from protocol.messages import EmotionState, EyesState, GazeTargetState, HeadState, Message, RoleState
+from protocol.messages import Message, Say, SpeechFinished
 from services.tts import SpeechSynthesisError, synthesize
+
+
+def positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0 < value <= 86_400:  # NaN fails this too
+        raise argparse.ArgumentTypeError(f"{text} s is not a timeout: give a number of seconds above 0 "
+                                         "(at most a day)")
+    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", default=None)
     p.add_argument("--instance", default=None)
     p.add_argument("--agent", default="ada")
-    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the result")
+    p.add_argument("--timeout", type=positive_seconds, default=5.0,
+                   help="seconds to wait for the acknowledgement (default 5)")
     kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
     k = kinds.add_parser("role", help="talking, listening or silence")
     k.add_argument("role", choices=["talking", "listening", "silence"])
@@ -49,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = k.add_mutually_exclusive_group(required=True)
     src.add_argument("--file", type=Path)
     src.add_argument("--text")
-    k.add_argument("--wait", action="store_true", help="wait for the terminal lifecycle event")
+    k.add_argument("--wait", action="store_true",
+                   help="wait for the terminal lifecycle event; exit 1 unless it is speech_finished")
     k = kinds.add_parser("interrupt", help="stop the agent's speech")
     k.add_argument("--request", default="", help="one request id (default: all)")
     k = kinds.add_parser("user", help="the user starts (or stops) speaking: barge-in")
@@ -73,43 +87,41 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if result is not None:
         print(describe(result))
+        if args.kind == "say" and not isinstance(result, SpeechFinished):
+            return 1  # interrupted or failed: not what was asked
     return 0
 
 
 def _send(client: AgentClient, args: argparse.Namespace) -> Message | None:
+    """Send the command, wait for its acknowledgement; the state it caused (or the say's ending)."""
     t = args.timeout
-    if args.kind == "role":
-        client.set_role(args.role, args.speaker)
-        return client.expect_state(RoleState, lambda m: (m.role, m.speaker) == (args.role, args.speaker), t)
-    if args.kind == "emotion":
-        client.set_emotion(args.name, args.intensity, args.transition)
-        # the whole answer: a cached state that merely shares the intensity must not pass for it
-        asked = (canonical_emotion_name(args.name), args.intensity, args.transition)
-        return client.expect_state(EmotionState, lambda m: (m.name, m.intensity, m.transition_s) == asked, t)
-    if args.kind == "head":
-        client.move_head(args.turn, args.nod, args.tilt, args.duration)
-        return client.expect_state(HeadState, lambda m: (m.turn, m.nod, m.tilt) == (args.turn, args.nod, args.tilt), t)
-    if args.kind == "eyes":
-        client.set_eyes(args.mode)
-        return client.expect_state(EyesState, lambda m: m.mode == args.mode, t)
-    if args.kind == "gaze":
-        client.set_gaze_target(args.yaw, args.pitch, args.target)
-        return client.expect_state(
-            GazeTargetState, lambda m: (m.yaw_deg, m.pitch_deg, m.target) == (args.yaw, args.pitch, args.target), t)
     if args.kind == "say":
         path = args.file
         if args.text is not None:
             path = synthesize(args.text, Path(tempfile.mkdtemp(prefix="eca-say-")) / "say.wav")
+        elif path.is_dir():
+            raise SpeechSynthesisError(f"{path}: is a directory, not a sound file")
         elif not path.is_file():
             raise SpeechSynthesisError(f"{path}: no such file")
-        rid = client.say(audio_path=str(Path(path).resolve()), text=args.text)
-        print(f"request {rid} sent")
+        rid = client.new_request_id()
+        client.wait_applied(client.send(Say(agent=client.agent, request_id=rid,
+                                            audio_path=str(Path(path).resolve()), text=args.text)), t)
+        print(f"request {rid} accepted")
         return client.wait_for_speech(rid, timeout_s=max(t, 120.0)) if args.wait else None
-    if args.kind == "interrupt":
-        client.interrupt(args.request)
-        return None
-    client.user_speaking(args.state == "speaking")
-    return client.expect_state(RoleState, lambda m: m.role == "listening", t) if args.state == "speaking" else None
+    sent = {
+        "role": lambda: client.set_role(args.role, args.speaker),
+        "emotion": lambda: client.set_emotion(args.name, args.intensity, args.transition),
+        "head": lambda: client.move_head(args.turn, args.nod, args.tilt, args.duration),
+        "eyes": lambda: client.set_eyes(args.mode),
+        "gaze": lambda: client.set_gaze_target(args.yaw, args.pitch, args.target),
+        "interrupt": lambda: client.interrupt(args.request),
+        "user": lambda: client.user_speaking(args.state == "speaking"),
+    }[args.kind]()
+    client.wait_applied(sent, t)
+    # the state the command caused came before its acknowledgement (same publisher, in order)
+    caused = {"role": "role", "emotion": "emotion", "head": "head", "eyes": "eyes", "gaze": "gaze_target",
+              "user": "role"}.get(args.kind)
+    return client.state.get(caused) if caused and (args.kind != "user" or args.state == "speaking") else None
 
 
 def describe(msg: Message) -> str:

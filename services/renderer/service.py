@@ -31,7 +31,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import zmq
 
 from agent.face.flexors import FLEXOR_INDEX
 from agent.face.frame import FlexorFrame
@@ -55,10 +54,11 @@ from protocol.messages import (
     SpeechStarted,
 )
 from services.renderer.video import FrameSink, PngWriter, VideoWriter
-from services.runtime import Rejected, Service
+from services.runtime import Rejected, Service, latest_per_state_topic
 
 MODES = ("auto", "window", "headless")
 KEEP_EYE_SAMPLES = 4
+MAX_READ_PER_FRAME = 5000  # a frame never reads an unbounded backlog: the rest waits for the next frame
 _TURN = FLEXOR_INDEX["turn"]
 _LOOK = [FLEXOR_INDEX["look_x"], FLEXOR_INDEX["look_y"]]
 
@@ -416,15 +416,17 @@ class RendererService(Service):
         """Handle every message waiting on the socket; returns how many were read.
 
         Eye-state samples are only ever interpolated near the newest ones, so of each agent's samples in
-        one batch only the newest KEEP_EYE_SAMPLES are decoded: a flood of samples costs a socket read
-        each, not a decode. Everything else (states, events, mouth keys, clock anchors) is handled in
-        order; a state the last-value cache re-sent unchanged (byte for byte) is ignored.
+        one batch only the newest KEEP_EYE_SAMPLES are decoded, and of each state topic only the newest
+        message: a flood costs a socket read each, not a decode. Everything else (events, mouth keys,
+        clock anchors) is handled in order; a state the last-value cache re-sent unchanged (byte for
+        byte) is ignored. At most MAX_READ_PER_FRAME messages are read per frame, so the frame rate
+        holds whatever arrives (the rest waits for the next frame).
         """
         assert self.sub is not None
-        sock = self.sub.socket
-        raw: list[list[bytes]] = []
-        while len(raw) < 1_000_000 and sock.poll(0, zmq.POLLIN):
-            raw.append(sock.recv_multipart(zmq.NOBLOCK))
+        raw = self.sub.read_frames(MAX_READ_PER_FRAME)
+        read = len(raw)
+        raw = latest_per_state_topic(raw)
+        self.coalesced += read - len(raw)
         seen: dict[bytes, int] = {}
         keep = [True] * len(raw)
         for i in range(len(raw) - 1, -1, -1):
@@ -434,11 +436,12 @@ class RendererService(Service):
                 keep[i] = seen[topic] <= KEEP_EYE_SAMPLES
         for frames, wanted in zip(raw, keep, strict=True):
             if not wanted:
+                self.coalesced += 1
                 continue
             got = self.sub.accept(frames)
             if got is not None:
                 self.dispatch(got)
-        return len(raw)
+        return read
 
     def _advance_slot(self) -> None:
         nxt = self.slot + 1
