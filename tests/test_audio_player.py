@@ -1,8 +1,10 @@
 """The player on a fake sink driven by a virtual clock: lifecycle, anchors, mouth timing, interruption,
-failures, files and streamed PCM."""
+failures, files and streamed PCM, and long files prepared slice by slice within a bounded read-ahead
+(for a driven sink the preparer's steps run before each block, so all of it is deterministic)."""
 
 from __future__ import annotations
 
+import os
 from collections import defaultdict
 from pathlib import Path
 
@@ -14,7 +16,7 @@ from hypothesis import strategies as st
 from scipy.signal import lfilter
 
 from agent.clock import VirtualClock
-from agent.lipsync import MouthTrack, mouth_track
+from agent.lipsync import MouthKey, MouthTrack, mouth_track
 from services.audio import (
     ClockAnchor,
     FakeSink,
@@ -26,6 +28,7 @@ from services.audio import (
     SpeechInterrupted,
     SpeechStarted,
 )
+from services.audio.config import AudioConfig
 from services.audio.events import TERMINAL_EVENTS
 from services.audio.resample import resample
 
@@ -35,11 +38,12 @@ FRAME_NS = 1_000_000_000 // 60
 
 
 class Rig:
-    def __init__(self, latency_s: float = 0.0) -> None:
+    def __init__(self, latency_s: float = 0.0, config: AudioConfig | None = None) -> None:
         self.clock = VirtualClock(1_000_000_000)
         self.sink = FakeSink(self.clock, SR, BLOCK, latency_s=latency_s)
         self.events: list[object] = []
-        self.player = Player(self.sink, self.events.append, agent_id="ada", clock=self.clock).start()
+        self.player = Player(self.sink, self.events.append, agent_id="ada", clock=self.clock,
+                             config=config).start()
 
     def of(self, kind: type, uid: str | None = None) -> list:
         return [e for e in self.events if isinstance(e, kind) and (uid is None or e.utterance_id == uid)]
@@ -48,12 +52,27 @@ class Rig:
         kinds = (SpeechStarted, *TERMINAL_EVENTS)
         return [type(e).__name__ for e in self.events if isinstance(e, kinds) and e.utterance_id == uid]
 
-    def run_until_idle(self, max_blocks: int = 10_000) -> None:
+    def run_until_idle(self, max_blocks: int = 100_000) -> None:
         for _ in range(max_blocks):
             if self.player.idle:
                 return
             self.sink.advance(1)
         raise AssertionError("player never became idle")
+
+    def keys(self, uid: str) -> tuple[MouthKey, ...]:
+        return tuple(k for e in self.of(MouthKeys, uid) for k in e.keys)
+
+    def check_keys_precede_their_sound(self) -> None:
+        """No event that places a sample at the DAC (speech_started: sample 0; an anchor: its sample)
+        comes before the key of the 10 ms block holding that sample."""
+        keyed_to: dict[str, int] = defaultdict(lambda: -1)  # per utterance: first sample with no key out
+        for e in self.events:
+            if isinstance(e, MouthKeys):
+                keyed_to[e.utterance_id] = e.keys[-1].sample_index + BLOCK
+            elif isinstance(e, SpeechStarted):
+                assert keyed_to[e.utterance_id] > 0, e
+            elif isinstance(e, ClockAnchor):
+                assert e.sample_index < keyed_to[e.utterance_id], e
 
 
 def noise(seconds: float, sr: int = SR, seed: int = 0, amp: float = 0.3) -> np.ndarray:
@@ -76,12 +95,12 @@ def test_queue_plays_in_order_with_one_terminal_event_each() -> None:
     rig.player.say_pcm("u1", noise(0.25), SR)
     rig.player.say_pcm("u2", noise(0.15, seed=1), SR)
     rig.run_until_idle()
-    names = [(type(e).__name__, e.utterance_id) for e in rig.events if not isinstance(e, ClockAnchor)]
+    names = [(type(e).__name__, e.utterance_id) for e in rig.events if not isinstance(e, ClockAnchor | MouthKeys)]
     assert names == [
-        ("MouthKeys", "u1"), ("MouthKeys", "u2"),
         ("SpeechStarted", "u1"), ("SpeechFinished", "u1"),
         ("SpeechStarted", "u2"), ("SpeechFinished", "u2"),
     ]
+    rig.check_keys_precede_their_sound()
     f1, f2 = rig.of(SpeechFinished)
     assert f1.played_s == pytest.approx(0.25) and f2.played_s == pytest.approx(0.15)
     s1, s2 = rig.of(SpeechStarted)
@@ -205,11 +224,16 @@ def test_missing_or_unreadable_file_fails_that_request_only(tmp_path: Path) -> N
     rig.player.say_pcm("after", noise(0.1), SR)
     rig.run_until_idle()
     assert rig.lifecycle("missing") == ["SpeechFailed"]
-    assert "not found" in rig.of(SpeechFailed, "missing")[0].reason
+    missing = rig.of(SpeechFailed, "missing")[0].reason
+    assert str(tmp_path / "nope.wav") in missing and "not found" in missing
     assert rig.lifecycle("garbage") == ["SpeechFailed"]
+    assert "garbage.wav" in rig.of(SpeechFailed, "garbage")[0].reason
     assert rig.lifecycle("nan") == ["SpeechFailed"]
     assert rig.lifecycle("before") == ["SpeechStarted", "SpeechFinished"]
     assert rig.lifecycle("after") == ["SpeechStarted", "SpeechFinished"]
+    # Terminal events in queue order, the failures included.
+    terminal = [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)]
+    assert terminal == ["before", "missing", "garbage", "nan", "after"]
 
 
 def test_wav_file_is_converted_to_the_device_rate_and_keys_come_first(tmp_path: Path) -> None:
@@ -222,11 +246,11 @@ def test_wav_file_is_converted_to_the_device_rate_and_keys_come_first(tmp_path: 
     rig.player.say_file("f", path)
     rig.run_until_idle()
     expected = resample(x, sr_in, SR)
-    assert np.allclose(rig.sink.output[: len(expected)], expected, atol=1e-6)
-    keys_event = rig.of(MouthKeys, "f")
-    assert len(keys_event) == 1  # the whole track, computed ahead of playback
-    assert rig.events.index(keys_event[0]) < rig.events.index(rig.of(SpeechStarted, "f")[0])
-    assert keys_event[0].keys == mouth_track(expected, SR).keys
+    assert np.array_equal(rig.sink.output[: len(expected)], expected)
+    assert not rig.sink.output[len(expected):].any()
+    assert len(rig.of(MouthKeys, "f")) > 1  # keys go out slice by slice, as they are computed
+    assert rig.keys("f") == mouth_track(expected, SR).keys
+    rig.check_keys_precede_their_sound()
     assert rig.of(SpeechFinished, "f")[0].played_s == pytest.approx(len(expected) / SR)
 
 
@@ -254,6 +278,7 @@ def test_streamed_chunks_play_gap_free_with_keys_as_they_arrive() -> None:
     keys = tuple(k for e in rig.of(MouthKeys, "s") for k in e.keys)
     assert len(rig.of(MouthKeys, "s")) > 5  # many events: keys follow the chunks
     assert keys == mouth_track(expected, SR).keys
+    rig.check_keys_precede_their_sound()
 
 
 def test_late_chunks_wait_in_silence_and_feed_after_interrupt_is_ignored() -> None:
@@ -360,6 +385,8 @@ def test_random_requests_each_end_in_exactly_one_terminal_event(sequence: list[t
     rig.run_until_idle()
     rig.sink.advance(2)
     check_lifecycles(rig.events, requested)
+    assert [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)] == requested  # queue order
+    rig.check_keys_precede_their_sound()
     # Anchors and mouth events only for utterances that started, and none after their terminal event.
     ended: set[str] = set()
     for e in rig.events:
@@ -367,3 +394,173 @@ def test_random_requests_each_end_in_exactly_one_terminal_event(sequence: list[t
             ended.add(e.utterance_id)
         elif isinstance(e, SpeechStarted):
             assert e.utterance_id not in ended
+
+
+# --- long files: streamed from the preparer, a bounded read-ahead ahead of playback ---------------------
+
+
+def open_files() -> set[str]:
+    """Paths this process holds open (Linux)."""
+    fds = Path("/proc/self/fd")
+    if not fds.is_dir():
+        pytest.skip("needs /proc/self/fd")
+    held = set()
+    for fd in fds.iterdir():
+        try:
+            held.add(os.readlink(fd))
+        except OSError:
+            pass  # closed between the listing and the look
+    return held
+
+
+def write_long_wav(path: Path, seconds: float, sr: int, seed: int = 0) -> np.ndarray:
+    """A stereo 16-bit WAV of quiet noise with a slow loudness wobble; returns the mono float32 the
+    player decodes from it (the channel mean)."""
+    rng = np.random.default_rng(seed)
+    n = round(seconds * sr)
+    wobble = 0.5 + 0.4 * np.sin(2 * np.pi * 1.3 * np.arange(n) / sr)
+    pcm = (rng.uniform(-0.2, 0.2, (n, 2)) * wobble[:, None] * 32767).astype(np.int16)
+    sf.write(path, pcm, sr, subtype="PCM_16")
+    decoded, _ = sf.read(path, dtype="float32", always_2d=True)
+    return decoded.mean(axis=1)
+
+
+def test_a_long_file_starts_at_once_keeps_a_bounded_read_ahead_and_plays_sample_exact(tmp_path: Path) -> None:
+    config = AudioConfig(read_ahead_s=2.0, prepare_slice_s=0.25)
+    rig = Rig(config=config)
+    sr_in = 22_050
+    path = tmp_path / "long.wav"
+    mono = write_long_wav(path, 12.0, sr_in)
+    expected = np.clip(resample(mono, sr_in, SR), -1.0, 1.0)
+    bound_s = config.read_ahead_s + config.prepare_slice_s + BLOCK / SR  # one slice may overshoot
+
+    rig.player.say_file("long", path)
+    assert rig.player.prepared_ahead_s == 0.0  # the request itself did no audio work
+    rig.sink.advance(1)
+    assert rig.lifecycle("long") == ["SpeechStarted"]
+    assert config.read_ahead_s <= rig.player.prepared_ahead_s + BLOCK / SR <= bound_s
+    peak = 0.0
+    while not rig.player.idle:
+        rig.sink.advance(1)
+        peak = max(peak, rig.player.prepared_ahead_s)
+    assert peak <= bound_s  # never the whole file, at any point
+
+    out = rig.sink.output
+    assert np.array_equal(out[: len(expected)], expected)
+    assert not out[len(expected):].any()
+    assert rig.lifecycle("long") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.of(SpeechFinished, "long")[0].played_s == len(expected) / SR
+    assert len(rig.of(MouthKeys, "long")) >= 12.0 / config.prepare_slice_s  # keys in pieces, as computed
+    assert rig.keys("long") == mouth_track(expected, SR).keys
+    rig.check_keys_precede_their_sound()
+
+
+def test_a_600_s_file_is_cut_mid_way_once_and_let_go_of(tmp_path: Path) -> None:
+    config = AudioConfig.load()  # the shipped read-ahead
+    rig = Rig(config=config)
+    path = tmp_path / "ten-minutes.wav"
+    sr_in = 8000
+    second = np.random.default_rng(7).integers(-3000, 3000, sr_in, dtype=np.int16)
+    sf.write(path, np.tile(second, 600), sr_in, subtype="PCM_16")
+    rig.player.say_file("long", path)
+    after = noise(0.1)
+    rig.player.say_pcm("next", after, SR)
+    assert rig.player.prepared_ahead_s == 0.0
+    rig.sink.advance(1)
+    assert rig.player.prepared_ahead_s <= config.read_ahead_s + config.prepare_slice_s + BLOCK / SR  # of 600 s
+    rig.sink.advance(299)  # 3 s played
+    assert str(path) in open_files()
+    assert rig.player.interrupt("long") == ["long"]
+    assert np.array_equal(rig.sink.advance(1), after[:BLOCK])  # the very next block is the next request
+    (cut,) = rig.of(SpeechInterrupted, "long")
+    assert cut.played_s == 3.0
+    assert rig.lifecycle("long") == ["SpeechStarted", "SpeechInterrupted"]
+    rig.run_until_idle()
+    assert rig.lifecycle("long") == ["SpeechStarted", "SpeechInterrupted"]  # once
+    assert rig.lifecycle("next") == ["SpeechStarted", "SpeechFinished"]
+    assert str(path) not in open_files()  # the preparer dropped the file at its next step
+
+
+def test_a_file_cut_short_while_it_plays_fails_once_after_its_good_audio(tmp_path: Path) -> None:
+    config = AudioConfig(read_ahead_s=1.0, prepare_slice_s=0.2)
+    rig = Rig(config=config)
+    sr_in = 16_000
+    path = tmp_path / "shrinking.wav"
+    sf.write(path, (noise(5.0, sr_in, seed=3) * 32767).astype(np.int16), sr_in, subtype="PCM_16")
+    full = resample(sf.read(path, dtype="float32")[0], sr_in, SR)
+    rig.player.say_file("f", path)
+    rig.player.say_pcm("after", noise(0.1, seed=4), SR)
+    rig.sink.advance(10)
+    with open(path, "r+b") as fh:  # a writer cuts it to 2 s while it plays
+        fh.truncate(44 + 2 * sr_in * 2)
+    rig.run_until_idle()
+    assert rig.lifecycle("f") == ["SpeechStarted", "SpeechFailed"]
+    reason = rig.of(SpeechFailed, "f")[0].reason
+    assert str(path) in reason and "ended after 2.0 s of the 5.0 s" in reason
+    # What was decoded plays to the point of failure, then the mouth closes and the next request plays.
+    (reset,) = rig.of(MouthReset, "f")
+    start = rig.of(SpeechStarted, "f")[0]
+    played = (reset.dac_time_ns - start.dac_time_ns) * SR // 1_000_000_000
+    assert 2.0 - 0.02 <= played / SR <= 2.0
+    out = rig.sink.output
+    first = int(np.flatnonzero(out)[0])
+    assert np.array_equal(out[first : first + played], full[:played])
+    assert rig.lifecycle("after") == ["SpeechStarted", "SpeechFinished"]
+    terminal = [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)]
+    assert terminal == ["f", "after"]
+
+
+def test_a_preparer_that_falls_behind_leaves_silence_not_a_failure(tmp_path: Path) -> None:
+    config = AudioConfig(read_ahead_s=0.5, prepare_slice_s=0.1)
+    rig = Rig(config=config)
+    sr_in = 24_000
+    path = tmp_path / "speech.wav"
+    x = tone(2.0, sr_in)
+    sf.write(path, x, sr_in, subtype="FLOAT")
+    rig.player.say_file("f", path)
+    rig.sink.advance(1)
+    rig.player.driven_slices_per_block = 0  # an overloaded machine: no preparation at all for a while
+    stalled = rig.sink.advance(150)
+    assert rig.lifecycle("f") == ["SpeechStarted"]  # still playing: waiting, not failed
+    assert not stalled[-50 * BLOCK:].any()  # the read-ahead ran dry: silence
+    rig.player.driven_slices_per_block = 1  # slower than real time: 0.1 s per 10 ms block is plenty
+    rig.run_until_idle()
+    assert rig.lifecycle("f") == ["SpeechStarted", "SpeechFinished"]
+    expected = resample(x, sr_in, SR)
+    assert rig.of(SpeechFinished, "f")[0].played_s == len(expected) / SR
+    out = rig.sink.output
+    assert np.array_equal(out[np.abs(out) > 0], expected[np.abs(expected) > 0])  # everything, in order
+    rig.check_keys_precede_their_sound()
+
+
+def test_the_read_ahead_is_shared_by_the_whole_queue(tmp_path: Path) -> None:
+    config = AudioConfig(read_ahead_s=1.0, prepare_slice_s=0.2)
+    rig = Rig(config=config)
+    paths = []
+    for i in range(3):
+        paths.append(tmp_path / f"part{i}.wav")
+        write_long_wav(paths[-1], 2.0, SR, seed=i)
+    for i, path in enumerate(paths):
+        rig.player.say_file(f"p{i}", path)
+    peak = 0.0
+    while not rig.player.idle:
+        rig.sink.advance(1)
+        peak = max(peak, rig.player.prepared_ahead_s)
+    assert peak <= config.read_ahead_s + config.prepare_slice_s + BLOCK / SR
+    expected = np.concatenate([sf.read(p, dtype="float32", always_2d=True)[0].mean(axis=1) for p in paths])
+    assert np.array_equal(rig.sink.output[: len(expected)], expected)  # back to back, gap-free
+    assert [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)] == ["p0", "p1", "p2"]
+
+
+def test_inline_pcm_is_left_to_the_preparer() -> None:
+    rig = Rig()
+    big = (noise(60.0, 16_000) * 32767).astype(np.int16)  # 1.9 MB, as the service passes it: int16
+    rig.player.say_pcm("big", big, 16_000)
+    assert rig.player.prepared_ahead_s == 0.0  # no conversion, resampling or lip-sync on the caller
+    rig.sink.advance(1)
+    assert 0 < rig.player.prepared_ahead_s <= rig.player.config.read_ahead_s + rig.player.config.prepare_slice_s
+    rig.sink.advance(20)
+    assert rig.player.interrupt() == ["big"]
+    rig.sink.advance(1)
+    assert rig.lifecycle("big") == ["SpeechStarted", "SpeechInterrupted"]
+    assert rig.of(SpeechInterrupted, "big")[0].played_s == pytest.approx(21 * BLOCK / SR)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,6 +99,14 @@ def test_a_missing_file_fails_that_request_only(client: AgentClient) -> None:
     assert isinstance(client.wait_for_speech(good, 10.0), SpeechFinished)
 
 
+def test_a_bad_file_fails_with_one_plain_sentence_naming_it(client: AgentClient, tmp_path: Path) -> None:
+    empty = tmp_path / "empty.wav"
+    empty.touch()
+    failed = client.wait_for_speech(client.say(audio_path=str(empty)), 10.0)
+    assert isinstance(failed, SpeechFailed)
+    assert failed.reason == f"audio file '{empty}' is empty (0 bytes)"
+
+
 def test_streamed_chunks_play_gap_free(client: AgentClient) -> None:
     pcm = tone(0.5)
     chunks = [pcm[i:i + 3200] for i in range(0, len(pcm), 3200)]
@@ -151,3 +161,25 @@ def test_the_playback_state_holds_a_request_from_acceptance_to_its_end(client: A
     assert held.started_ns == first.started_ns
     assert isinstance(client.wait_for_speech(rid, 10.0), SpeechFinished)
     client.expect_state(PlaybackState, lambda m: m.request_ids == [] and m.seq > held.seq)
+
+
+def test_the_playback_state_remembers_how_requests_ended_and_is_back_for_a_new_broker() -> None:
+    """A terminal event lost with a broker is not lost for good: the audio service's playback state lists
+    the latest endings, and it publishes that state again for a broker that restarted."""
+    with private_bus_config() as config:
+        first_broker = BrokerThread(config).__enter__()
+        audio = AudioService(config, sink_factory=lambda: NullSink(48_000, 480))
+        with ServiceThread(DialogueService(config)), ServiceThread(audio), AgentClient(config) as client:
+            rid = client.say(pcm=tone(0.2), sample_rate=RATE)
+            assert isinstance(client.wait_for_speech(rid, 10.0), SpeechFinished)
+            playback = client.expect_state(PlaybackState, lambda m: rid in m.ended_ids)
+            assert isinstance(playback.ending_of(rid), SpeechFinished)
+            assert playback.ending_of(rid).played_s == pytest.approx(0.2, abs=0.011)
+            first_broker.__exit__(None, None, None)
+            with BrokerThread(config):  # an empty cache, until the owners publish their state again
+                found = None
+                deadline = time.monotonic() + 10.0
+                while time.monotonic() < deadline and not (isinstance(found, PlaybackState) and rid in found.ended_ids):
+                    with AgentClient(config) as fresh:
+                        found = fresh.state.get("playback")
+                assert isinstance(found, PlaybackState) and rid in found.ended_ids, found

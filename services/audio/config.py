@@ -17,6 +17,8 @@ class AudioConfig:
     anchor_hz: float = 100.0
     publisher_hz: float = 120.0
     max_utterance_s: float = 600.0
+    read_ahead_s: float = 8.0
+    prepare_slice_s: float = 0.2
     offset_window_s: float = 2.0
     max_dac_ahead_s: float = 1.0
 
@@ -43,12 +45,17 @@ class AudioConfig:
             anchor_hz=require(player, "anchor_hz", float, f"{where} [player]"),
             publisher_hz=require(player, "publisher_hz", float, f"{where} [player]"),
             max_utterance_s=require(player, "max_utterance_s", float, f"{where} [player]"),
+            read_ahead_s=require(player, "read_ahead_s", float, f"{where} [player]"),
+            prepare_slice_s=require(player, "prepare_slice_s", float, f"{where} [player]"),
             offset_window_s=require(clock, "offset_window_s", float, f"{where} [clock]"),
             max_dac_ahead_s=require(clock, "max_dac_ahead_s", float, f"{where} [clock]"),
         )
-        for name in ("sample_rate", "block_frames", "anchor_hz", "publisher_hz", "max_utterance_s"):
+        for name in ("sample_rate", "block_frames", "anchor_hz", "publisher_hz", "max_utterance_s", "read_ahead_s",
+                     "prepare_slice_s"):
             if getattr(cfg, name) <= 0:
                 raise ConfigError(f"{where}: '{name}' must be > 0, got {getattr(cfg, name)}")
         if cfg.anchor_hz < 60.0:
             raise ConfigError(f"{where} [player]: 'anchor_hz' must be >= 60 (one anchor per video frame)")
+        if cfg.prepare_slice_s > cfg.read_ahead_s:
+            raise ConfigError(f"{where} [player]: 'prepare_slice_s' must not exceed 'read_ahead_s'")
         return cfg

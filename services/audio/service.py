@@ -1,20 +1,36 @@
 """The audio service: plays the say requests the dialogue service accepted, and is the master clock.
 
-One Player per agent. The player reports from its own publisher thread; zmq sockets must stay on
-one thread, so its events go through a queue that this service's loop (ticking at 250 Hz) drains
-and publishes: lifecycle on `audio.` (the dialogue service re-publishes it once per request), clock
-anchors and mouth keys on `stream.`.
+One Player per agent. The loop only files requests with the players: decoding, resampling and
+lip-sync run on each player's preparer thread, so no handler's cost grows with the audio (inline PCM
+is passed on as a view of the message's bytes) and the heartbeat, sent from this loop, never waits on
+them. The player reports from its own publisher thread; zmq sockets must stay on one thread, so its
+events go through a queue that this service's loop (ticking at 250 Hz) drains and publishes, a few
+milliseconds' worth per tick: lifecycle on `audio.` (the dialogue service re-publishes it once per
+request), clock anchors and mouth keys on `stream.`.
 """
 
 from __future__ import annotations
 
 import queue
+import time
+from collections import deque
 from typing import Any
 
 import numpy as np
 
 from protocol.endpoints import BusConfig
-from protocol.messages import MAX_PENDING_SAYS, Interrupt, Message, MouthKeys, PlaybackState, Say, SpeechChunk
+from protocol.messages import (
+    MAX_PENDING_SAYS,
+    RECENT_ENDINGS,
+    TERMINAL_SPEECH_EVENTS,
+    Interrupt,
+    Message,
+    MouthKeys,
+    PlaybackState,
+    Say,
+    SpeechChunk,
+    SpeechEnding,
+)
 from protocol.messages import ClockAnchor as ClockAnchorMsg
 from protocol.messages import SpeechFailed as SpeechFailedMsg
 from protocol.messages import SpeechFinished as SpeechFinishedMsg
@@ -27,10 +43,12 @@ from services.audio.sinks import Sink, open_sink
 from services.runtime import Rejected, Service
 
 MOUTH_KEYS_PER_MESSAGE = 2000  # 20 s of 10 ms keys: far under the message size cap
+DRAIN_BUDGET_S = 0.003  # per tick, publishing player events; what is left goes out at the next tick (4 ms)
 
 
-def pcm16_to_float(pcm: bytes) -> np.ndarray:
-    return np.frombuffer(pcm, dtype="<i2").astype(np.float32) / 32768.0
+def pcm16(pcm: bytes) -> np.ndarray:
+    """The message's samples as int16, without copying: the player converts them slice by slice."""
+    return np.frombuffer(pcm, dtype="<i2")
 
 
 class AudioService(Service):
@@ -46,9 +64,12 @@ class AudioService(Service):
         self.players: dict[str, Player] = {}
         self.stream_rates: dict[str, int] = {}
         self.interrupt_reasons: dict[str, str] = {}
-        # Per agent, the requests taken and not yet ended (dict: insertion-ordered set), published as
-        # state.<agent>.playback so a restarted dialogue service can tell which of its requests ended.
+        # Per agent, the requests taken and not yet ended (dict: insertion-ordered set) and how the latest
+        # ended, published as state.<agent>.playback: a restarted dialogue service, or one whose terminal
+        # event was lost with a broker, learns from it which of its requests ended, and how.
         self.held: dict[str, dict[str, None]] = {a: {} for a in self.agent_ids}
+        self.endings: dict[str, deque[tuple[str, SpeechEnding, float, str]]] = {
+            a: deque(maxlen=RECENT_ENDINGS) for a in self.agent_ids}
         for cls, handler in ((Say, self.on_say), (SpeechChunk, self.on_chunk), (Interrupt, self.on_interrupt)):
             self.handle(cls, handler)
 
@@ -74,7 +95,22 @@ class AudioService(Service):
         return player
 
     def _publish_playback(self, agent: str) -> None:
-        self.publish(PlaybackState(agent=agent, request_ids=list(self.held[agent]), started_ns=self.started_ns))
+        endings = self.endings[agent]
+        self.publish(PlaybackState(agent=agent, request_ids=list(self.held[agent]), started_ns=self.started_ns,
+                                   ended_ids=[e[0] for e in endings], ended_as=[e[1] for e in endings],
+                                   ended_played_s=[e[2] for e in endings], ended_reasons=[e[3] for e in endings]))
+
+    def on_new_broker(self) -> None:
+        for agent in self.agent_ids:  # the new broker's cache has no playback state: the owner's again
+            self._publish_playback(agent)
+
+    def _ended(self, agent: str, ending: Message) -> None:
+        """Record a request's terminal event (already published) and publish the playback it leaves."""
+        rid: str = ending.request_id  # type: ignore[attr-defined]  # every terminal event has one
+        self.endings[agent].append((rid, ending.TYPE, float(getattr(ending, "played_s", 0.0)),  # type: ignore[arg-type]
+                                    str(getattr(ending, "reason", ""))))
+        self.held.get(agent, {}).pop(rid, None)
+        self._publish_playback(agent)
 
     def on_say(self, msg: Say) -> None:
         player = self._player(msg)
@@ -88,7 +124,7 @@ class AudioService(Service):
             if msg.audio_path is not None:
                 player.say_file(msg.request_id, msg.audio_path)
             elif msg.pcm is not None:
-                player.say_pcm(msg.request_id, pcm16_to_float(msg.pcm), msg.sample_rate)
+                player.say_pcm(msg.request_id, pcm16(msg.pcm), msg.sample_rate)
             else:
                 player.say_stream(msg.request_id, msg.sample_rate)
         except ValueError as exc:
@@ -103,11 +139,12 @@ class AudioService(Service):
 
     def _refuse(self, msg: Say, reason: str) -> None:
         self.log.warning("say request %s of %s not played: %s", msg.request_id, msg.agent, reason)
-        self.publish(SpeechFailedMsg(agent=msg.agent, request_id=msg.request_id, reason=reason[:500]), "audio")
+        failed = self.publish(SpeechFailedMsg(agent=msg.agent, request_id=msg.request_id, reason=reason[:500]), "audio")
+        self._ended(msg.agent, failed)
 
     def on_chunk(self, msg: SpeechChunk) -> None:
         player = self._player(msg)
-        if not player.feed(msg.request_id, pcm16_to_float(msg.pcm), msg.last):
+        if not player.feed(msg.request_id, pcm16(msg.pcm), msg.last):
             raise Rejected(f"request '{msg.request_id}' is not streaming (finished or interrupted)", msg.request_id)
 
     def on_interrupt(self, msg: Interrupt) -> None:
@@ -116,21 +153,20 @@ class AudioService(Service):
             self.interrupt_reasons[uid] = msg.reason
 
     def on_tick(self, now_ns: int) -> None:
-        self.drain_events()
+        self.drain_events(DRAIN_BUDGET_S)
 
-    def drain_events(self) -> None:
-        while True:
+    def drain_events(self, budget_s: float | None = None) -> None:
+        """Publish the players' events in order: all of them, or those that fit in `budget_s`."""
+        deadline = None if budget_s is None else time.perf_counter() + budget_s
+        while deadline is None or time.perf_counter() < deadline:
             try:
                 event = self.events.get_nowait()
             except queue.Empty:
                 return
             for msg, category in self.to_messages(event):
                 self.publish(msg, category)
-            if isinstance(event, events.SpeechFinished | events.SpeechInterrupted | events.SpeechFailed):
-                held = self.held.get(event.agent_id, {})
-                if event.utterance_id in held:
-                    del held[event.utterance_id]
-                    self._publish_playback(event.agent_id)
+                if isinstance(msg, TERMINAL_SPEECH_EVENTS) and msg.agent in self.endings:
+                    self._ended(msg.agent, msg)
 
     def to_messages(self, ev: events.AudioEvent) -> list[tuple[Message, str]]:
         agent = ev.agent_id
