@@ -2,7 +2,9 @@
 
 The cues are applied at their exact times and the models are sampled at any frame time, so the same
 seed and timeline give the same frames at any frame rate. The seed drives only the eyes and the
-blinks; the face's idle noise has its own fixed seed, so another seed changes nothing else.
+blinks; the face's idle noise has its own fixed seed, so another seed changes nothing else. Each frame
+also says what the models are in at that time (the agent's role and emotion), read back from them
+rather than from the script.
 """
 
 from __future__ import annotations
@@ -30,6 +32,21 @@ class Utterance:
     track: MouthTrack | None
 
 
+@dataclass(frozen=True)
+class AnimatedFrame:
+    """The face at one time: flexor values (FLEXOR_NAMES order), the eyes in degrees in the head frame
+    (yaw + = the agent's right, pitch + = up) and lid (0 open .. 1 closed), and the agent's role and
+    emotion in force (the emotion last set; the face blends toward it over that cue's transition)."""
+
+    flexors: np.ndarray
+    eye_yaw_deg: float
+    eye_pitch_deg: float
+    lid: float
+    role: str
+    emotion: str
+    emotion_intensity: float
+
+
 class TimelineAnimator:
     def __init__(self, timeline: Timeline, agent: str, *, seed: int, eyes: str | None,
                  utterances: list[Utterance], sample_rate: int) -> None:
@@ -48,8 +65,8 @@ class TimelineAnimator:
         if eyes is not None:
             self.gaze.set_mode(0, eyes, 0)
 
-    def frame_at(self, t_s: float) -> tuple[np.ndarray, tuple[float, float, float]]:
-        """The flexor values at `t_s` and the eye (yaw, pitch, lid); times must not go back."""
+    def frame_at(self, t_s: float) -> AnimatedFrame:
+        """The face at `t_s`, every cue up to it applied; times must not go back."""
         t_ns = nanoseconds(t_s)
         while self.next_cue < len(self.cues) and nanoseconds(self.cues[self.next_cue].t_s) <= t_ns:
             cue = self.cues[self.next_cue]
@@ -59,7 +76,9 @@ class TimelineAnimator:
         yaw, pitch, lid = float(tick.yaw_deg[0]), float(tick.pitch_deg[0]), float(tick.lid[0])
         self.face.set_eyes(yaw, pitch, lid)
         self.face.set_mouth(self._mouth_at(t_s))
-        return self.face.frame_at(t_ns).values, (yaw, pitch, lid)
+        emotion, intensity = self.face.emotion
+        return AnimatedFrame(self.face.frame_at(t_ns).values, yaw, pitch, lid, self.gaze.role_of(0), emotion,
+                             intensity)
 
     def _apply(self, cue: RoleCue | EmotionCue | HeadCue | GazeCue, t_ns: int) -> None:
         if isinstance(cue, RoleCue):

@@ -13,12 +13,12 @@ from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
-import soundfile
 
 from agent.animator import TimelineAnimator, Utterance
 from agent.face.flexors import FLEXOR_NAMES
 from agent.lipsync.estimator import mouth_track
 from agent.script import SayCue, Timeline
+from services.audio.files import read_sound_file
 from services.audio.resample import resample
 from services.playback import AGENT_VOICE, PARTNER_VOICE, VoiceCache
 
@@ -36,21 +36,25 @@ class RenderSettings:
 
 @dataclass
 class RenderedTimeline:
-    """What a render produced, besides the files: per-frame times, eye angles and flexor values."""
+    """What a render produced, besides the files: per frame, its time, the agent's role and emotion in
+    force, the eye angles and lid, and the flexor values (units in docs/scripts.md, "The flexor CSV")."""
 
     t_s: np.ndarray
     eye_yaw_deg: np.ndarray
     eye_pitch_deg: np.ndarray
     lid: np.ndarray
     flexors: np.ndarray  # (frames, N_FLEXORS)
+    role: tuple[str, ...] = ()
+    emotion: tuple[str, ...] = ()
+    emotion_intensity: np.ndarray = field(default_factory=lambda: np.zeros(0))
     audio: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
 
 
 def load_audio(path: str | Path) -> np.ndarray:
-    """Mono float32 at AUDIO_RATE from any file soundfile reads."""
-    data, rate = soundfile.read(str(path), dtype="float32", always_2d=True)
-    mono = data.mean(axis=1)
-    return resample(mono, int(rate), AUDIO_RATE).astype(np.float32) if rate != AUDIO_RATE else mono
+    """Mono float32 at AUDIO_RATE from any file soundfile reads; AudioFileError (a ValueError naming the
+    file and the cause) when it cannot be read."""
+    mono, rate = read_sound_file(path)
+    return resample(mono, rate, AUDIO_RATE).astype(np.float32) if rate != AUDIO_RATE else mono
 
 
 def gather_speech(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[Utterance]:
@@ -83,12 +87,28 @@ def mix(utterances: list[Utterance], length_s: float) -> np.ndarray:
     return np.clip(track, -1.0, 1.0)
 
 
-def write_flexor_csv(path: Path, t_s: np.ndarray, flexors: np.ndarray) -> None:
-    """Fixed-precision text, so identical frames give identical bytes."""
-    with open(path, "w", newline="\n") as fh:
-        fh.write("t_s," + ",".join(FLEXOR_NAMES) + "\n")
-        for t, row in zip(t_s, flexors, strict=True):
-            fh.write(f"{t:.6f}," + ",".join(f"{v:.6f}" for v in row) + "\n")
+# The CSV's columns before the flexors; docs/scripts.md ("The flexor CSV") gives each one's unit and range.
+CSV_STATE_COLUMNS = ("t_s", "role", "emotion", "emotion_intensity", "eye_yaw_deg", "eye_pitch_deg", "lid")
+CSV_COLUMNS = (*CSV_STATE_COLUMNS, *FLEXOR_NAMES)
+
+
+def _fixed(value: float) -> str:
+    # Six decimals (a microsecond, a millionth of a flexor's range); -0 printed as 0 so that a value
+    # rounding to zero reads the same from either side.
+    text = f"{value:.6f}"
+    return text[1:] if text == "-0.000000" else text
+
+
+def write_flexor_csv(path: Path, rendered: RenderedTimeline) -> None:
+    """One header line (CSV_COLUMNS), then one line per frame in fixed-precision text, so identical
+    frames give identical bytes. Role and emotion are names; every number has six decimals."""
+    with open(path, "w", newline="\n", encoding="utf-8") as fh:
+        fh.write(",".join(CSV_COLUMNS) + "\n")
+        for k, t in enumerate(rendered.t_s):
+            state = (_fixed(float(t)), rendered.role[k], rendered.emotion[k],
+                     _fixed(float(rendered.emotion_intensity[k])), _fixed(float(rendered.eye_yaw_deg[k])),
+                     _fixed(float(rendered.eye_pitch_deg[k])), _fixed(float(rendered.lid[k])))
+            fh.write(",".join((*state, *(_fixed(float(v)) for v in rendered.flexors[k]))) + "\n")
 
 
 def mux_audio(video_path: Path, audio: np.ndarray, out_path: Path) -> None:
@@ -130,8 +150,17 @@ def animate(timeline: Timeline, agent: str, settings: RenderSettings, voices: Vo
     t_s = np.arange(n_frames) / settings.fps
     flexors = np.empty((n_frames, len(FLEXOR_NAMES)))
     eyes = np.empty((n_frames, 3))
+    intensity = np.empty(n_frames)
+    roles: list[str] = []
+    emotions: list[str] = []
     for k, t in enumerate(t_s):
-        flexors[k], eyes[k] = animator.frame_at(float(t))
+        frame = animator.frame_at(float(t))
+        flexors[k] = frame.flexors
+        eyes[k] = frame.eye_yaw_deg, frame.eye_pitch_deg, frame.lid
+        roles.append(frame.role)
+        emotions.append(frame.emotion)
+        intensity[k] = frame.emotion_intensity
         if on_frame is not None:
             on_frame(k, flexors[k])
-    return RenderedTimeline(t_s, eyes[:, 0], eyes[:, 1], eyes[:, 2], flexors, audio)
+    return RenderedTimeline(t_s, eyes[:, 0], eyes[:, 1], eyes[:, 2], flexors, tuple(roles), tuple(emotions),
+                            intensity, audio)

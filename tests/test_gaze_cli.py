@@ -6,9 +6,12 @@ import csv
 import io
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from agent.gaze.params import GazeParams
 from services.cli import main
+from services.commands.gaze_plot import PANELS, simulate_panels, trajectory_figure
 from services.commands.gaze_trace import COLUMNS
 
 
@@ -74,3 +77,30 @@ def test_plot_writes_both_pictures(tmp_path: Path) -> None:
     assert main(["gaze-plot", "-o", str(tmp_path), "--frames", "300", "--draws", "2000"]) == 0
     for name in ("gaze_trajectory.png", "gaze_statistics.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_trajectory_figure_draws_yaw_and_pitch_of_every_panel() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    params = GazeParams.load()
+    yaw, pitch, lid = simulate_panels(params, 600, seed=0)
+    noise = [title for title, _, _ in PANELS].index("(b) Perlin noise")
+    assert np.ptp(pitch[:, noise]) > 1.0 and not np.array_equal(pitch, yaw)  # the eyes move up and down too
+    fig = trajectory_figure(params, yaw, pitch, lid)
+    try:
+        rows = (fig.axes[: len(PANELS)], fig.axes[len(PANELS):])
+        assert len(fig.axes) == 2 * len(PANELS)
+        for (angles, word, limit), axes in zip(
+            ((yaw, "yaw", params.eye_yaw_limit_deg), (pitch, "pitch", params.eye_pitch_limit_deg)), rows, strict=True
+        ):
+            for k, ax in enumerate(axes):
+                trace = ax.get_lines()[0]
+                assert np.array_equal(trace.get_xdata(), angles[:, k])  # the angle across ...
+                assert np.array_equal(trace.get_ydata(), np.arange(600))  # ... time (frames) going up
+                assert word in ax.get_xlabel() and "deg" in ax.get_xlabel()
+                assert ax.get_xlim() == (-limit, limit)
+    finally:
+        plt.close(fig)

@@ -188,3 +188,17 @@ def test_play_refuses_a_cue_the_protocol_would_refuse_before_sending_anything(bu
     finally:
         sub.close()
         ctx.term()
+
+
+def test_the_animator_reports_the_role_and_emotion_its_models_are_in() -> None:
+    from agent.animator import TimelineAnimator
+    from agent.script import Timeline
+
+    cues = (RoleCue(0.5, "bob", "talking"), EmotionCue(1.0, "bob", "happy", 0.7, 0.2),
+            RoleCue(1.0, "ada", "listening"), EmotionCue(1.5, "ada", "angry", 1.0, 0.2))
+    animator = TimelineAnimator(Timeline((), cues, 2.0, ("bob", "ada")), "bob", seed=0, eyes="static",
+                                utterances=[], sample_rate=22_050)
+    states = [(f.role, f.emotion, f.emotion_intensity)
+              for f in (animator.frame_at(t) for t in (0.0, 0.6, 1.0, 1.9))]
+    assert states == [("silence", "natural", 1.0), ("talking", "natural", 1.0), ("talking", "happy", 0.7),
+                      ("talking", "happy", 0.7)]  # the other agent's cues change nothing

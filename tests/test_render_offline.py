@@ -12,7 +12,7 @@ import pytest
 from agent.face.flexors import FLEXOR_NAMES
 from agent.script import build_timeline
 from services.cli import main as eca
-from services.offline import RenderSettings, animate
+from services.offline import CSV_COLUMNS, RenderSettings, animate
 
 pytestmark = pytest.mark.gl
 DATA = Path(__file__).parent / "data" / "scripts"
@@ -42,10 +42,13 @@ def render(scripts: list[str], out: Path, seed: int) -> Path:
     return out.with_suffix(".csv")
 
 
+TEXT_COLUMNS = ("role", "emotion")
+
+
 def read_csv(path: Path) -> dict[str, np.ndarray]:
     with open(path) as fh:
         rows = list(csv.DictReader(fh))
-    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+    return {k: np.array([r[k] if k in TEXT_COLUMNS else float(r[k]) for r in rows]) for k in rows[0]}
 
 
 def test_same_seed_gives_identical_csv_and_another_seed_changes_only_eyes_and_blinks(
@@ -98,3 +101,72 @@ def test_bad_arguments_are_refused_with_a_clear_message(scripts: list[str], tmp_
     assert eca(["render", str(bad), "-o", str(tmp_path / "y.mp4")]) == 1
     assert "bad.txt" in capsys.readouterr().err
     assert not (tmp_path / "y.mp4").exists()
+    assert eca(["render", *scripts, "-o", str(tmp_path / "z.mp4"), "--csv", str(bad / "z.csv"), "--no-voice"]) == 1
+    assert capsys.readouterr().err.strip() == f"eca render: {bad}: is a file, not a folder to write into"
+    assert not (tmp_path / "z.mp4").exists()
+
+
+BOB_DIALOGUE = """<?xml version="1.0" encoding="UTF-8"?>
+<dialogue agent="bob" partner="user">
+  <turn speaker="bob" emotion="happy" duration="1">Hello.</turn>
+  <turn speaker="user" emotion="angry" intensity="0.5" duration="1">Go away.</turn>
+</dialogue>
+"""
+
+
+def fast_render(args: list[str]) -> int:
+    return eca(["render", *args, "--size", "32x24", "--fps", "10", "--no-voice"])
+
+
+def test_a_dialogue_rendered_without_agent_animates_its_own_agent(tmp_path: Path) -> None:
+    script = tmp_path / "bob.xml"
+    script.write_text(BOB_DIALOGUE)
+    assert fast_render([str(script), "-o", str(tmp_path / "bob.mp4")]) == 0
+    table = read_csv(tmp_path / "bob.csv")
+    t = table["t_s"]
+    speaking, listening = t < 1.0, t >= 1.3  # the default gap of 0.3 s lies between the turns
+    assert set(table["role"][speaking]) == {"talking"}
+    assert set(table["emotion"][speaking]) == {"happy"}
+    assert set(table["emotion_intensity"][speaking]) == {1.0}
+    assert set(table["role"][listening]) == {"listening"}
+    assert set(table["emotion"][listening]) == {"angry"}
+    assert set(table["emotion_intensity"][listening]) == {0.5}
+    smile = table["smile_l"]
+    assert smile[(t > 0.6) & (t < 1.0)].mean() > smile[t > 1.9].mean() + 0.2  # the face follows too
+
+
+def test_an_agent_option_that_disagrees_with_the_dialogue_is_refused(tmp_path: Path, capsys) -> None:
+    script = tmp_path / "bob.xml"
+    script.write_text(BOB_DIALOGUE)
+    out = tmp_path / "ada.mp4"
+    assert fast_render([str(script), "-o", str(out), "--agent", "ada"]) == 1
+    err = capsys.readouterr().err
+    assert f"{script}:2:1: the dialogue animates 'bob' but --agent is 'ada'" in err
+    assert "nothing rendered" in err
+    assert not out.exists() and not out.with_suffix(".csv").exists()
+    assert fast_render([str(script), "-o", str(out), "--agent", "bob"]) == 0  # agreeing is fine
+
+
+def test_the_csv_header_and_rows_read_back_in_the_documented_units(tmp_path: Path) -> None:
+    script = tmp_path / "bob.xml"
+    script.write_text(BOB_DIALOGUE)
+    out = tmp_path / "bob.mp4"
+    assert fast_render([str(script), "-o", str(out), "--eyes", "saccade+blink", "--seed", "3"]) == 0
+    lines = out.with_suffix(".csv").read_text().splitlines()
+    assert lines[0].split(",") == ["t_s", "role", "emotion", "emotion_intensity", "eye_yaw_deg", "eye_pitch_deg",
+                                   "lid", *FLEXOR_NAMES]
+    assert tuple(lines[0].split(",")) == CSV_COLUMNS
+    row = dict(zip(CSV_COLUMNS, lines[4].split(","), strict=True))
+    assert row["t_s"] == "0.300000"  # seconds, frame 3 at 10 fps, six decimals
+    assert (row["role"], row["emotion"], row["emotion_intensity"]) == ("talking", "happy", "1.000000")
+    table = read_csv(out.with_suffix(".csv"))
+    assert np.allclose(np.diff(table["t_s"]), 0.1)
+    # the eyes in degrees: the look flexors are the same angles over the 30-degree eye range
+    assert np.abs(table["eye_yaw_deg"]).max() > 0.5  # the saccades moved them
+    assert np.all(np.abs(table["eye_yaw_deg"]) <= 30.0) and np.all(np.abs(table["eye_pitch_deg"]) <= 30.0)
+    assert np.allclose(table["eye_yaw_deg"] / 30.0, table["look_x"], atol=1e-5)
+    assert np.allclose(table["eye_pitch_deg"] / 30.0, table["look_y"], atol=1e-5)
+    assert np.all((table["lid"] >= 0.0) & (table["lid"] <= 1.0))
+    for name in FLEXOR_NAMES:
+        assert np.all(np.abs(table[name]) <= 1.0), name
+    assert all(len(v.split(".")[1]) == 6 for v in lines[1].split(",") if v[-1].isdigit())

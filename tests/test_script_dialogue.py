@@ -106,7 +106,7 @@ XML_ERRORS = [
      "attribute intensity=2 is out of range [0, 1]"),
     (_doc("  <turn speaker='ada' duration='soon'>Hi</turn>"), 3, 3, "attribute duration='soon' is not a number"),
     (_doc("  <turn speaker='ada'/>"), 3, 3, "a turn needs text, an audio file or a duration"),
-    (_doc("  <turn speaker='ada' audio='missing.wav'>Hi</turn>"), 3, 3, "audio file 'missing.wav' not found"),
+    (_doc("  <turn speaker='ada' audio='missing.wav'>Hi</turn>"), 3, 3, "audio 'missing.wav' not found"),
     (_doc("  <silence/>"), 3, 3, "<silence>: missing attribute 'duration'"),
     (_doc("  <silence duration='1'>psst</silence>"), 3, 3, "a silence holds no text"),
     (_doc("  <pause duration='1'/>"), 3, 3, "unknown element"),
@@ -128,6 +128,7 @@ def test_dialogue_errors_name_line_and_column(data: bytes, line: int, column: in
     err = info.value
     assert fragment in err.message, str(err)
     assert (err.file, err.line, err.column) == ("d.xml", line, column), str(err)
+    assert len(err.errors) == 1, str(err)  # one mistake, one error: nothing reported as its consequence
 
 
 def test_entity_expansion_is_refused_even_without_a_doctype_elsewhere() -> None:
@@ -167,3 +168,33 @@ def test_cues_that_leave_an_axis_alone_keep_the_current_value() -> None:
     assert head.targets((0.5, 0.2, 0.1)) == (0.5, -0.3, 0.1)
     assert GazeCue(0.0, "ada", "saccade", None, None).target((4.0, 2.0)) is None
     assert GazeCue(0.0, "ada", None, -7.0, None).target((4.0, 2.0)) == (-7.0, 2.0)
+
+
+def test_every_problem_of_a_dialogue_and_its_parameter_files_is_reported_in_file_order(tmp_path: Path) -> None:
+    (tmp_path / "head.txt").write_text("header\nelement transition 2\nproperty int duration\n"
+                                       "property double nod\nend_header\n1;x\n1;9\n")
+    (tmp_path / "d.xml").write_text('<dialogue agent="ada" wpm="1">\n'
+                                    '  <params href="head.txt"/>\n'
+                                    '  <turn speaker="ada" mood="x" emotion="glad">Hi\n'
+                                    '    <head nod="2"/></turn>\n'
+                                    '  <silence duration="-1"/>\n'
+                                    '</dialogue>\n')
+    with pytest.raises(ScriptError) as info:
+        load_dialogue(tmp_path / "d.xml")
+    found = [(Path(e.file).name, e.line, e.column, e.message.split(";")[0]) for e in info.value.errors]
+    assert found == [
+        ("d.xml", 1, 1, "<dialogue>: attribute wpm=1 is out of range [40, 400] words per minute"),
+        ("d.xml", 3, 3, "<turn>: unknown attribute 'mood'"),
+        ("d.xml", 3, 3, "<turn>: unknown emotion 'glad'"),
+        ("d.xml", 4, 5, "<head>: attribute nod=2 is out of range [-1, 1]"),
+        ("d.xml", 5, 3, "<silence>: attribute duration=-1 is out of range [0.01, 3600] seconds"),
+        ("head.txt", 6, 3, "value 'x' does not parse as double for property nod"),
+        ("head.txt", 7, 3, "value 9.0 for property nod is out of range [-1, 1]"),
+    ]
+    assert str(info.value).count("\n") == len(found) - 1  # str() lists them all, one per line
+
+
+def test_xml_that_is_not_well_formed_stops_at_its_first_problem() -> None:
+    with pytest.raises(ScriptError) as info:
+        parse_dialogue(b'<dialogue agent="ada">\n<turn speaker="zed">Hi</trun>\n<silence/>\n</dialogue>', "d.xml")
+    assert [(e.line, e.message) for e in info.value.errors] == [(2, "not well-formed XML: mismatched tag")]

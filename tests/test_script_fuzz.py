@@ -19,7 +19,10 @@ def _parses_or_script_error(call) -> None:  # type: ignore[no-untyped-def]
     try:
         call()
     except ScriptError as exc:
-        assert exc.line >= 1 and exc.column >= 1 and exc.message
+        assert exc.errors
+        for error in exc.errors:  # every problem collected has a position and words
+            assert error.line >= 1 and error.column >= 1 and error.message
+            assert str(error) == f"{error.file}:{error.line}:{error.column}: {error.message}"
 
 
 @FAST

@@ -105,9 +105,12 @@ ERRORS = [
      "property duration must be of type int or double or float, not string"),
     ("header\nelement transition 1\nproperty int duration\nproperty double frown\nend_header\n1;0\n",
      4, 17, "unknown property 'frown'"),
-    ("header\nelement transition x\n", 2, 20, "element count 'x' is not a non-negative integer"),
-    ("header\nelement frame 1\n", 2, 9, "unknown element 'frame'"),
-    ("header\nproperty int duration\n", 2, 1, "'property' before 'element"),
+    ("header\nelement transition x\nproperty int duration\nproperty double nod\nend_header\n1;0\n", 2, 20,
+     "element count 'x' is not a non-negative integer"),
+    ("header\nelement frame 1\nproperty int duration\nproperty double nod\nend_header\n1;0\n", 2, 9,
+     "unknown element 'frame'"),
+    ("header\nproperty int duration\nelement transition 1\nproperty double nod\nend_header\n1;0\n", 2, 1,
+     "'property' before 'element"),
     ("header\nelement transition 1\nproperty int duration\nproperty double nod\nproperty double nod_value\n"
      "end_header\n1;0;0\n", 5, 17, "property nod_value repeats nod (line 4)"),
     ("header\nelement transition 1\nproperty int duration\nproperty string role\nproperty double nod\n"
@@ -118,7 +121,8 @@ ERRORS = [
      "cannot tell the kind of file"),
     ("header\nelement transition 1\nproperty int duration\nproperty double yaw\nend_header\n1;0\n", 4, 17,
      "property yaw needs pitch too"),
-    ("header\nfoo bar\n", 2, 1, "unknown header keyword 'foo'"),
+    ("header\nfoo bar\nelement transition 1\nproperty int duration\nproperty double nod\nend_header\n1;0\n",
+     2, 1, "unknown header keyword 'foo'"),
     (HEADER + "1;0\n2;0\n", 7, 1, "too many data lines: the header declares 1 transition"),
     (HEADER.replace("transition 1", "transition 3") + "1;0\n", 2, 20,
      "too few data lines: the header declares 3 transitions, the file has 1"),
@@ -152,6 +156,7 @@ def test_every_error_names_its_line_and_column(content: str, line: int, column: 
     err = info.value
     assert fragment in err.message
     assert (err.file, err.line, err.column) == ("p.txt", line, column), str(err)
+    assert len(err.errors) == 1, str(err)  # one mistake, one error: nothing reported as its consequence
     assert str(err) == f"p.txt:{line}:{column}: {err.message}"
 
 

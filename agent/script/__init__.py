@@ -1,6 +1,7 @@
 """Scripts: the paper's PLY-like parameter files, XML dialogues, and the timeline they make."""
 
-from agent.script.dialogue import Dialogue, estimate_speech_s, load_dialogue, parse_dialogue, wav_duration
+from agent.script.audiofile import AudioFileError, UnmeasurableAudio, audio_file_problem, wav_duration
+from agent.script.dialogue import Dialogue, estimate_speech_s, load_dialogue, parse_dialogue
 from agent.script.elements import (
     AnimationElement,
     Cue,
@@ -12,13 +13,15 @@ from agent.script.elements import (
     Timeline,
     merge,
 )
-from agent.script.errors import ScriptError
-from agent.script.loader import Script, build_timeline, load_script
-from agent.script.paramfile import DEFAULT_AGENT, ParamFile, load_params, parse_params
+from agent.script.errors import ScriptError, ScriptErrors
+from agent.script.loader import Script, ScriptSet, build_timeline, check_agent_id, load_script, load_scripts
+from agent.script.paramfile import ParamFile, load_params, parse_params
+from agent.script.vocab import DEFAULT_AGENT
 
 __all__ = [
     "DEFAULT_AGENT",
     "AnimationElement",
+    "AudioFileError",
     "Cue",
     "Dialogue",
     "EmotionCue",
@@ -29,12 +32,18 @@ __all__ = [
     "SayCue",
     "Script",
     "ScriptError",
+    "ScriptErrors",
+    "ScriptSet",
     "Timeline",
+    "UnmeasurableAudio",
+    "audio_file_problem",
     "build_timeline",
+    "check_agent_id",
     "estimate_speech_s",
     "load_dialogue",
     "load_params",
     "load_script",
+    "load_scripts",
     "merge",
     "parse_dialogue",
     "parse_params",

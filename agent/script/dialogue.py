@@ -9,19 +9,23 @@
 
 Turns follow one another; a turn lasts its `duration`, else its audio's length (measured through the
 `duration_of` hook), else an estimate from its word count. Everything becomes one Timeline.
+
+Every problem is collected and raised at once (ScriptErrors): a wrong attribute or element is reported
+and the builder goes on with the next. Only XML that is not well-formed stops a file at its first
+problem, since nothing after it can be trusted to be where the parser thinks.
 """
 
 from __future__ import annotations
 
 import math
 import re
-import wave
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from agent.script.audiofile import AudioFileError, UnmeasurableAudio, audio_file_problem, describe, wav_duration
 from agent.script.elements import AnimationElement, SayCue, Timeline, flexor_tuple, merge
-from agent.script.errors import ScriptError
+from agent.script.errors import ScriptError, ScriptErrors, raise_collected
 from agent.script.paramfile import (
     AGENT_ID_RE,
     DEFAULT_EMOTION_TRANSITION_S,
@@ -32,6 +36,7 @@ from agent.script.paramfile import (
 from agent.script.poses import emotion_pose
 from agent.script.textfile import read_bytes
 from agent.script.vocab import (
+    DEFAULT_AGENT,
     EYE_MODES,
     ROLES,
     Role,
@@ -58,15 +63,7 @@ _ATTRS = {
 }
 
 DurationOf = Callable[[Path], float]
-
-
-def wav_duration(path: Path) -> float:
-    """Seconds of a WAV file (stdlib only); other formats need the service layer's hook."""
-    if path.suffix.lower() not in (".wav", ".wave"):
-        raise ValueError(f"cannot measure {path.suffix or 'extensionless'} audio here; use WAV or "
-                         "give the turn a duration")
-    with wave.open(str(path), "rb") as wav:
-        return wav.getnframes() / float(wav.getframerate())
+AgentCheck = Callable[[str], str | None]  # the dialogue's agent -> why it may not be played, or None
 
 
 def estimate_speech_s(text: str, wpm: float = DEFAULT_WPM) -> float:
@@ -86,12 +83,22 @@ class Dialogue:
 
 
 class _Builder:
+    """Walks the document once, recording every problem; after one, it goes on with defaults so the
+    rest is still checked (the timeline of a dialogue with problems is never used)."""
+
     def __init__(self, name: str, base: Path, duration_of: DurationOf,
-                 text_duration: Callable[[str], float] | None) -> None:
+                 text_duration: Callable[[str], float] | None, agent_check: AgentCheck | None) -> None:
         self.name = name
         self.base = base
         self.duration_of = duration_of
         self.text_duration = text_duration
+        self.agent_check = agent_check
+        self.errors: list[ScriptError] = []
+        self.agent = ""
+        self.agent_known = False  # False when the root's agent is missing or wrong: no speaker checks
+        self.partner = "user"
+        self.wpm = DEFAULT_WPM
+        self.gap = DEFAULT_GAP_S
         self.elements: list[AnimationElement] = []
         self.says: list[SayCue] = []
         self.params: list[ParamFile] = []
@@ -99,69 +106,103 @@ class _Builder:
         self.roles: list[tuple[float, Role, int]] = []
         self.emotions: list[tuple[float, str, float, float, int]] = []
 
-    def fail(self, node: Node, message: str) -> ScriptError:
-        return ScriptError(self.name, node.line, node.column, f"<{node.tag}>: {message}")
+    def report(self, node: Node, message: str) -> None:
+        self.errors.append(ScriptError(self.name, node.line, node.column, f"<{node.tag}>: {message}"))
 
-    def check_attrs(self, node: Node, required: tuple[str, ...] = ()) -> None:
+    def check_attrs(self, node: Node, required: tuple[str, ...] = ()) -> bool:
+        """Reports unknown and missing attributes; False when a required one is missing."""
         allowed = _ATTRS[node.tag]
         for key in node.attrs:
             if key not in allowed:
-                raise self.fail(node, f"unknown attribute {key!r}; allowed: {', '.join(sorted(allowed))}")
-        for key in required:
-            if key not in node.attrs:
-                raise self.fail(node, f"missing attribute {key!r}")
+                self.report(node, f"unknown attribute {key!r}; allowed: {', '.join(sorted(allowed))}")
+        missing = [key for key in required if key not in node.attrs]
+        for key in missing:
+            self.report(node, f"missing attribute {key!r}")
+        return not missing
 
     def number(self, node: Node, key: str, default: float, lo: float, hi: float, unit: str = "") -> float:
         value = self.optional(node, key, lo, hi, unit)
         return default if value is None else value
 
     def optional(self, node: Node, key: str, lo: float, hi: float, unit: str = "") -> float | None:
+        """The attribute's number; None when absent, or (reported) when it is no number or out of range."""
         if key not in node.attrs:
             return None
         raw = node.attrs[key].strip()
         if not _NUMBER_RE.fullmatch(raw):
-            raise self.fail(node, f"attribute {key}={node.attrs[key]!r} is not a number")
+            self.report(node, f"attribute {key}={node.attrs[key]!r} is not a number")
+            return None
         value = float(raw)
         if not (math.isfinite(value) and lo <= value <= hi):
-            raise self.fail(node, f"attribute {key}={raw} is out of range [{lo:g}, {hi:g}]{unit}")
+            self.report(node, f"attribute {key}={raw} is out of range [{lo:g}, {hi:g}]{unit}")
+            return None
         return value
 
-    def agent_id(self, node: Node, key: str, default: str | None) -> str:
+    def agent_id(self, node: Node, key: str, default: str | None) -> str | None:
         value = node.attrs.get(key, default)
         if value is None:
-            raise self.fail(node, f"missing attribute {key!r}")
+            return None  # a missing required attribute: check_attrs reports it
         if not AGENT_ID_RE.fullmatch(value):
-            raise self.fail(node, f"attribute {key}={value!r} must be 1-64 letters, digits, '_', '-' or '.'")
+            self.report(node, f"attribute {key}={value!r} must be 1-64 letters, digits, '_', '-' or '.'")
+            return None
         return value
 
-    def path(self, node: Node, key: str) -> Path:
-        raw = node.attrs[key].strip()
-        if not raw:
-            raise self.fail(node, f"attribute {key} is empty")
+    def resolve(self, raw: str) -> Path:
         try:
-            path = (self.base / raw).resolve()
-            found = path.is_file()
+            return (self.base / raw).resolve()
         except (OSError, ValueError):  # a name too long for the OS, or one holding a NUL
+            return self.base / raw
+
+    def params_path(self, node: Node) -> Path | None:
+        raw = node.attrs["href"].strip()
+        if not raw:
+            self.report(node, "attribute href is empty")
+            return None
+        path = self.resolve(raw)
+        try:
+            found = path.is_file()
+        except (OSError, ValueError):
             found = False
-            path = self.base / raw
         if not found:
-            raise self.fail(node, f"{key} file {raw!r} not found (looked for {path})")
+            self.report(node, f"href file {raw!r} not found (looked for {path})")
+            return None
+        return path
+
+    def audio_path(self, node: Node) -> Path | None:
+        raw = node.attrs["audio"].strip()
+        if not raw:
+            self.report(node, "attribute audio is empty")
+            return None
+        path = self.resolve(raw)
+        problem = audio_file_problem(path)
+        if problem == "not found":
+            problem += f" (looked for {path})"  # where a relative name led
+        if problem is not None:
+            self.report(node, f"audio {raw!r} {problem}")
+            return None
         return path
 
     # --- the document ---------------------------------------------------------------------------
 
     def build(self, root: Node) -> Dialogue:
         if root.tag != "dialogue":
-            raise self.fail(root, "the root element must be <dialogue>")
+            self.report(root, "the root element must be <dialogue>")
+            raise ScriptErrors(self.errors)  # nothing else in it can be read as a dialogue
         self.check_attrs(root, ("agent",))
-        self.agent = self.agent_id(root, "agent", None)
-        self.partner = self.agent_id(root, "partner", "user")
-        if self.partner == self.agent:
-            raise self.fail(root, "agent and partner must differ")
+        agent = self.agent_id(root, "agent", None)
+        if agent is not None:
+            self.agent, self.agent_known = agent, True
+        self.partner = self.agent_id(root, "partner", "user") or "user"
+        if self.agent_known and self.partner == self.agent:
+            self.report(root, "agent and partner must differ")
+        if self.agent_known and self.agent_check is not None:
+            problem = self.agent_check(self.agent)
+            if problem is not None:
+                self.errors.append(ScriptError(self.name, root.line, root.column, problem))
         self.wpm = self.number(root, "wpm", DEFAULT_WPM, 40, 400, " words per minute")
         self.gap = self.number(root, "gap", DEFAULT_GAP_S, 0, 60, " seconds")
         if root.text.strip():
-            raise self.fail(root, "text directly inside <dialogue>; put speech in a <turn>")
+            self.report(root, "text directly inside <dialogue>; put speech in a <turn>")
         cursor = 0.0
         previous_speech = False
         turns = silences = 0
@@ -177,7 +218,8 @@ class _Builder:
                 cursor = self.silence(child, cursor)
                 previous_speech, silences = False, silences + 1
             else:
-                raise self.fail(child, "unknown element; expected <turn>, <silence> or <params>")
+                self.report(child, "unknown element; expected <turn>, <silence> or <params>")
+        raise_collected(self.errors, self.name)
         self.flush_states(cursor)
         timeline = merge([*self.elements, *(e for p in self.params for e in p.elements)], self.says,
                          min_length_s=cursor)
@@ -185,29 +227,33 @@ class _Builder:
 
     def include(self, node: Node, base_s: float = 0.0) -> None:
         """A parameter file whose times count from `base_s` (the dialogue's, turn's or silence's start)."""
-        self.check_attrs(node, ("href",))
-        path = self.path(node, "href")
+        if not self.check_attrs(node, ("href",)):
+            return
+        path = self.params_path(node)
         offset = self.number(node, "offset", 0.0, 0, 1e6, " seconds")
-        agent = self.agent_id(node, "agent", self.agent)
+        agent = self.agent_id(node, "agent", self.agent if self.agent_known else DEFAULT_AGENT)
+        if path is None or agent is None:
+            return
         # Errors inside it name it as the dialogue does, relative to the dialogue's own name.
         shown = str(Path(self.name).parent / node.attrs["href"].strip())
-        self.params.append(parse_params(read_bytes(path), shown, agent=agent, offset_s=base_s + offset))
+        try:
+            self.params.append(parse_params(read_bytes(path), shown, agent=agent, offset_s=base_s + offset))
+        except ScriptError as exc:
+            self.errors.extend(exc.errors)
 
     def turn(self, node: Node, start: float, index: int) -> float:
         self.check_attrs(node, ("speaker",))
-        speaker = node.attrs["speaker"]
-        if speaker not in (self.agent, self.partner):
-            raise self.fail(node, f"speaker {speaker!r} is neither the agent {self.agent!r} nor the "
-                                  f"partner {self.partner!r}")
+        speaker = node.attrs.get("speaker", self.agent)
+        if "speaker" in node.attrs and self.agent_known and speaker not in (self.agent, self.partner):
+            self.report(node, f"speaker {speaker!r} is neither the agent {self.agent!r} nor the "
+                              f"partner {self.partner!r}")
         text = " ".join(node.text.split())
-        audio = self.path(node, "audio") if "audio" in node.attrs else None
-        duration = self.optional(node, "duration", 0.01, 3600, " seconds")
-        if duration is None:
-            duration = self.speech_duration(node, text, audio)
+        audio = self.audio_path(node) if "audio" in node.attrs else None
+        duration = self.turn_duration(node, text, audio)
         if text or audio is not None:
             uid = node.attrs.get("id") or f"{Path(self.name).stem}-{index:02d}"
             if uid in self.ids:
-                raise self.fail(node, f"utterance id {uid!r} is used twice")
+                self.report(node, f"utterance id {uid!r} is used twice")
             self.ids.add(uid)
             self.says.append(SayCue(start, speaker, uid, text, None if audio is None else str(audio),
                                     duration))
@@ -216,32 +262,55 @@ class _Builder:
         self.moves(node, start, duration)
         return start + duration
 
-    def speech_duration(self, node: Node, text: str, audio: Path | None) -> float:
-        if audio is not None:
-            try:
-                seconds = float(self.duration_of(audio))
-            except Exception as exc:  # a hook or a broken file: either way the script cannot play
-                raise self.fail(node, f"cannot measure audio {node.attrs['audio']!r}: {exc}") from None
-            if not (math.isfinite(seconds) and seconds > 0):
-                raise self.fail(node, f"audio {node.attrs['audio']!r} has no length ({seconds})")
-            return seconds
+    def turn_duration(self, node: Node, text: str, audio: Path | None) -> float:
+        """The turn's `duration`, else its audio's length, else its text's; the audio is measured even
+        when the duration is given, so a file that cannot play is found before anything plays."""
+        given = self.optional(node, "duration", 0.01, 3600, " seconds")
+        measured = self.measure(node, audio, "duration" in node.attrs) if audio is not None else None
+        if given is not None:
+            return given
+        if measured is not None:
+            return measured
+        if "duration" in node.attrs or "audio" in node.attrs:
+            return MIN_SPEECH_S  # the duration or the audio is wrong, and that is reported already
         if not text:
-            raise self.fail(node, "a turn needs text, an audio file or a duration")
+            self.report(node, "a turn needs text, an audio file or a duration")
+            return MIN_SPEECH_S
         if self.text_duration is not None:
             seconds = float(self.text_duration(text))
             if not (math.isfinite(seconds) and seconds > 0):
-                raise self.fail(node, f"speech duration of the text is {seconds}; expected seconds > 0")
+                self.report(node, f"speech duration of the text is {seconds}; expected seconds > 0")
+                return MIN_SPEECH_S
             return seconds
         return estimate_speech_s(text, self.wpm)
+
+    def measure(self, node: Node, audio: Path, duration_given: bool) -> float | None:
+        """Seconds of sound in the turn's audio file; None (reported) when it cannot be measured."""
+        shown = repr(node.attrs["audio"].strip())
+        try:
+            seconds = float(self.duration_of(audio))
+        except UnmeasurableAudio as exc:
+            if not duration_given:  # the format is fine; this reader just cannot tell its length
+                self.report(node, f"audio {shown} {exc.problem}")
+            return None
+        except AudioFileError as exc:
+            self.report(node, f"audio {shown} {exc.problem}")
+            return None
+        except Exception as exc:  # a hook of the caller's: whatever it raises, the script cannot play
+            self.report(node, f"audio {shown} cannot be measured: {describe(exc)}")
+            return None
+        if not (math.isfinite(seconds) and seconds > 0):
+            self.report(node, f"audio {shown} holds no sound (it lasts {seconds:g} s)")
+            return None
+        return seconds
 
     def silence(self, node: Node, start: float) -> float:
         self.check_attrs(node, ("duration",))
         if node.text.strip():
-            raise self.fail(node, "a silence holds no text")
-        duration = self.optional(node, "duration", 0.01, 3600, " seconds")
-        assert duration is not None
-        if "speaker" in node.attrs and node.attrs["speaker"] not in (self.agent, self.partner):
-            raise self.fail(node, f"speaker {node.attrs['speaker']!r} is neither agent nor partner")
+            self.report(node, "a silence holds no text")
+        duration = self.optional(node, "duration", 0.01, 3600, " seconds") or 0.0
+        if "speaker" in node.attrs and self.agent_known and node.attrs["speaker"] not in (self.agent, self.partner):
+            self.report(node, f"speaker {node.attrs['speaker']!r} is neither agent nor partner")
         self.states(node, start, duration, "silence")
         self.moves(node, start, duration)
         return start + duration
@@ -251,22 +320,22 @@ class _Builder:
     def states(self, node: Node, start: float, duration: float, default_role: Role) -> None:
         role = parse_role(node.attrs.get("role", default_role))
         if role is None:
-            raise self.fail(node, f"unknown role {node.attrs['role']!r}; expected one of {', '.join(ROLES)}")
-        if not self.roles or self.roles[-1][1] != role:
+            self.report(node, f"unknown role {node.attrs['role']!r}; expected one of {', '.join(ROLES)}")
+        elif not self.roles or self.roles[-1][1] != role:
             self.roles.append((start, role, node.line))
         if "emotion" not in node.attrs:
             for key in ("intensity", "transition"):
                 if key in node.attrs:
-                    raise self.fail(node, f"attribute {key} without an emotion")
+                    self.report(node, f"attribute {key} without an emotion")
             return
         emotion = parse_emotion(node.attrs["emotion"])
         if emotion is None:
-            raise self.fail(node, f"unknown emotion {node.attrs['emotion']!r}; expected one of "
-                                  f"{', '.join(emotion_names())}")
+            self.report(node, f"unknown emotion {node.attrs['emotion']!r}; expected one of "
+                              f"{', '.join(emotion_names())}")
         intensity = self.number(node, "intensity", 1.0, 0, 1)
         transition = self.number(node, "transition", min(DEFAULT_EMOTION_TRANSITION_S, duration), 0, 60,
                                  " seconds")
-        if not self.emotions or self.emotions[-1][1:3] != (emotion, intensity):
+        if emotion is not None and (not self.emotions or self.emotions[-1][1:3] != (emotion, intensity)):
             self.emotions.append((start, emotion, intensity, transition, node.line))
 
     def flush_states(self, end: float) -> None:
@@ -292,16 +361,16 @@ class _Builder:
             elif child.tag == "params":
                 self.include(child, start)
             else:
-                raise self.fail(child, f"unknown element inside <{node.tag}>; expected <head>, <gaze> "
-                                       "or <params>")
+                self.report(child, f"unknown element inside <{node.tag}>; expected <head>, <gaze> or <params>")
+                continue
             if child.children:
-                raise self.fail(child.children[0], f"<{child.tag}> holds no elements")
+                self.report(child.children[0], f"<{child.tag}> holds no elements")
 
     def head(self, node: Node, start: float) -> None:
         self.check_attrs(node)
         axes = tuple(self.optional(node, k, -1, 1) for k in ("turn", "nod", "tilt"))
-        if all(a is None for a in axes):
-            raise self.fail(node, "give at least one of turn, nod, tilt (flexor values in [-1, 1])")
+        if not any(k in node.attrs for k in ("turn", "nod", "tilt")):
+            self.report(node, "give at least one of turn, nod, tilt (flexor values in [-1, 1])")
         at = self.number(node, "at", 0.0, 0, 3600, " seconds")
         duration = self.number(node, "duration", DEFAULT_HEAD_S, 0.01, 3600, " seconds")
         flexors = {k: v for k, v in zip(("turn", "nod", "tilt"), axes, strict=True) if v is not None}
@@ -315,18 +384,22 @@ class _Builder:
         if "mode" in node.attrs:
             mode = parse_eye_mode(node.attrs["mode"])
             if mode is None:
-                raise self.fail(node, f"unknown eye mode {node.attrs['mode']!r}; expected one of "
-                                      f"{', '.join(EYE_MODES)}")
+                self.report(node, f"unknown eye mode {node.attrs['mode']!r}; expected one of "
+                                  f"{', '.join(EYE_MODES)}")
         x_deg, y_deg = eye_range_deg()
         yaw = self.optional(node, "yaw", -x_deg, x_deg, " degrees")
         pitch = self.optional(node, "pitch", -y_deg, y_deg, " degrees")
-        if (yaw is None) != (pitch is None):
-            raise self.fail(node, "a gaze target needs both yaw and pitch")
-        if mode is None and yaw is None:
-            raise self.fail(node, "give a mode, or a target as yaw and pitch (degrees)")
+        if ("yaw" in node.attrs) != ("pitch" in node.attrs):
+            self.report(node, "a gaze target needs both yaw and pitch")
+        elif not any(k in node.attrs for k in ("mode", "yaw", "pitch")):
+            self.report(node, "give a mode, or a target as yaw and pitch (degrees)")
         at = self.number(node, "at", 0.0, 0, 3600, " seconds")
         duration = self.number(node, "duration", max(turn_s - at, 0.01), 0.01, 3600, " seconds")
-        flexors = {} if yaw is None else {"look_x": yaw / x_deg, "look_y": pitch / y_deg}
+        flexors: dict[str, float] = {}
+        if yaw is not None and pitch is not None:
+            flexors = {"look_x": yaw / x_deg, "look_y": pitch / y_deg}
+        else:
+            yaw = pitch = None  # half a target is refused above
         self.elements.append(AnimationElement(
             start + at, duration, "gaze", self.agent, flexor_tuple(flexors), eye_mode=mode,
             yaw_deg=yaw, pitch_deg=pitch, file=self.name, line=node.line))
@@ -334,16 +407,29 @@ class _Builder:
 
 def parse_dialogue(data: bytes, name: str = "<dialogue>", base_dir: str | Path | None = None, *,
                    duration_of: DurationOf | None = None,
-                   text_duration: Callable[[str], float] | None = None) -> Dialogue:
-    """Parse a dialogue's XML; audio and parameter files resolve against `base_dir` (default: cwd)."""
-    root = parse_xml(data, name)
+                   text_duration: Callable[[str], float] | None = None,
+                   agent_check: AgentCheck | None = None) -> Dialogue:
+    """Parse a dialogue's XML; audio and parameter files resolve against `base_dir` (default: cwd).
+
+    `agent_check(agent)` may refuse the dialogue's agent (a caller animating another one): its message
+    becomes an error at the root element. Every problem found is raised at once as ScriptErrors.
+    """
+    try:
+        root = parse_xml(data, name)
+    except ScriptError as exc:
+        raise ScriptErrors([exc]) from None
     base = Path(base_dir) if base_dir is not None else Path.cwd()
-    return _Builder(name, base, duration_of or wav_duration, text_duration).build(root)
+    return _Builder(name, base, duration_of or wav_duration, text_duration, agent_check).build(root)
 
 
 def load_dialogue(path: str | Path, *, duration_of: DurationOf | None = None,
-                  text_duration: Callable[[str], float] | None = None) -> Dialogue:
+                  text_duration: Callable[[str], float] | None = None,
+                  agent_check: AgentCheck | None = None) -> Dialogue:
     """Read and parse a dialogue file; its audio and parameter paths are relative to it."""
     path = Path(path)
-    return parse_dialogue(read_bytes(path), str(path), path.resolve().parent, duration_of=duration_of,
-                          text_duration=text_duration)
+    try:
+        data = read_bytes(path)
+    except ScriptError as exc:
+        raise ScriptErrors([exc]) from None
+    return parse_dialogue(data, str(path), path.resolve().parent, duration_of=duration_of,
+                          text_duration=text_duration, agent_check=agent_check)

@@ -1,4 +1,10 @@
-"""Loading any script file by its content, and merging several into one timeline."""
+"""Loading script files by their content, deciding which agent they animate, and merging them.
+
+A dialogue names the agent it animates; that is the agent of the run. A caller may name one too
+(the commands' `--agent`): a dialogue for another agent is then an error, as is a second dialogue for
+another agent than the first. Parameter files carry no agent of their own (unless a data line names
+one): they drive the run's agent, which is the dialogues' agent, else the caller's, else DEFAULT_AGENT.
+"""
 
 from __future__ import annotations
 
@@ -6,10 +12,12 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from agent.script.dialogue import DurationOf, load_dialogue
+from agent.script.dialogue import DurationOf, parse_dialogue
 from agent.script.elements import SayCue, Timeline, merge
-from agent.script.paramfile import DEFAULT_AGENT, load_params
+from agent.script.errors import ScriptError, ScriptErrors
+from agent.script.paramfile import AGENT_ID_RE, parse_params
 from agent.script.textfile import read_bytes
+from agent.script.vocab import DEFAULT_AGENT
 
 
 @dataclass(frozen=True)
@@ -22,34 +30,110 @@ class Script:
     summary: str
 
 
+@dataclass(frozen=True)
+class ScriptSet:
+    """Several files loaded together: the agent they animate, each file, and their merged timeline."""
+
+    agent: str
+    scripts: tuple[Script, ...]
+    timeline: Timeline
+
+
 def is_xml(data: bytes) -> bool:
     """Dialogues are XML; parameter files start with the word `header`."""
     return data.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"<")
 
 
-def load_script(path: str | Path, *, agent: str = DEFAULT_AGENT, duration_of: DurationOf | None = None,
-                text_duration: Callable[[str], float] | None = None) -> Script:
-    """A dialogue or a parameter file, told apart by content; `agent` is who a parameter file drives."""
-    data = read_bytes(path)
-    if is_xml(data) or Path(path).suffix.lower() == ".xml":
-        dialogue = load_dialogue(path, duration_of=duration_of, text_duration=text_duration)
+class _OneAgent:
+    """The agent of a run: the caller's if given, else the first dialogue's."""
+
+    def __init__(self, requested: str | None) -> None:
+        self.agent = requested
+        self.source = "--agent" if requested is not None else ""
+
+    def check(self, path: str, own: str) -> str | None:
+        """Why a dialogue animating `own` cannot be part of this run, or None."""
+        if self.agent is None:
+            self.agent, self.source = own, path
+            return None
+        if own == self.agent:
+            return None
+        if self.source == "--agent":
+            return f"the dialogue animates {own!r} but --agent is {self.agent!r}"
+        return (f"the dialogue animates {own!r} but {self.source} animates {self.agent!r}; "
+                "the files of one run animate one agent")
+
+
+def check_agent_id(agent: str | None) -> None:
+    """ValueError unless `agent` is None or a valid agent id."""
+    if agent is not None and not AGENT_ID_RE.fullmatch(agent):
+        raise ValueError(f"--agent {agent!r} must be 1-64 letters, digits, '_', '-' or '.'")
+
+
+def load_scripts(paths: Iterable[str | Path], *, agent: str | None = None,
+                 duration_of: DurationOf | None = None,
+                 text_duration: Callable[[str], float] | None = None) -> ScriptSet:
+    """Load dialogues and parameter files (told apart by content) as one run.
+
+    `agent` is the agent the caller asks for (the commands' --agent; None: the dialogues' own).
+    Every problem of every file is raised at once as ScriptErrors, file by file in the order given;
+    nothing is returned unless all files are valid.
+    """
+    check_agent_id(agent)
+    names = [str(p) for p in paths]
+    found: dict[int, Script] = {}
+    errors: dict[int, tuple[ScriptError, ...]] = {}
+    data: dict[int, bytes] = {}
+    for i, name in enumerate(names):
+        try:
+            data[i] = read_bytes(name)
+        except ScriptError as exc:
+            errors[i] = exc.errors
+    dialogues = [i for i in data if is_xml(data[i]) or Path(names[i]).suffix.lower() == ".xml"]
+    run = _OneAgent(agent)
+    for i in dialogues:  # first, so that the parameter files know the agent they drive
+        name = names[i]
+        try:
+            dialogue = parse_dialogue(data[i], name, Path(name).resolve().parent, duration_of=duration_of,
+                                      text_duration=text_duration,
+                                      agent_check=lambda own, name=name: run.check(name, own))
+        except ScriptError as exc:
+            errors[i] = exc.errors
+            continue
         t = dialogue.timeline
         summary = (f"dialogue: {dialogue.agent} with {dialogue.partner}, {dialogue.turns} turns, "
                    f"{dialogue.silences} silences, {len(dialogue.params)} parameter files, "
                    f"{len(t.elements)} elements, {len(t.cues)} cues, {t.length_s:.1f} s")
-        return Script(str(path), "dialogue", t, summary)
-    params = load_params(path, agent=agent)
-    timeline = merge(params.elements)
-    summary = f"{params.kind_title}: {len(params.elements)} elements, {timeline.length_s:.1f} s"
-    return Script(str(path), params.kind, timeline, summary)
+        found[i] = Script(name, "dialogue", t, summary)
+    resolved = run.agent if run.agent is not None else DEFAULT_AGENT
+    for i in data:
+        if i in dialogues:
+            continue
+        try:
+            params = parse_params(data[i], names[i], agent=resolved)
+        except ScriptError as exc:
+            errors[i] = exc.errors
+            continue
+        timeline = merge(params.elements)
+        summary = f"{params.kind_title}: {len(params.elements)} elements, {timeline.length_s:.1f} s"
+        found[i] = Script(names[i], params.kind, timeline, summary)
+    if errors:
+        raise ScriptErrors(e for i in sorted(errors) for e in errors[i])
+    scripts = tuple(found[i] for i in range(len(names)))
+    elements = [e for s in scripts for e in s.timeline.elements]
+    says = [c for s in scripts for c in s.timeline.cues if isinstance(c, SayCue)]
+    timeline = merge(elements, says, min_length_s=max((s.timeline.length_s for s in scripts), default=0.0))
+    return ScriptSet(resolved, scripts, timeline)
 
 
-def build_timeline(paths: Iterable[str | Path], *, agent: str = DEFAULT_AGENT,
+def load_script(path: str | Path, *, agent: str | None = None, duration_of: DurationOf | None = None,
+                text_duration: Callable[[str], float] | None = None) -> Script:
+    """One dialogue or parameter file; `agent` as for load_scripts."""
+    return load_scripts([path], agent=agent, duration_of=duration_of, text_duration=text_duration).scripts[0]
+
+
+def build_timeline(paths: Iterable[str | Path], *, agent: str | None = None,
                    duration_of: DurationOf | None = None,
                    text_duration: Callable[[str], float] | None = None) -> Timeline:
     """Every file's elements and cues merged into one timeline; all files parse or nothing plays."""
-    scripts = [load_script(p, agent=agent, duration_of=duration_of, text_duration=text_duration)
-               for p in paths]
-    elements = [e for s in scripts for e in s.timeline.elements]
-    says = [c for s in scripts for c in s.timeline.cues if isinstance(c, SayCue)]
-    return merge(elements, says, min_length_s=max((s.timeline.length_s for s in scripts), default=0.0))
+    return load_scripts(paths, agent=agent, duration_of=duration_of, text_duration=text_duration).timeline

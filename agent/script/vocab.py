@@ -6,6 +6,11 @@ from typing import Literal, cast
 
 from agent.script.poses import emotion_table
 
+# The agent scripts animate when neither a dialogue nor the caller names one: the default agent of
+# configs/default.toml (`[agents] ids`), so a parameter file played on its own moves the face `eca up`
+# starts. Every command's default comes from here.
+DEFAULT_AGENT = "ada"
+
 Role = Literal["talking", "listening", "silence"]
 ROLES: tuple[Role, ...] = ("talking", "listening", "silence")
 # The paper's Table 1 says "Speaking" where the rest of the paper says talking.

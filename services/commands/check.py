@@ -5,29 +5,37 @@ from __future__ import annotations
 import argparse
 import sys
 
-from agent.script import DEFAULT_AGENT, ScriptError, load_script
+from agent.script import ScriptError, check_agent_id, load_script
+from services.script_input import AGENT_HELP, sound_duration
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "check",
         help="validate dialogue scripts (XML) and parameter files",
-        description="Parse each file as `eca play` would and print OK with a summary, or each error as "
-        "file:line:column: message. Exit 0 when all files are valid, 1 otherwise.",
+        description="Parse each file as `eca play` would and print OK with a summary, or every problem of "
+        "the file as file:line:column: message, in file order. Exit 0 when all files are valid, 1 otherwise.",
     )
     parser.add_argument("files", nargs="+", metavar="FILE", help="a dialogue (.xml) or parameter file")
-    parser.add_argument("--agent", default=DEFAULT_AGENT, help="agent id parameter files drive "
-                        f"(default {DEFAULT_AGENT!r})")
+    parser.add_argument("--agent", default=None, help=AGENT_HELP)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        check_agent_id(args.agent)
+    except ValueError as exc:
+        print(f"eca check: {exc}", file=sys.stderr)
+        return 2
     failed = 0
     for path in args.files:
         try:
-            script = load_script(path, agent=args.agent)
+            # Audio is measured as the render and the audio service read it, so a file they cannot
+            # play fails here too.
+            script = load_script(path, agent=args.agent, duration_of=sound_duration)
         except ScriptError as exc:
-            print(exc, file=sys.stderr)
+            for problem in exc.errors:
+                print(problem, file=sys.stderr)
             failed += 1
             continue
         print(f"{path}: OK: {script.summary}")

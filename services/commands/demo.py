@@ -12,7 +12,8 @@ from pathlib import Path
 
 from agent.script import ScriptError
 from services.commands.experiment import DEMO_DIALOGUE
-from services.commands.render import load_inputs, render_video, settings_from
+from services.commands.render import RENDER_ERRORS, load_inputs, print_render_failure, render_video, settings_from
+from services.script_input import print_failure
 from services.tts import SpeechSynthesisError
 
 
@@ -47,18 +48,23 @@ def run(args: argparse.Namespace) -> int:
 def run_headless(args: argparse.Namespace) -> int:
     from services.experiment import plot_trajectory
 
-    render_args = argparse.Namespace(scripts=[str(DEMO_DIALOGUE)], agent="ada", eyes="saccade+blink", view="full",
+    # agent=None: the demo dialogue animates its own agent
+    render_args = argparse.Namespace(scripts=[str(DEMO_DIALOGUE)], agent=None, eyes="saccade+blink", view="full",
                                      seed=args.seed, fps=30.0, size="640x480", no_voice=False)
     try:
         settings = settings_from(render_args)
-        timeline, voices = load_inputs(render_args)
+        loaded, voices = load_inputs(render_args, "demo")
     except (ScriptError, SpeechSynthesisError, ValueError) as exc:
-        print(f"eca demo: {exc}", file=sys.stderr)
+        print_failure("demo", exc, "nothing rendered")
         return 1
     out: Path = args.output
     video, csv, plot = out / "demo.mp4", out / "demo_flexors.csv", out / "demo_trajectory.png"
-    result = render_video(timeline, voices, "ada", settings, video, csv, label="demo")
-    plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, "demo: pupil trajectory", plot)
+    try:
+        result = render_video(loaded.timeline, voices, loaded.agent, settings, video, csv, label="demo")
+        plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, "demo: pupil trajectory", plot)
+    except RENDER_ERRORS as exc:
+        print_render_failure("demo", exc)
+        return 1
     print(f"video:      {video}\ntrajectory: {plot}\nflexors:    {csv}")
     return 0
 

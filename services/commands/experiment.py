@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 from agent.script import ScriptError
-from services.commands.render import load_inputs, render_video, settings_from
+from services.commands.render import RENDER_ERRORS, load_inputs, print_render_failure, render_video, settings_from
+from services.script_input import AGENT_HELP, print_failure
 from services.tts import SpeechSynthesisError
 
 DEMO_DIALOGUE = Path(__file__).resolve().parents[2] / "configs" / "demo" / "dialogue.xml"
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="render the paper's eye conditions side by side")
     p.add_argument("scripts", nargs="*", default=[str(DEMO_DIALOGUE)], help="dialogue (default: the demo)")
     p.add_argument("-o", "--output", type=Path, default=Path("out/experiment"), help="output folder")
-    p.add_argument("--agent", default="ada")
+    p.add_argument("--agent", default=None, help=AGENT_HELP)
     p.add_argument("--view", choices=["full", "upper"], default="upper", help="the paper used the upper face")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--fps", type=float, default=30.0)
@@ -33,26 +33,33 @@ def run(args: argparse.Namespace) -> int:
     from services.experiment import CONDITIONS, plot_trajectory, slug, write_index
 
     try:
+        if args.seconds is not None and not args.seconds > 0:
+            raise ValueError(f"--seconds {args.seconds} must be greater than 0")
         base = settings_from(args)
-        timeline, voices = load_inputs(args)
+        loaded, voices = load_inputs(args, "experiment")
     except (ScriptError, SpeechSynthesisError, ValueError) as exc:
-        print(f"eca experiment: {exc}", file=sys.stderr)
+        print_failure("experiment", exc, "nothing rendered")
         return 1
+    timeline = loaded.timeline
     if args.seconds is not None:
         timeline = replace(timeline, cues=tuple(c for c in timeline.cues if c.t_s < args.seconds),
                            length_s=min(timeline.length_s, args.seconds))
     out = args.output
-    out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for cond in CONDITIONS:
-        settings = replace(base, eyes=cond.key)
-        video = f"{slug(cond.key)}.mp4"
-        plot = f"{slug(cond.key)}_trajectory.png"
-        csv_path = None if args.no_csv else out / f"{slug(cond.key)}.csv"
-        result = render_video(timeline, voices, args.agent, settings, out / video, csv_path, label=cond.key)
-        plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, cond.label, out / plot)
-        rows.append((cond, video, plot))
-        print(f"{cond.label}: {out / video}", flush=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for cond in CONDITIONS:
+            settings = replace(base, eyes=cond.key)
+            video = f"{slug(cond.key)}.mp4"
+            plot = f"{slug(cond.key)}_trajectory.png"
+            csv_path = None if args.no_csv else out / f"{slug(cond.key)}.csv"
+            result = render_video(timeline, voices, loaded.agent, settings, out / video, csv_path, label=cond.key)
+            plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, cond.label, out / plot)
+            rows.append((cond, video, plot))
+            print(f"{cond.label}: {out / video}", flush=True)
+    except RENDER_ERRORS as exc:
+        print_render_failure("experiment", exc)
+        return 1
     notes = (f"The same dialogue ({', '.join(Path(s).name for s in args.scripts)}, {timeline.length_s:.0f} s) "
              f"under each eye condition, {args.view} view, seed {args.seed}. Below each video: the horizontal "
              "pupil position over time (the paper's Figure 4), lid closures in red.")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -12,6 +13,9 @@ from agent.config import ConfigError
 from agent.gaze.engine import GazeEngine
 from agent.gaze.generator import direction_from_uniform, magnitude_from_uniform, min_uniform_p, saccade_duration_s
 from agent.gaze.params import GazeParams
+
+if TYPE_CHECKING:  # matplotlib is imported when drawing, after the backend is chosen
+    from matplotlib.figure import Figure
 
 NS_PER_S = 1_000_000_000
 # (title, eye mode, role) for each panel of the trajectory figure.
@@ -29,7 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "gaze-plot",
         help="draw the pupil trajectory per eye mode and the saccade statistics as PNG",
         description="Write gaze_trajectory.png (pupil position across, time going up, like the paper's "
-        "Figure 4, one panel per eye mode and role) and gaze_statistics.png (histograms of magnitude, "
+        "Figure 4, one column per eye mode and role: horizontal position (yaw) on top, vertical (pitch) "
+        "below) and gaze_statistics.png (histograms of magnitude, "
         "direction, duration and interval over the model's analytic curves).",
     )
     parser.add_argument("-o", "--output", default="docs/img", help="folder for the PNGs (default: docs/img)")
@@ -65,40 +70,59 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def simulate_panels(params: GazeParams, frames: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Yaw and lid per frame (30 fps) for one agent per panel, all in one engine."""
+def simulate_panels(params: GazeParams, frames: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Yaw, pitch (degrees) and lid (0 open .. 1 closed) per frame (30 fps), one agent per panel."""
     engine = GazeEngine(len(PANELS), seed=seed, params=params)
     for agent, (_, mode, role) in enumerate(PANELS):
         engine.set_mode(agent, mode, 0)
         engine.set_role(agent, role, 0)
     yaw = np.empty((frames, len(PANELS)))
+    pitch = np.empty((frames, len(PANELS)))
     lid = np.empty((frames, len(PANELS)))
     for frame in range(frames):
         tick = engine.tick(frame * NS_PER_S // 30)
-        yaw[frame], lid[frame] = tick.yaw_deg, tick.lid
-    return yaw, lid
+        yaw[frame], pitch[frame], lid[frame] = tick.yaw_deg, tick.pitch_deg, tick.lid
+    return yaw, pitch, lid
+
+
+# (row title, axis label, limit attribute of GazeParams, trace colour) for the two rows of panels
+AXES = (
+    ("horizontal", "yaw (deg, + = agent's right)", "eye_yaw_limit_deg", "#1f4e79"),
+    ("vertical", "pitch (deg, + = up)", "eye_pitch_limit_deg", "#7b3f99"),
+)
+
+
+def trajectory_figure(params: GazeParams, yaw: np.ndarray, pitch: np.ndarray, lid: np.ndarray) -> Figure:
+    """One column per panel: horizontal position in the top row, vertical in the bottom one, both
+    across with time going up (the paper's Figure 4 shows the horizontal one)."""
+    import matplotlib.pyplot as plt
+
+    frames = yaw.shape[0]
+    frame_index = np.arange(frames)
+    fig, axes = plt.subplots(2, len(PANELS), figsize=(3.0 * len(PANELS), 12.0), sharey=True)
+    for row, ((name, label, limit_name, colour), angles) in enumerate(zip(AXES, (yaw, pitch), strict=True)):
+        limit = float(getattr(params, limit_name))
+        for k, (ax, (title, _, _)) in enumerate(zip(axes[row], PANELS, strict=True)):
+            ax.plot(angles[:, k], frame_index, color=colour, linewidth=0.7, label=name)
+            closed = lid[:, k] > 0.5
+            ax.plot(np.full(closed.sum(), limit * 0.93), frame_index[closed], "|", color="#c0504d", markersize=3)
+            ax.set_title(f"{title}\n{name}", fontsize=10)
+            ax.set_xlim(-limit, limit)
+            ax.set_xticks([-20, -10, 0, 10, 20])
+            ax.set_xlabel(label, fontsize=9)
+            ax.axvline(0.0, color="0.8", linewidth=0.6, zorder=0)
+        axes[row, 0].set_ylabel(f"frame (30 fps), time going up; {frames} frames")
+    axes[0, 0].set_ylim(0, frames)
+    fig.suptitle("Pupil trajectory per eye mode: horizontal (top) and vertical (bottom) position "
+                 "(red ticks: lids closed)", fontsize=12)
+    fig.tight_layout()
+    return fig
 
 
 def plot_trajectories(params: GazeParams, frames: int, seed: int, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    yaw, lid = simulate_panels(params, frames, seed)
-    frame_index = np.arange(frames)
-    fig, axes = plt.subplots(1, len(PANELS), figsize=(3.0 * len(PANELS), 7.5), sharey=True)
-    limit = params.eye_yaw_limit_deg
-    for k, (ax, (title, _, _)) in enumerate(zip(axes, PANELS, strict=True)):
-        ax.plot(yaw[:, k], frame_index, color="#1f4e79", linewidth=0.7)
-        closed = lid[:, k] > 0.5
-        ax.plot(np.full(closed.sum(), limit * 0.93), frame_index[closed], "|", color="#c0504d", markersize=3)
-        ax.set_title(title, fontsize=10)
-        ax.set_xlim(-limit, limit)
-        ax.set_xticks([-20, -10, 0, 10, 20])
-        ax.set_xlabel("horizontal pupil position (deg)")
-        ax.axvline(0.0, color="0.8", linewidth=0.6, zorder=0)
-    axes[0].set_ylabel(f"frame (30 fps), time going up; {frames} frames")
-    axes[0].set_ylim(0, frames)
-    fig.suptitle("Pupil trajectory per eye mode (red ticks: lids closed)", fontsize=12)
-    fig.tight_layout()
+    fig = trajectory_figure(params, *simulate_panels(params, frames, seed))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -6,13 +6,14 @@ import argparse
 import sys
 import time
 
-from agent.script import ScriptError, build_timeline
+from agent.script import ScriptError
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient
 from protocol.codec import ProtocolError, encode
 from protocol.endpoints import BusConfigError, load_bus_config
-from services.playback import CueTranslator, VoiceCache, prepare_voices
-from services.tts import SpeechSynthesisError, espeak_available
+from services.playback import CueTranslator
+from services.script_input import AGENT_HELP, load_run, open_voices, print_failure
+from services.tts import SpeechSynthesisError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scripts", nargs="+", help="dialogue XML and/or parameter files")
     p.add_argument("--config", default=None)
     p.add_argument("--instance", default=None)
-    p.add_argument("--agent", default="ada", help="the agent the scripts drive")
+    p.add_argument("--agent", default=None, help=AGENT_HELP)
     p.add_argument("--speed", type=float, default=1.0, help="playback speed factor (2 = twice as fast)")
     p.add_argument("--no-voice", action="store_true", help="do not speak lines that have only text")
     p.set_defaults(func=run)
@@ -30,21 +31,17 @@ def run(args: argparse.Namespace) -> int:
     if not 0.05 <= args.speed <= 100:
         print(f"eca play: --speed {args.speed} must lie in [0.05, 100]", file=sys.stderr)
         return 2
-    voices = None if args.no_voice or not espeak_available() else VoiceCache()
-    if voices is None and not args.no_voice:
-        print("eca play: espeak-ng not found: lines with only text are not spoken", file=sys.stderr)
+    voices = open_voices("play", args.no_voice)
     try:
         config = load_bus_config(args.config, args.instance)
-        timeline = build_timeline(args.scripts, agent=args.agent,
-                                  text_duration=voices.duration_of_text if voices else None)
-        if voices:
-            prepare_voices(timeline, voices, args.agent)
-    except (ScriptError, BusConfigError, SpeechSynthesisError) as exc:
-        print(f"eca play: {exc}", file=sys.stderr)
+        loaded = load_run(args.scripts, args.agent, voices)
+    except (ScriptError, BusConfigError, SpeechSynthesisError, ValueError) as exc:
+        print_failure("play", exc, "nothing played")
         return 1
+    timeline, agent = loaded.timeline, loaded.agent
     # Every command is made and checked before the first is sent: a cue the protocol refuses (an id or a
     # text over its limit) must stop the script before it starts, not half-way through.
-    translator = CueTranslator(args.agent, voices)
+    translator = CueTranslator(agent, voices)
     plan = []
     for cue in timeline.cues:
         try:
@@ -57,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
             return 1
         plan.append((cue, commands))
     try:
-        with AgentClient(config, agent=args.agent, source="eca-play") as client:
-            print(f"playing {len(timeline.cues)} cues, {timeline.length_s:.1f} s", flush=True)
+        with AgentClient(config, agent=agent, source="eca-play") as client:
+            print(f"playing {len(timeline.cues)} cues for {agent}, {timeline.length_s:.1f} s", flush=True)
             start = time.monotonic()
             for cue, commands in plan:
                 due = start + cue.t_s / args.speed

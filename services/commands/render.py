@@ -8,9 +8,10 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from agent.script import ScriptError, build_timeline
-from services.playback import VoiceCache, prepare_voices
-from services.tts import SpeechSynthesisError, espeak_available
+from agent.script import ScriptError, ScriptSet
+from services.playback import VoiceCache
+from services.script_input import AGENT_HELP, load_run, open_voices, print_failure
+from services.tts import SpeechSynthesisError
 
 if TYPE_CHECKING:  # the offline pipeline pulls in GL and FFmpeg: imported only when rendering
     from services.offline import RenderSettings
@@ -28,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scripts", nargs="+", help="dialogue XML and/or parameter files")
-    p.add_argument("--agent", default="ada", help="the agent the scripts animate")
+    p.add_argument("--agent", default=None, help=AGENT_HELP)
     p.add_argument("--eyes", choices=EYE_CHOICES, default="saccade+blink",
                    help="eye condition; 'script' follows the scripts' own eye-mode cues")
     p.add_argument("--view", choices=["full", "upper"], default="full")
@@ -57,15 +58,10 @@ def settings_from(args: argparse.Namespace) -> RenderSettings:
                           eyes=None if args.eyes == "script" else args.eyes, seed=args.seed)
 
 
-def load_inputs(args: argparse.Namespace) -> tuple[Any, VoiceCache | None]:
-    voices = None if args.no_voice or not espeak_available() else VoiceCache()
-    if voices is None and not args.no_voice:
-        print("eca render: espeak-ng not found: lines with only text stay silent", file=sys.stderr)
-    timeline = build_timeline(args.scripts, agent=args.agent,
-                              text_duration=voices.duration_of_text if voices else None)
-    if voices is not None:
-        prepare_voices(timeline, voices, args.agent)
-    return timeline, voices
+def load_inputs(args: argparse.Namespace, command: str = "render") -> tuple[ScriptSet, VoiceCache | None]:
+    """The scripts as one run (its agent: --agent or the dialogue's own) and the voices they speak with."""
+    voices = open_voices(command, args.no_voice)
+    return load_run(args.scripts, args.agent, voices), voices
 
 
 def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings: RenderSettings,
@@ -78,7 +74,8 @@ def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings:
     from services.renderer.renderer import Renderer
     from services.renderer.video import VideoWriter
 
-    output.parent.mkdir(parents=True, exist_ok=True)
+    for folder in {output.parent, *([csv_path.parent] if csv_path is not None else [])}:
+        folder.mkdir(parents=True, exist_ok=True)  # before rendering, so a bad place fails at once
     ctx = create_headless_context()
     renderer = Renderer(ctx, settings.size)
     target = create_offscreen_target(ctx, settings.size)
@@ -98,9 +95,24 @@ def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings:
         bar.close()
         mux_audio(silent, result.audio, output)
     if csv_path is not None:
-        write_flexor_csv(csv_path, result.t_s, result.flexors)
+        write_flexor_csv(csv_path, result)
     ctx.release()
     return result
+
+
+# What a render can still meet after the scripts loaded: an output it cannot write (OSError), a sound
+# file that changed since and cannot be read (the offline pipeline's AudioFileError, a ValueError).
+RENDER_ERRORS = (OSError, ValueError)
+
+
+def print_render_failure(command: str, exc: Exception) -> None:
+    if isinstance(exc, FileExistsError | NotADirectoryError) and exc.filename:
+        # mkdir's words ("File exists") for a file standing where an output folder must go
+        print(f"eca {command}: {exc.filename}: is a file, not a folder to write into", file=sys.stderr)
+    elif isinstance(exc, OSError) and exc.filename and exc.strerror:
+        print(f"eca {command}: {exc.filename}: {exc.strerror}", file=sys.stderr)
+    else:
+        print(f"eca {command}: {exc}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,11 +120,15 @@ def run(args: argparse.Namespace) -> int:
         settings = settings_from(args)
         if args.output.suffix.lower() != ".mp4":
             raise ValueError(f"{args.output}: the output must be an .mp4 file")
-        timeline, voices = load_inputs(args)
+        loaded, voices = load_inputs(args)
     except (ScriptError, SpeechSynthesisError, ValueError) as exc:
-        print(f"eca render: {exc}", file=sys.stderr)
+        print_failure("render", exc, "nothing rendered")
         return 1
     csv_path = args.csv or args.output.with_suffix(".csv")
-    render_video(timeline, voices, args.agent, settings, args.output, csv_path)
-    print(f"wrote {args.output} ({timeline.length_s:.1f} s) and {csv_path}")
+    try:
+        render_video(loaded.timeline, voices, loaded.agent, settings, args.output, csv_path)
+    except RENDER_ERRORS as exc:
+        print_render_failure("render", exc)
+        return 1
+    print(f"wrote {args.output} ({loaded.timeline.length_s:.1f} s, agent {loaded.agent}) and {csv_path}")
     return 0
