@@ -220,10 +220,17 @@ def parse_frames(frames: list[bytes], max_bytes: int = DEFAULT_MAX_BYTES) -> Rec
     the reason's topic is the first frame when that reads as one (so the error reaches the agent's
     error topic even for a message with the wrong number of frames)."""
     try:
-        return _parse_frames(frames, max_bytes)
+        got = _parse_frames(frames, max_bytes)
     except Exception as exc:  # a bug in decoding must cost one message, never the process that reads it
         return Received(_topic_of(frames), None, ProtocolError(
             "internal", f"the message could not be decoded (an eca bug: {type(exc).__name__})"))
+    if got.error is not None:
+        # The error outlives this call (in the Received), and its traceback, and that of the exception it
+        # was raised from, hold the decoder's frames, their callers' and so the caller's whole batch of
+        # messages, in a cycle only a full garbage collection frees: under a flood of garbage, memory kept.
+        got.error.__traceback__ = None
+        got.error.__context__ = None
+    return got
 
 
 def _parse_frames(frames: list[bytes], max_bytes: int) -> Received:

@@ -160,10 +160,14 @@ class AgentClient:
                 self._inbox.popleft()
         raise BusTimeout(f"nothing matching arrived within {timeout_s} s")
 
-    def wait_applied(self, sent: Message, timeout_s: float = 5.0) -> Ack:
+    def wait_applied(self, sent: Message, timeout_s: float = 5.0, resend_s: float = 0.5) -> Ack:
         """The acknowledgement of a command sent with a request id: the owning service applied it (and the
         state it caused has arrived before it). Raises CommandRejected when it was refused, BusTimeout
-        when no answer came (the service may be down, or the command lost with a broker)."""
+        when no answer came within `timeout_s` (the dialogue service may be down).
+
+        While it waits it sends the command again, after `resend_s` and then at doubling intervals (the
+        zguide's Lazy Pirate): a command or its acknowledgement can be lost while a broker restarts, and
+        the dialogue service acknowledges a repeat of a command it applied without applying it twice."""
         request_id = getattr(sent, "request_id", "")
         command = sent.TYPE
 
@@ -172,11 +176,20 @@ class AgentClient:
                 return bool(request_id) and m.request_id == request_id
             return isinstance(m, Ack) and m.request_id == request_id and m.command == command
 
-        try:
-            got = self.wait_for(match, timeout_s)
-        except BusTimeout:
-            raise BusTimeout(f"no acknowledgement of {command} within {timeout_s:g} s: is the dialogue service "
-                             "running?") from None
+        deadline = time.monotonic() + timeout_s
+        interval = resend_s
+        while True:
+            left = deadline - time.monotonic()
+            try:
+                got = self.wait_for(match, max(0.0, min(left, interval)))
+                break
+            except BusTimeout:
+                if time.monotonic() >= deadline:
+                    raise BusTimeout(f"no acknowledgement of {command} within {timeout_s:g} s: is the dialogue "
+                                     "service running?") from None
+            if request_id:  # without an id a repeat could not be told from a new command
+                self.pub.publish(sent)
+            interval = min(2 * interval, 2.0)
         if isinstance(got, Error):
             raise CommandRejected(got)
         return got  # type: ignore[return-value]

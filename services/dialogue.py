@@ -24,7 +24,7 @@ publishes the state again), or of both at once.
 from __future__ import annotations
 
 import dataclasses
-from collections import deque
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -66,6 +66,7 @@ from services.state_snapshot import StateSnapshot, snapshot_path
 STATE_TYPES = (RoleState, EmotionState, HeadState, EyesState, GazeTargetState, SpeechState, PlaybackState)
 OWN_STATE_TYPES = ("role", "emotion", "head", "eyes", "gaze_target", "speech")  # what this service publishes
 ENDED_KEPT = 1024  # per agent: request ids that ended here, remembered so a repeat of their ending is ignored
+ACKED_KEPT = 4096  # commands acknowledged lately, remembered so one sent again is acknowledged, not re-applied
 
 
 @dataclass
@@ -130,10 +131,13 @@ class DialogueService(Service):
         self._acks: list[Ack] = []
         self._published: dict[str, Message] = {}  # topic -> this service's state as last published
         self._ended_before: dict[str, list[str]] = {}  # from the snapshot: requests a predecessor ended
+        self._acked: OrderedDict[tuple[str, str, str], None] = OrderedDict()  # (agent, command, request id)
+        once = self._once
         for cls, handler in (
-            (SetRole, self.on_set_role), (SetEmotion, self.on_set_emotion), (MoveHead, self.on_move_head),
-            (SetEyes, self.on_set_eyes), (SetGazeTarget, self.on_set_gaze_target), (Say, self.on_say),
-            (SpeechChunk, self.on_chunk), (Interrupt, self.on_interrupt), (UserSpeech, self.on_user_speech),
+            (SetRole, once(self.on_set_role)), (SetEmotion, once(self.on_set_emotion)),
+            (MoveHead, once(self.on_move_head)), (SetEyes, once(self.on_set_eyes)),
+            (SetGazeTarget, once(self.on_set_gaze_target)), (Say, self.on_say),
+            (SpeechChunk, self.on_chunk), (Interrupt, self.on_interrupt), (UserSpeech, once(self.on_user_speech)),
             (SpeechStarted, self.on_audio_started), (SpeechFinished, self.on_audio_terminal),
             (SpeechInterrupted, self.on_audio_terminal), (SpeechFailed, self.on_audio_terminal),
             (Heartbeat, self.on_heartbeat), (PlaybackState, self.on_playback),
@@ -198,6 +202,21 @@ class DialogueService(Service):
         rid = getattr(command, "request_id", "") if request_id is None else request_id
         if rid or request_id is not None:
             self._acks.append(Ack(agent=command.agent, request_id=rid, command=command.TYPE))
+        if rid:
+            self._acked[(command.agent, command.TYPE, rid)] = None
+            while len(self._acked) > ACKED_KEPT:
+                self._acked.popitem(last=False)
+
+    def _once(self, handler: Any) -> Any:
+        """The handler of a command a client may send again when its acknowledgement does not come (it was
+        lost with a broker: the zguide's Lazy Pirate): a repeat of a command already applied is
+        acknowledged again, not applied again."""
+        def handle(cmd: Any) -> None:
+            if cmd.request_id and (cmd.agent, cmd.TYPE, cmd.request_id) in self._acked:
+                self._acks.append(Ack(agent=cmd.agent, request_id=cmd.request_id, command=cmd.TYPE))
+                return
+            handler(cmd)
+        return handle
 
     # --- start-up: adopt the current state from the last-value cache (a restart keeps it) --------
 
@@ -368,8 +387,11 @@ class DialogueService(Service):
         state = self._agent(cmd)
         if not cmd.request_id:
             raise Rejected("a say request needs a non-empty request_id")
-        if cmd.request_id in state.pending:
-            raise Rejected(f"request_id '{cmd.request_id}' is already in use", cmd.request_id)
+        if cmd.request_id in state.pending or cmd.request_id in state.ended:
+            # Sent again by a client that missed the acknowledgement: the request stands as it is (request
+            # ids are unique per request, so this is no new request).
+            self._ack(cmd)
+            return
         sources = [cmd.audio_path is not None, cmd.pcm is not None, cmd.streamed]
         if sum(sources) != 1:
             raise Rejected("a say request needs exactly one of audio_path, pcm or streamed=true",
@@ -406,6 +428,9 @@ class DialogueService(Service):
 
     def on_interrupt(self, cmd: Interrupt) -> None:
         state = self._agent(cmd)
+        if cmd.request_id and cmd.request_id in state.ended:
+            self._ack(cmd, cmd.request_id)  # it has ended already (perhaps by this very command, sent again)
+            return
         if cmd.request_id and cmd.request_id not in state.pending:
             raise Rejected(f"no pending say request '{cmd.request_id}' to interrupt", cmd.request_id)
         self.publish_later(dataclasses.replace(cmd, t_ns=0), category="play")

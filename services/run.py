@@ -7,6 +7,7 @@ import importlib
 import sys
 
 from protocol.endpoints import BusConfigError, load_bus_config
+from services.heap import bound_heap
 from services.runtime import setup_logging
 
 # name -> "module:class"; a module is imported only when its service is started.
@@ -27,6 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--liveness", default=None, metavar="ENDPOINT",
                         help="also send heartbeats straight to the supervisor listening here")
     args, extra = parser.parse_known_args(argv)
+    bound_heap()  # before the bus: a flood's large messages must not stay resident afterwards
     setup_logging(args.name)
     try:
         config = load_bus_config(args.config, args.instance)

@@ -31,6 +31,7 @@ from protocol.bus import BusTimeout, Publisher, Received, Subscriber
 from protocol.codec import ProtocolError, is_agent_id
 from protocol.endpoints import BusConfig
 from protocol.messages import ALL_AGENTS, Error, Heartbeat, Message
+from services.heap import trim
 from services.liveness import LivenessSender
 
 M = TypeVar("M", bound=Message)
@@ -186,6 +187,7 @@ class Service:
         if now >= self._next_beat_ns:
             self.beat()
             self._next_beat_ns = now + int(self.config.heartbeat_interval_s * 1e9)
+            trim()  # what a burst of messages left free in the heap goes back to the system
         assert self.pub is not None
         if self.pub.new_broker():
             self.log.info("the broker restarted")

@@ -147,3 +147,14 @@ def test_a_message_with_the_wrong_number_of_frames_keeps_its_topic() -> None:
     assert got.error is not None and got.error.kind == "bad_frames" and got.topic == "cmd.ada.set_emotion"
     got = parse_frames([b"x" * 10_000, payload])
     assert got.error is not None and got.error.kind == "bad_topic" and len(got.topic) == MAX_TOPIC_BYTES
+
+
+def test_a_rejected_message_holds_no_frames_of_the_reader() -> None:
+    """An error kept in a Received must not hold the decoder's frames (through its traceback or the
+    exception it was raised from): their callers' locals hold the reader's whole batch, in a cycle that
+    only a full collection frees, and under a flood of garbage that memory stayed."""
+    for payload in (b"\xc1", msgpack.packb({"v": 1, "type": "set_emotion", "agent": "ada", "intensity": 9.0}),
+                    msgpack.packb({"v": 1, "type": "set_emotion", "agent": "ada", "name": "x", "mood": 1})):
+        got = parse_frames([b"cmd.ada.set_emotion", payload])
+        assert got.error is not None
+        assert got.error.__traceback__ is None and got.error.__context__ is None and got.error.__cause__ is None
