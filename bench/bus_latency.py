@@ -39,6 +39,8 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from services.processes import subprocess_env  # noqa: E402 (after the path is set)
+
 TOPIC = "stream.ada.eye_state"
 TARGET_MEDIAN_RATIO = 1.2
 TARGET_P99_MS_60HZ = 2.0
@@ -157,12 +159,6 @@ def run_publisher(mode: str, config_path: str, instance: str, count: int, rate_h
 # --- orchestration ---------------------------------------------------------------------------------
 
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
-
 def _self(*args: str) -> list[str]:
     return [sys.executable, str(Path(__file__).resolve()), *args]
 
@@ -171,7 +167,7 @@ def measure(mode: str, rate_hz: float, count: int, config_path: Path, instance: 
     idle_s = max(2.0, 20.0 / rate_hz)
     sub = subprocess.Popen(_self("--role", "sub", "--mode", mode, "--config", str(config_path), "--instance",
                                  instance, "--count", str(count), "--idle", str(idle_s)),
-                           stdout=subprocess.PIPE, env=_env(), cwd=REPO, text=True)
+                           stdout=subprocess.PIPE, env=subprocess_env(), cwd=REPO, text=True)
     try:
         assert sub.stdout is not None
         line = sub.stdout.readline()
@@ -179,7 +175,7 @@ def measure(mode: str, rate_hz: float, count: int, config_path: Path, instance: 
             raise RuntimeError(f"{mode} subscriber did not get ready: {line!r}")
         pub = subprocess.run(_self("--role", "pub", "--mode", mode, "--config", str(config_path), "--instance",
                                    instance, "--count", str(count), "--rate", str(rate_hz)),
-                             env=_env(), cwd=REPO, timeout=count / rate_hz + 60)
+                             env=subprocess_env(), cwd=REPO, timeout=count / rate_hz + 60)
         if pub.returncode:
             raise RuntimeError(f"{mode} publisher failed with code {pub.returncode}")
         out, _ = sub.communicate(timeout=count / rate_hz + 60)

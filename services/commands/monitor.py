@@ -13,6 +13,7 @@ from protocol.bus import BusTimeout, Received, Subscriber
 from protocol.endpoints import BusConfigError, load_bus_config
 from protocol.messages import Heartbeat
 from protocol.topics import CATEGORIES
+from services import cli_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,8 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--topic", action="append", default=[], help="only topics with this prefix (repeatable)")
     p.add_argument("--heartbeats", action="store_true", help="show heartbeats too")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
-    p.add_argument("--count", type=int, default=None, help="stop after this many messages")
-    p.add_argument("--seconds", type=float, default=None, help="stop after this long")
+    p.add_argument("--count", type=cli_args.count, default=None, help="stop after this many messages")
+    p.add_argument("--seconds", type=cli_args.seconds, default=None, help="stop after this long")
     p.set_defaults(func=run)
 
 

@@ -11,6 +11,7 @@ import zmq
 
 from protocol.bus import BusTimeout, Publisher
 from protocol.endpoints import BusConfigError, load_bus_config
+from services import cli_args
 from services.recording import RecordingError, RecordingWriter, read_recording
 
 
@@ -19,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("--config", default=None)
     p.add_argument("--instance", default=None)
-    p.add_argument("--seconds", type=float, default=None, help="stop after this long (default: Ctrl-C)")
+    p.add_argument("--seconds", type=cli_args.seconds, default=None, help="stop after this long (default: Ctrl-C)")
     p.add_argument("--topic", action="append", default=[], help="only these topic prefixes")
     p.add_argument("--heartbeats", action="store_true", help="keep heartbeats too")
     p.set_defaults(func=run_record)
@@ -27,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("--config", default=None)
     p.add_argument("--instance", default=None)
-    p.add_argument("--speed", type=float, default=1.0, help="pace factor; 0 = as fast as possible")
+    p.add_argument("--speed", type=cli_args.pace, default=1.0, help="pace factor; 0 = as fast as possible")
     p.add_argument("--topic", action="append", default=[], help="only these topic prefixes")
     p.set_defaults(func=run_replay)
 
@@ -77,9 +78,6 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    if args.speed < 0:
-        print("eca replay: --speed must not be negative", file=sys.stderr)
-        return 2
     try:
         config = load_bus_config(args.config, args.instance)
         _, records = read_recording(args.file)  # all of it is checked before anything is sent

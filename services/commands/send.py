@@ -13,31 +13,22 @@ import sys
 import tempfile
 from pathlib import Path
 
+from agent.script import DEFAULT_AGENT
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient, CommandRejected
 from protocol.codec import ProtocolError
 from protocol.endpoints import BusConfigError, load_bus_config
 from protocol.messages import Message, Say, SpeechFinished
+from services import cli_args
 from services.tts import SpeechSynthesisError, synthesize
-
-
-def positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not 0 < value <= 86_400:  # NaN fails this too
-        raise argparse.ArgumentTypeError(f"{text} s is not a timeout: give a number of seconds above 0 "
-                                         "(at most a day)")
-    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("send", help="send one command to an agent of a running instance")
     p.add_argument("--config", default=None)
     p.add_argument("--instance", default=None)
-    p.add_argument("--agent", default="ada")
-    p.add_argument("--timeout", type=positive_seconds, default=5.0,
+    p.add_argument("--agent", default=DEFAULT_AGENT, help=f"the agent to drive (default {DEFAULT_AGENT!r})")
+    p.add_argument("--timeout", type=cli_args.seconds, default=5.0,
                    help="seconds to wait for the acknowledgement (default 5)")
     kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
     k = kinds.add_parser("role", help="talking, listening or silence")

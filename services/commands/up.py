@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from protocol.endpoints import BusConfigError, load_bus_config
+from services import cli_args
 from services.up import choose_services, run_up
 
 
@@ -16,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--only", action="append", default=[], metavar="SERVICE", help="start only these")
     p.add_argument("--without", action="append", default=[], metavar="SERVICE", help="do not start these")
     p.add_argument("--quiet", action="store_true", help="no periodic bus summary")
-    p.add_argument("--seconds", type=float, default=None, help="stop by itself after this long")
+    p.add_argument("--seconds", type=cli_args.seconds, default=None, help="stop by itself after this long")
     face = p.add_argument_group("renderer", "passed to the renderer (it picks a window where a display exists)")
     face.add_argument("--headless", action="store_true", help="render offscreen (EGL) even where a display exists")
     face.add_argument("--window", action="store_true", help="require a window (fail without a display)")
