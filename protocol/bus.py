@@ -29,6 +29,26 @@ class BusTimeout(TimeoutError):
     """A readiness barrier or a wait did not complete in time."""
 
 
+MAX_TOPICS_KEPT = 65_536  # per socket: topics whose count or last state is remembered
+
+
+class TopicCounts:
+    """Messages sent per topic, for `seq`. Bounded: peers choose topics (an error goes to the offending
+    message's agent), so the oldest topics are forgotten past MAX_TOPICS_KEPT (a forgotten topic counts
+    from 1 again, as after a restart)."""
+
+    def __init__(self) -> None:
+        self._counts: dict[str, int] = {}
+
+    def next(self, topic: str) -> int:
+        return self._counts.get(topic, 0) + 1
+
+    def sent(self, topic: str, seq: int) -> None:
+        if topic not in self._counts and len(self._counts) >= MAX_TOPICS_KEPT:
+            del self._counts[next(iter(self._counts))]
+        self._counts[topic] = seq
+
+
 def _now_ns() -> int:
     return time.monotonic_ns()
 
@@ -44,7 +64,7 @@ class Publisher:
         self.source = source
         self._now_ns = now_ns
         self._max_bytes = config.max_message_bytes
-        self._seq: dict[str, int] = {}
+        self._seq = TopicCounts()
         self.brokers_seen = 0  # subscriptions from a broker: the first connection, then one per restart
         self.socket = ctx.socket(zmq.XPUB)
         self.socket.setsockopt(zmq.SNDHWM, config.hwm)
@@ -77,10 +97,10 @@ class Publisher:
         Counts toward the topic's `seq`, so send what it returns (with `send_raw`) before anything else
         on that topic."""
         topic = topic_for(msg, category)
-        seq = self._seq.get(topic, 0) + 1
+        seq = self._seq.next(topic)
         stamped = _stamped(msg, seq, msg.t_ns or self._now_ns(), self.source)
         payload = encode(stamped, self._max_bytes)  # an invalid message raises here and leaves no gap in seq
-        self._seq[topic] = seq
+        self._seq.sent(topic, seq)
         return topic.encode(), payload, stamped
 
     def send_raw(self, topic: bytes, payload: bytes) -> None:
@@ -203,6 +223,8 @@ class Subscriber:
             # byte-identical = the same message re-sent (a restarted publisher's seq starts again at 1)
             if self._last_state.get(got.topic) == frames[1]:
                 return None
+            if got.topic not in self._last_state and len(self._last_state) >= MAX_TOPICS_KEPT:
+                del self._last_state[next(iter(self._last_state))]  # bounded: peers choose topics
             self._last_state[got.topic] = frames[1]
         return got
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import zmq
 
-from protocol.bus import parse_frames
+from protocol.bus import TopicCounts, parse_frames
 from protocol.codec import ProtocolError, encode
 from protocol.endpoints import BusConfig
 from protocol.messages import ALL_AGENTS, Heartbeat, Hello
@@ -54,7 +54,7 @@ class Broker:
         self.stale = 0  # states dropped because the cache held a newer one of their topic
         self.failures = 0  # messages the broker failed on (a bug): dropped, counted
         self.started_ns = time.monotonic_ns()
-        self._seq: dict[str, int] = {}
+        self._seq = TopicCounts()
         self._lock_fd: int | None = None
         self._lock_runtime_dir(config.runtime_dir)
         self.frontend = self.ctx.socket(zmq.XSUB)
@@ -166,7 +166,8 @@ class Broker:
 
     def _send_own(self, msg: Hello | Heartbeat) -> Hello | Heartbeat:
         topic = topic_for(msg)
-        seq = self._seq[topic] = self._seq.get(topic, 0) + 1
+        seq = self._seq.next(topic)
+        self._seq.sent(topic, seq)
         stamped = dataclasses.replace(msg, seq=seq, t_ns=time.monotonic_ns(), source="broker")
         try:
             payload = encode(stamped)

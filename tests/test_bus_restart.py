@@ -189,3 +189,15 @@ def test_a_silent_broker_does_not_make_the_dialogue_fail_its_requests(config: Bu
         finally:
             service.teardown()
             service.close()
+
+
+def test_what_a_publisher_remembers_per_topic_is_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Peers choose topics (an error goes to the offending message's agent): a flood of new topics must
+    not grow a publisher's counts without bound; a forgotten topic counts from 1 again."""
+    from protocol import bus
+
+    monkeypatch.setattr(bus, "MAX_TOPICS_KEPT", 3)
+    counts = bus.TopicCounts()
+    for topic in ("error.a.error", "error.b.error", "error.a.error", "error.c.error", "error.d.error"):
+        counts.sent(topic, counts.next(topic))
+    assert len(counts._counts) == 3 and counts.next("error.a.error") == 1 and counts.next("error.d.error") == 2

@@ -235,3 +235,20 @@ def test_a_killed_service_is_polled_until_its_end_is_collected(rig) -> None:
     hung.code = -9
     sup.check()
     assert hung not in sup.retired
+
+
+def test_the_bus_view_holds_a_fixed_amount_whatever_arrives() -> None:
+    from protocol.bus import Received
+    from protocol.messages import ALL_AGENTS, EmotionState, Error, Heartbeat
+    from services.bus_view import MAX_SERVICES_SHOWN, BusView
+
+    view = BusView(["ada"])
+    for k in range(1000):
+        view.add(Received("sys.*.heartbeat", Heartbeat(agent=ALL_AGENTS, service=f"s{k}", pid=1, started_ns=1)))
+        view.add(Received(f"state.x{k}.emotion", EmotionState(agent=f"x{k}", name="happy")))
+    view.add(Received("state.ada.emotion", EmotionState(agent="ada", name="angry", intensity=0.5)))
+    view.add(Received("error.*.error", Error(agent=ALL_AGENTS, reason="bad frames", service="dialogue")))
+    assert len(view.services) == MAX_SERVICES_SHOWN and list(view.emotion) == ["ada"]
+    line = view.summary()
+    assert "ada: ?, angry 0.5" in line and "1 errors, last: dialogue: bad frames" in line
+    assert view.arrived == 0  # counted, then reset by the summary: nothing kept per message

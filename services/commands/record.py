@@ -9,7 +9,8 @@ from pathlib import Path
 
 import zmq
 
-from protocol.bus import BusTimeout, Publisher
+from protocol.bus import BusTimeout, Publisher, Subscriber
+from protocol.codec import encode
 from protocol.endpoints import BusConfigError, load_bus_config
 from services import cli_args
 from services.recording import RecordingError, RecordingWriter, read_recording
@@ -45,23 +46,26 @@ def run_record(args: argparse.Namespace) -> int:
         print(f"eca record: cannot write {args.file}: {exc.strerror}", file=sys.stderr)
         return 2
     ctx = zmq.Context()
-    sock = ctx.socket(zmq.SUB)
-    sock.setsockopt(zmq.RCVHWM, config.hwm)
-    sock.setsockopt(zmq.LINGER, 0)
-    for prefix in args.topic or [""]:
-        sock.setsockopt(zmq.SUBSCRIBE, prefix.encode())
-    sock.connect(config.backend)
+    sub = Subscriber(ctx, config, args.topic or [""])
+    try:
+        # the readiness barrier: nothing published from now on is missed, and no broker is an error
+        early = sub.wait_ready(5.0)
+    except BusTimeout as exc:
+        print(f"eca record: {exc}", file=sys.stderr)
+        writer.close()
+        sub.close()
+        ctx.term()
+        return 1
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     print(f"recording {config.backend} into {args.file}", flush=True)
     try:
+        for got in early:  # the current states, handed over by the broker's cache
+            if got.message is not None:
+                writer.write(time.monotonic_ns(), got.topic.encode(), encode(got.message))
         while deadline is None or time.monotonic() < deadline:
-            if not sock.poll(100):
+            if not sub.socket.poll(100):
                 continue
-            while True:
-                try:
-                    frames = sock.recv_multipart(zmq.NOBLOCK)
-                except zmq.Again:
-                    break
+            for frames in sub.read_frames(10_000):
                 if len(frames) != 2 or (not args.heartbeats and frames[0].endswith(b".heartbeat")):
                     continue
                 if frames[0].startswith(b"sys.") and frames[0].endswith(b".hello"):
@@ -71,7 +75,7 @@ def run_record(args: argparse.Namespace) -> int:
         pass
     finally:
         writer.close()
-        sock.close()
+        sub.close()
         ctx.term()
     print(f"recorded {writer.count} messages", flush=True)
     return 0
