@@ -278,6 +278,8 @@ def test_any_kills_in_any_order_keep_the_commanded_state_and_end_every_say_once(
     assert state["head"][1:4] == (0.25, -0.1, 0.05) and state["eyes"][1] == "saccade"
     assert state["gaze_target"][1:4] == (12.5, -4.0, "user")
     assert not [line for line in reader.lines if "not restarted again" in line or "Traceback" in line]
+    # only what was killed was restarted: a broker that is down costs the healthy services nothing
+    assert pids_of(reader) == pids
     # a renderer started after all that draws the commanded face, not a neutral one
     kill_and_wait_back(reader, "renderer", pids["renderer"])
     smile = face_flexor(config, "smile_l")
@@ -319,3 +321,23 @@ def test_a_stopped_instance_leaves_no_runtime_files_and_no_process(tmp_path: Pat
         assert not [p for p in pids.values() if alive(p)]
         assert not config.runtime_dir.exists(), sorted(config.runtime_dir.iterdir())
 
+
+
+def test_a_service_alone_with_no_broker_says_so_in_one_line(tmp_path: Path) -> None:
+    """Started without `eca up` and with no broker, a service waits its connect timeout, then stops with
+    one line naming the endpoint: no traceback."""
+    import subprocess
+    import sys
+
+    from services.processes import REPO_ROOT, subprocess_env
+
+    with private_bus_config() as config:
+        text = config.config_path.read_text()
+        config.config_path.write_text(text.replace("connect_timeout_s = 10.0", "connect_timeout_s = 0.6", 1))
+        done = subprocess.run([sys.executable, "-m", "services.run", "dialogue", "--config", str(config.config_path),
+                               "--instance", config.instance], capture_output=True, text=True, timeout=60,
+                              env=subprocess_env(), cwd=REPO_ROOT)
+    assert done.returncode == 1
+    errors = [line for line in done.stderr.splitlines() if "ERROR" in line]
+    assert len(errors) == 1 and "no broker answered at ipc://" in errors[0] and "within 0.6 s" in errors[0]
+    assert "Traceback" not in done.stderr
