@@ -387,6 +387,8 @@ def _scalar(spec: FieldSpec, kind: Any) -> Check:
         def check_bytes(v: Any) -> Any:
             if type(v) is not bytes:
                 raise _Bad("wrong_type", f"expected binary data, got {_type_name(v)}")
+            if max_len is not None and len(v) > max_len:
+                raise _Bad("out_of_range", f"{len(v)} bytes is over the maximum {max_len}")
             return v
         return check_bytes
     raise TypeError(f"unsupported annotation {kind!r} in {spec.name}")  # a bug in messages.py, not input

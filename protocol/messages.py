@@ -396,6 +396,39 @@ class FaceFrame(Message):
                                         doc="flexor name -> value in [-1, 1]")
 
 
+MAX_AUDIO_BLOCK_BYTES = 65_536  # a voice or microphone block: 10-20 ms of mono 16-bit audio is far less
+
+
+@dataclass(frozen=True, kw_only=True)
+class VoiceBlock(Message):
+    """A block of the agent's voice as the audio service hands it to its output, published for outputs in
+    other processes (the web service's audio track): the samples that reach the output at `dac_time_ns`
+    on the master clock, silence included, so the blocks form one continuous track."""
+
+    TYPE = "voice"
+    CATEGORY = "stream"
+    sample_rate: int = bounded(lo=8000, hi=192_000, doc="rate of the samples")
+    first_sample: int = bounded(lo=0, hi=2**62, doc="index of its first sample since the output started")
+    dac_time_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when its first sample reaches the output (master clock)")
+    pcm: bytes = bounded(max_len=MAX_AUDIO_BLOCK_BYTES, doc="mono PCM, signed 16-bit little-endian")
+    request_id: str = bounded("", max_len=64, doc="the say request playing at its start; empty: silence")
+
+
+@dataclass(frozen=True, kw_only=True)
+class UserAudio(Message):
+    """A block of the user's microphone as a front-end received it, for a dialogue manager's own speech
+    recognition: 16 kHz mono by default, stamped with the monotonic time its first sample arrived."""
+
+    TYPE = "user_audio"
+    CATEGORY = "stream"
+    sample_rate: int = bounded(16_000, lo=8000, hi=48_000, doc="rate of the samples")
+    first_sample: int = bounded(lo=0, hi=2**62, doc="index of its first sample since the microphone connected")
+    capture_time_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when its first sample arrived (monotonic clock)")
+    pcm: bytes = bounded(max_len=MAX_AUDIO_BLOCK_BYTES, doc="mono PCM, signed 16-bit little-endian")
+    speaking: bool = bounded(False, doc="the voice-activity detector's verdict for this block")
+    source_id: str = bounded("", max_len=64, doc="which connection it came from (a browser, a pipeline)")
+
+
 # --- system ----------------------------------------------------------------------------------------
 
 
@@ -436,7 +469,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     SetRole, SetEmotion, MoveHead, SetEyes, SetGazeTarget, Say, SpeechChunk, Interrupt, UserSpeech,
     RoleState, EmotionState, HeadState, EyesState, GazeTargetState, SpeechState, PlaybackState,
     SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Ack, Saccade,
-    ClockAnchor, MouthKeys, EyeState, FaceFrame,
+    ClockAnchor, MouthKeys, EyeState, FaceFrame, VoiceBlock, UserAudio,
     Heartbeat, Hello, Error,
 )
 MESSAGE_TYPES: dict[str, type[Message]] = {cls.TYPE: cls for cls in ALL_MESSAGES}
