@@ -9,7 +9,8 @@ import zmq
 from protocol.bus import Publisher, Received, Subscriber
 from protocol.messages import ClockAnchor, EmotionState, MouthKeys, SpeechFailed, SpeechStarted
 from protocol.topics import topic_for
-from services.renderer.service import RendererOptions, RendererService
+from services.renderer.options import RendererOptions
+from services.renderer.service import RendererService
 from services.testing import BrokerThread, private_bus_config
 
 

@@ -16,7 +16,8 @@ from agent.gaze.synth import eye_position_at
 from protocol.bus import Publisher, Subscriber
 from protocol.endpoints import BusConfig
 from protocol.messages import ClockAnchor, EmotionState, EyeState, FaceFrame, HeadState, MouthKeys, Saccade
-from services.renderer.service import RendererOptions, RendererService, options_from
+from services.renderer.options import RendererOptions, options_from
+from services.renderer.service import RendererService
 from services.renderer.video import read_video_frames
 from services.testing import BrokerThread, ServiceThread, private_bus_config
 

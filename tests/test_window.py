@@ -17,7 +17,8 @@ from protocol.bus import Publisher, Subscriber
 from protocol.messages import FaceFrame, Message, MoveHead, SetEmotion, SetEyes, SetRole
 from services.dialogue import DialogueService
 from services.renderer import read_rgb
-from services.renderer.service import RendererOptions, RendererService
+from services.renderer.options import RendererOptions
+from services.renderer.service import RendererService
 from services.renderer.window import EMOTION_KEYS, AgentStatus, LocalAction, action_for_key
 from services.testing import BrokerThread, ServiceThread, private_bus_config
 

@@ -14,7 +14,7 @@ from services.runtime import setup_logging
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from services.renderer.service import options_parser
+    from services.renderer.options import options_parser
 
     p = sub.add_parser("view", parents=[options_parser()],
                        help="show the face of a running instance (window, or headless video/PNG)",
@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.renderer.service import RendererService, options_from_namespace
+    from services.renderer.options import options_from_namespace
+    from services.renderer.service import RendererService
 
     setup_logging("view")
     try:
