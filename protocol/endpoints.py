@@ -65,7 +65,7 @@ def load_bus_config(path: str | Path | None = None, instance: str | None = None,
             raise BusConfigError(f"{where}: runtime directory path {runtime_dir} is too long for ipc")
     elif transport == "tcp":
         host = _get(bus, "tcp_host", str, where)
-        if not _is_loopback(host) and not _get(bus, "allow_remote", bool, where):
+        if not is_loopback(host) and not _get(bus, "allow_remote", bool, where):
             raise BusConfigError(f"{where}: tcp_host {host!r} is not loopback; set allow_remote = true to "
                                  "expose the bus beyond this machine")
         front_port = _get(bus, "tcp_frontend_port", int, where)
@@ -106,7 +106,7 @@ def make_private_dir(path: Path) -> None:
             os.chmod(part, 0o700)
 
 
-def _is_loopback(host: str) -> bool:
+def is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
     try:

@@ -16,6 +16,7 @@ SERVICES: dict[str, str] = {
     "gaze": "services.gaze:GazeService",
     "audio": "services.audio.service:AudioService",
     "renderer": "services.renderer.service:RendererService",
+    "web": "services.web.service:WebService",
 }
 
 

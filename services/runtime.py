@@ -15,6 +15,7 @@ waits for a broker that is not there yet instead of giving up.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import sys
@@ -40,7 +41,11 @@ BATCH_LIMIT = 1000  # messages handled between two looks at the heartbeat and th
 _STATE = b"state."
 
 
-class BrokerUnavailable(RuntimeError):
+class CannotStart(RuntimeError):
+    """A service cannot start (its message says why, in one line): it stops with exit code 1."""
+
+
+class BrokerUnavailable(CannotStart):
     """No broker answered a starting service that has no supervisor to wait for."""
 
 
@@ -169,7 +174,7 @@ class Service:
         try:
             try:
                 self.connect()
-            except BrokerUnavailable as exc:
+            except CannotStart as exc:
                 if self._stop.is_set():
                     return 0
                 self.log.error("cannot start: %s", exc)
@@ -203,7 +208,7 @@ class Service:
             self._next_tick_ns = max(self._next_tick_ns + period, now + period // 4)
         due = min(self._next_beat_ns, self._next_tick_ns if self.tick_hz else self._next_beat_ns)
         wait_s = min(_MAX_WAIT_S, max(0.0, (due - self.clock.now_ns()) / 1e9))
-        if self.sub.socket.poll(int(wait_s * 1000), zmq.POLLIN):
+        if self.sub.socket.poll(math.ceil(wait_s * 1000), zmq.POLLIN):
             batch = self.read_batch(BATCH_LIMIT)
             for got in batch:
                 self.dispatch(got)

@@ -1,4 +1,5 @@
-"""Integration: the player on a real-time-paced PortAudio device (a JACK dummy server).
+"""Integration: the player on a real-time-paced PortAudio device (a JACK dummy server): clock anchors, and
+the voice blocks copied in the real callback.
 
 PortAudio must initialise after the JACK server is up, so the player runs in a fresh interpreter.
 """
@@ -52,6 +53,47 @@ print(json.dumps({"sink": type(sink).__name__, "finished": finished, "lifecycle"
 """
 
 
+VOICE_CHILD = r"""
+import json, sys, threading
+import numpy as np
+from services.audio import Player, VoiceBlock, open_sink
+from services.audio.player import pcm16_bytes
+
+sink = open_sink(48_000, 480)
+done = threading.Event()  # the voice is back to silence after the utterance
+voice = []
+
+def on_event(e):
+    if isinstance(e, VoiceBlock):
+        if e.utterance_id == "" and voice and voice[-1].utterance_id == "u":
+            done.set()
+        voice.append(e)
+
+player = Player(sink, on_event, publish_voice=True).start()
+seconds = float(sys.argv[1])
+t = np.arange(round(seconds * 48_000)) / 48_000
+x = (0.2 * np.sin(2 * np.pi * 220 * t)).astype(np.float32)
+player.say_pcm("u", x, 48_000)
+finished = done.wait(seconds + 5.0)
+player.close()
+ids = [v.utterance_id for v in voice]
+start = ids.index("u") if "u" in ids else len(voice)
+track = b"".join(v.pcm for v in voice[start:])
+print(json.dumps({"sink": type(sink).__name__, "finished": finished, "said": track[: 2 * len(x)] == pcm16_bytes(x),
+                  "silence_after": not any(track[2 * len(x):]), "first_samples": [v.first_sample for v in voice],
+                  "dac_ns": [v.dac_time_ns for v in voice]}))
+"""
+
+
+def run_child(code: str, jack_server: str) -> tuple[dict, str]:
+    """Run `code` against the JACK server in a fresh interpreter: its JSON result and its stderr."""
+    env = {**os.environ, "JACK_DEFAULT_SERVER": jack_server, "JACK_NO_START_SERVER": "1"}
+    run = subprocess.run([sys.executable, "-c", code, str(PLAY_S)], capture_output=True, text=True,
+                         timeout=60, env=env, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert run.returncode == 0, run.stderr[-2000:]
+    return json.loads(run.stdout.strip().splitlines()[-1]), run.stderr
+
+
 @pytest.fixture
 def jack_server() -> Iterator[str]:
     if shutil.which("jackd") is None or shutil.which("jack_lsp") is None:
@@ -84,13 +126,9 @@ def jack_server() -> Iterator[str]:
 
 
 def test_clock_anchors_advance_at_the_wall_clock_rate(jack_server: str) -> None:
-    env = {**os.environ, "JACK_DEFAULT_SERVER": jack_server, "JACK_NO_START_SERVER": "1"}
-    run = subprocess.run([sys.executable, "-c", CHILD, str(PLAY_S)], capture_output=True, text=True,
-                         timeout=60, env=env, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    assert run.returncode == 0, run.stderr[-2000:]
-    result = json.loads(run.stdout.strip().splitlines()[-1])
+    result, stderr = run_child(CHILD, jack_server)
     assert result["sink"] == "SoundDeviceSink", result
-    assert result["finished"], (result["lifecycle"], result["diag"], run.stderr[-1000:])
+    assert result["finished"], (result["lifecycle"], result["diag"], stderr[-1000:])
     # mouth keys go out in pieces as the preparer computes them, the first before any sound
     assert result["lifecycle"][0] == "MouthKeys"
     assert [k for k in result["lifecycle"] if k != "MouthKeys"] == ["SpeechStarted", "SpeechFinished"]
@@ -110,3 +148,15 @@ def test_clock_anchors_advance_at_the_wall_clock_rate(jack_server: str) -> None:
     # Each anchor names a DAC time a little ahead of when it was published, never far off.
     lead_ms = (dac_ns - wall_ns) / 1e6
     assert -20.0 < np.median(lead_ms) < 200.0
+
+
+def test_the_voice_blocks_are_what_the_device_played(jack_server: str) -> None:
+    """The copy the real callback keeps of PortAudio's buffer: every sample once, in order; DAC times from the
+    stream's clock, one block apart up to the mapping's corrections (sub-millisecond)."""
+    result, _ = run_child(VOICE_CHILD, jack_server)
+    assert result["sink"] == "SoundDeviceSink", result
+    assert result["finished"] and result["said"] and result["silence_after"]
+    assert result["first_samples"] == [480 * k for k in range(len(result["first_samples"]))]
+    steps_ms = np.diff(result["dac_ns"]) / 1e6
+    assert np.median(steps_ms) == pytest.approx(10.0, abs=0.01)
+    assert np.all(np.abs(steps_ms - 10.0) < 2.0)

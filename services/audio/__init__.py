@@ -1,4 +1,5 @@
-"""The audio engine: plays utterances through a sink, is the master clock, emits lifecycle and mouth events.
+"""The audio engine: plays utterances through a sink, is the master clock, emits lifecycle and mouth events
+and, when asked, every block the output takes (the voice, for outputs in other processes).
 
 The service process is a thin wrapper: it maps the plain events of `Player` onto bus messages.
 """
@@ -12,6 +13,7 @@ from services.audio.events import (
     SpeechFinished,
     SpeechInterrupted,
     SpeechStarted,
+    VoiceBlock,
 )
 from services.audio.player import Player
 from services.audio.sinks import FakeSink, NullSink, Sink, open_sink
@@ -29,5 +31,6 @@ __all__ = [
     "SpeechFinished",
     "SpeechInterrupted",
     "SpeechStarted",
+    "VoiceBlock",
     "open_sink",
 ]

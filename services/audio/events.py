@@ -68,6 +68,18 @@ class MouthReset:
     dac_time_ns: int
 
 
+@dataclass(frozen=True, slots=True)
+class VoiceBlock:
+    """One block exactly as the output took it, silence included: consecutive blocks form one track."""
+
+    agent_id: str
+    utterance_id: str  # the utterance whose sample starts the block; "" when it starts in silence
+    first_sample: int  # index of its first sample since the output started
+    sample_rate: int
+    dac_time_ns: int  # when its first sample reaches the DAC (the mapping the clock anchors use)
+    pcm: bytes  # mono, signed 16-bit little-endian
+
+
 AudioEvent = (SpeechStarted | SpeechFinished | SpeechInterrupted | SpeechFailed | ClockAnchor | MouthKeys
-              | MouthReset)
+              | MouthReset | VoiceBlock)
 TERMINAL_EVENTS = (SpeechFinished, SpeechInterrupted, SpeechFailed)

@@ -14,9 +14,11 @@ Four threads touch it, and each owns its part:
 - the sink's callback only copies prepared samples (dropping each chunk once played) and appends small
   records (what it copied, and the block's timing stamp) to a deque; it takes no lock, logs nothing,
   and never waits: when the next samples are not prepared yet it plays silence until they are, as for
-  a late streamed chunk;
+  a late streamed chunk. With `publish_voice` it also records a copy of the whole block it filled
+  (the sink reuses its buffer) and the utterance its first sample belongs to;
 - the publisher (`pump`, a thread for real-time sinks, the sink's own step for the fake sink) turns
-  records into events: DAC times mapped to the monotonic clock, lifecycle, clock anchors. All events
+  records into events: DAC times mapped to the monotonic clock, lifecycle, clock anchors, and voice
+  blocks (each recorded block as int16 with its DAC time and its index in the output). All events
   reach `on_event` from this one thread, in order; terminal events come only from the callback's
   records, so they follow the queue's order.
 """
@@ -44,6 +46,7 @@ from services.audio.events import (
     SpeechFinished,
     SpeechInterrupted,
     SpeechStarted,
+    VoiceBlock,
 )
 from services.audio.files import AudioFileError, MonoReader, open_sound_file
 from services.audio.resample import Resampler
@@ -59,7 +62,7 @@ _REFILL_POLL_S = 0.05
 _IDLE_POLL_S = 1.0  # with nothing to prepare; a request, chunk, interruption or close wakes it anyway
 
 # Record kinds appended by the callback.
-_BUFFER, _PLAY, _END, _CUT = range(4)
+_BUFFER, _PLAY, _END, _CUT, _VOICE = range(5)
 
 # What one preparation step found.
 _WORKED, _FULL, _NOTHING = range(3)
@@ -217,11 +220,15 @@ class Player:
     by the preparer. `interrupt` stops the voice within one block. Every request ends in exactly one of
     SpeechFinished, SpeechInterrupted, SpeechFailed, in queue order. Utterance ids must be unique among
     the requests still in flight (a repeat raises ValueError).
+
+    With `publish_voice`, every block the sink takes, silence included, is also reported as a VoiceBlock,
+    in order, after the lifecycle events of that block: one continuous track for outputs in other
+    processes.
     """
 
     def __init__(self, sink: Sink, on_event: Callable[[AudioEvent], None], *, agent_id: str = "agent",
                  clock: Clock | None = None, config: AudioConfig | None = None,
-                 lipsync_config: LipSyncConfig | None = None) -> None:
+                 lipsync_config: LipSyncConfig | None = None, publish_voice: bool = False) -> None:
         self.sink = sink
         self.on_event = on_event
         self.agent_id = agent_id
@@ -239,6 +246,8 @@ class Player:
         self._records: deque[tuple[Any, ...]] = deque()  # callback -> publisher
         self._outbox: deque[tuple[_Track, AudioEvent]] = deque()  # preparer -> publisher (mouth keys)
         self._buffer_dac_ns = 0
+        self._publish_voice = publish_voice  # set once: the voice's sample count runs from the output's start
+        self._voice_sample = 0  # publisher only: output index of the next voice block's first sample
         self._latest: tuple[_Track, int, int, int] | None = None  # track, sample, dac_ns, count
         self._next_anchor_ns: int | None = None
         self._anchor_period_ns = round(1e9 / self.config.anchor_hz)
@@ -519,6 +528,7 @@ class Player:
         tracks = self._tracks
         n = len(out)
         pos = 0
+        first_uid = ""  # the utterance whose sample starts the block, for the voice block
         while pos < n and tracks:
             t = tracks[0]
             if t.cut:
@@ -536,6 +546,8 @@ class Player:
             take = min(n - pos, len(chunk) - t.chunk_off)
             out[pos : pos + take] = chunk[t.chunk_off : t.chunk_off + take]
             records.append((_PLAY, t, t.played, pos, take))
+            if pos == 0:
+                first_uid = t.uid
             t.played += take
             t.chunk_off += take
             if t.chunk_off == len(chunk):
@@ -547,6 +559,8 @@ class Player:
                 tracks.popleft()
         if pos < n:
             out[pos:] = 0.0
+        if self._publish_voice:
+            records.append((_VOICE, out.copy(), first_uid))  # a copy: the sink fills `out` again next block
 
     # ------------------------------------------------------------------ the publisher
 
@@ -568,6 +582,12 @@ class Player:
             kind = rec[0]
             if kind == _BUFFER:
                 self._buffer_dac_ns = self.sink.dac_time_ns(rec[1])
+                continue
+            if kind == _VOICE:  # the block's last record: its _BUFFER set the DAC time above
+                block = rec[1]
+                emit(VoiceBlock(self.agent_id, rec[2], self._voice_sample, sr, self._buffer_dac_ns,
+                                pcm16_bytes(block)))
+                self._voice_sample += len(block)
                 continue
             track: _Track = rec[1]
             dac_ns = self._buffer_dac_ns + (rec[3] * 1_000_000_000) // sr
@@ -630,6 +650,15 @@ class Player:
         k = min(max(0, ((now - dac_ns) * self.sample_rate) // 1_000_000_000), count - 1)
         self.on_event(ClockAnchor(self.agent_id, track.uid, sample + k, self.sample_rate,
                                   dac_ns + (k * 1_000_000_000) // self.sample_rate))
+
+
+def pcm16_bytes(samples: np.ndarray) -> bytes:
+    """Float samples in [-1, 1] as signed 16-bit little-endian PCM: x * 32768 rounded, clipped to the int16
+    range, so int16 PCM the player took in (scaled by 1 / 32768) comes out bit-exact."""
+    scaled = samples * np.float32(32768.0)
+    np.rint(scaled, out=scaled)
+    np.clip(scaled, -32768.0, 32767.0, out=scaled)
+    return scaled.astype("<i2").tobytes()
 
 
 def _check_rate(sample_rate: int) -> None:

@@ -6,7 +6,12 @@ is passed on as a view of the message's bytes) and the heartbeat, sent from this
 them. The player reports from its own publisher thread; zmq sockets must stay on one thread, so its
 events go through a queue that this service's loop (ticking at 250 Hz) drains and publishes, a few
 milliseconds' worth per tick: lifecycle on `audio.` (the dialogue service re-publishes it once per
-request), clock anchors and mouth keys on `stream.`.
+request), clock anchors and mouth keys on `stream.`, and, with `[output] publish_voice` in
+configs/audio.toml, the voice itself on `stream.<agent>.voice`: every block the output takes, silence
+included (100 per second per agent by default), for outputs in other processes such as the web
+service's audio track. They come from the player like the other events, so they share the master clock:
+a block's `dac_time_ns` is the time the clock anchors give its first sample, and an interruption shows
+as silence from the block where the voice stopped.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ from protocol.messages import SpeechFailed as SpeechFailedMsg
 from protocol.messages import SpeechFinished as SpeechFinishedMsg
 from protocol.messages import SpeechInterrupted as SpeechInterruptedMsg
 from protocol.messages import SpeechStarted as SpeechStartedMsg
+from protocol.messages import VoiceBlock as VoiceBlockMsg
 from services.audio import events
 from services.audio.config import AudioConfig
 from services.audio.player import Player
@@ -80,7 +86,8 @@ class AudioService(Service):
         for agent in self.agent_ids:
             sink: Sink = self._sink_factory()
             self.players[agent] = Player(sink, self.events.put, agent_id=agent, clock=self.clock,
-                                         config=self.audio_config).start()
+                                         config=self.audio_config,
+                                         publish_voice=self.audio_config.publish_voice).start()
             self._publish_playback(agent)
 
     def teardown(self) -> None:
@@ -170,6 +177,10 @@ class AudioService(Service):
 
     def to_messages(self, ev: events.AudioEvent) -> list[tuple[Message, str]]:
         agent = ev.agent_id
+        if isinstance(ev, events.VoiceBlock):  # first: the most frequent event
+            return [(VoiceBlockMsg(agent=agent, sample_rate=ev.sample_rate, first_sample=ev.first_sample,
+                                   dac_time_ns=max(0, ev.dac_time_ns), pcm=ev.pcm, request_id=ev.utterance_id),
+                     "stream")]
         if isinstance(ev, events.ClockAnchor):
             return [(ClockAnchorMsg(agent=agent, request_id=ev.utterance_id, sample_index=ev.sample_index,
                                     sample_rate=ev.sample_rate, dac_time_ns=max(0, ev.dac_time_ns)), "stream")]

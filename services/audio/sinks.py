@@ -169,4 +169,5 @@ def open_sink(sample_rate: int = 48_000, block_frames: int = 480, *, device: str
         _warned_no_device = True
         log.warning("no audio output: %s; playing into a silent sink paced by the monotonic clock "
                     "(timing, lifecycle and lip-sync behave the same, nothing is heard)", reason)
-    return NullSink(sample_rate, block_frames, clock=clock)
+    latency_s = config.null_latency_s if config is not None else 0.0
+    return NullSink(sample_rate, block_frames, clock=clock, latency_s=latency_s)

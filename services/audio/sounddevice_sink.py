@@ -1,8 +1,9 @@
 """The real output: a sounddevice (PortAudio) OutputStream.
 
 The callback only hands the output buffer to the player's render function (which copies prepared
-samples) and stamps it with the stream's DAC time, current time and the monotonic clock. Mapping those
-onto the monotonic clock (`ClockMap`) happens later in the publisher thread.
+samples, and a copy of the block when the voice is published) and stamps it with the stream's DAC time,
+current time and the monotonic clock. Mapping those onto the monotonic clock (`ClockMap`) happens later
+in the publisher thread.
 """
 
 from __future__ import annotations
@@ -52,7 +53,8 @@ class SoundDeviceSink:
         monotonic_ns = time.monotonic_ns
 
         def callback(outdata: np.ndarray, frames: int, time_info: Any, status: sd.CallbackFlags) -> None:
-            # Real-time thread: no logging, no allocation beyond the small stamp, no locks.
+            # Real-time thread: no logging, no locks, no allocation beyond the small stamp and the player's
+            # records (with the voice published, a copy of the block: 2 KB).
             if status:  # CallbackFlags: truthy on underflow etc.; count only, never raise in here
                 self.status_count += 1
             stamp = CallbackStamp(time_info.outputBufferDacTime, time_info.currentTime, monotonic_ns(),

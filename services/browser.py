@@ -1,0 +1,99 @@
+"""A real headless Chromium for the web front-end's tests and benchmark (Debian's `chromium` and
+`chromium-driver`, driven by selenium), with fake media devices: a WAV file as the microphone.
+
+The flags keep a browser on a machine with no network beyond loopback quiet (no background fetches that
+would fail), grant the microphone without asking, and let the page play sound without a user gesture.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMEDRIVER = "/usr/bin/chromedriver"
+
+
+class BrowserMissing(RuntimeError):
+    """Chromium or its driver is not installed (`.ci/setup` installs Debian's)."""
+
+
+def browser_available() -> str | None:
+    """Why no browser can run here, or None when one can."""
+    for path in (CHROMIUM, CHROMEDRIVER):
+        if not Path(path).exists():
+            return f"{path} is missing: install Debian's chromium and chromium-driver"
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        return "selenium is not installed"
+    return None
+
+
+@contextmanager
+def chromium(microphone_wav: Path | None = None, window: tuple[int, int] = (1280, 800)) -> Iterator[Any]:
+    """A selenium driver of a fresh headless Chromium (its own empty profile), quit afterwards."""
+    problem = browser_available()
+    if problem:
+        raise BrowserMissing(problem)
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    profile = Path(tempfile.mkdtemp(prefix="eca-chromium-"))
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--disable-quic", "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+                 "--autoplay-policy=no-user-gesture-required", f"--window-size={window[0]},{window[1]}",
+                 f"--user-data-dir={profile}"):
+        options.add_argument(flag)
+    if microphone_wav is not None:
+        options.add_argument(f"--use-file-for-fake-audio-capture={microphone_wav}%noloop")
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def wait_for(driver: Any, script: str, timeout_s: float, what: str,
+             check: Callable[[Any], bool] = bool) -> Any:
+    """Poll a JavaScript expression (`return ...`) until `check` holds for its value; its value."""
+    deadline = time.monotonic() + timeout_s
+    value = None
+    while time.monotonic() < deadline:
+        value = driver.execute_script(script)
+        if check(value):
+            return value
+        time.sleep(0.1)  # polling a page from outside: no event to wait on
+    raise TimeoutError(f"{what}: not within {timeout_s} s (last value {value!r})")
+
+
+PAGE_STATS = """
+const done = arguments[arguments.length - 1];
+if (!window.eca || !window.eca.pc) { done(null); return; }
+window.eca.pc.getStats().then((report) => {
+  const out = {video: [], audio: []};
+  report.forEach((s) => {
+    if (s.type === "inbound-rtp") out[s.kind].push({
+      mid: s.mid, framesDecoded: s.framesDecoded, frameWidth: s.frameWidth, frameHeight: s.frameHeight,
+      framesPerSecond: s.framesPerSecond, totalAudioEnergy: s.totalAudioEnergy, audioLevel: s.audioLevel,
+      totalSamplesDuration: s.totalSamplesDuration, packetsReceived: s.packetsReceived,
+      estimatedPlayoutTimestamp: s.estimatedPlayoutTimestamp, jitterBufferDelay: s.jitterBufferDelay,
+      jitterBufferEmittedCount: s.jitterBufferEmittedCount});
+  });
+  done(out);
+});
+"""
+
+
+def page_stats(driver: Any) -> dict[str, list[dict[str, Any]]] | None:
+    """The page's inbound RTP statistics (getStats), video and audio."""
+    return driver.execute_async_script(PAGE_STATS)

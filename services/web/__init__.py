@@ -1,0 +1,1 @@
+"""The web front-end: the live agent in a browser, over WebRTC (see service.py)."""

@@ -1,0 +1,108 @@
+"""Bridges from the web service's bus loop (one thread) to its WebRTC tracks (the asyncio thread).
+
+The loop draws each agent's face at every frame slot and receives the agent's voice blocks from the
+audio service; the tracks, on the event loop, take them when their encoders want the next frame. Both
+sides hold at most a fixed amount: a frame feed keeps only the newest frame per agent (a viewer whose
+network stalls skips frames, it never queues them), a voice feed keeps at most `max_s` of samples.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Picture:
+    """One drawn frame: the display time it was composed for (master clock, ns) and its pixels."""
+
+    frame_ns: int
+    yuv: np.ndarray  # yuv420p planes stacked as av.VideoFrame.from_ndarray(format="yuv420p") takes them
+    width: int
+    height: int
+
+
+class FrameFeed:
+    """The newest picture per agent, and a wake-up for every track waiting on that agent."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._latest: dict[str, Picture] = {}
+        self._waiters: dict[str, list[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
+
+    def put(self, agent: str, picture: Picture) -> None:
+        """From the drawing thread: replace the agent's picture and wake its tracks."""
+        with self._lock:
+            self._latest[agent] = picture
+            waiters = self._waiters.pop(agent, [])
+        for loop, event in waiters:
+            loop.call_soon_threadsafe(event.set)
+
+    async def next_after(self, agent: str, frame_ns: int) -> Picture:
+        """On the event loop: the agent's newest picture composed after `frame_ns` (waits for one)."""
+        loop = asyncio.get_running_loop()
+        while True:
+            with self._lock:
+                picture = self._latest.get(agent)
+                if picture is not None and picture.frame_ns > frame_ns:
+                    return picture
+                event = asyncio.Event()
+                self._waiters.setdefault(agent, []).append((loop, event))
+            await event.wait()
+
+    def forget(self, agent: str) -> None:
+        with self._lock:
+            self._latest.pop(agent, None)
+
+
+class VoiceFeed:
+    """One agent's voice as a timeline of samples at the output rate, from blocks stamped with the
+    master clock; a track takes the samples of any span of that clock, silence where no block covers it
+    (blocks that came late or never). Holds at most `max_s` of samples."""
+
+    def __init__(self, sample_rate: int = 48_000, max_s: float = 2.0) -> None:
+        self.sample_rate = sample_rate
+        self._max_samples = round(max_s * sample_rate)
+        self._lock = threading.Lock()
+        self._blocks: deque[tuple[int, np.ndarray]] = deque()  # (dac time of the first sample, int16 samples)
+        self._held = 0
+        self.last_block_ns: int | None = None  # the newest block's start: where the voice is now
+
+    def add(self, dac_time_ns: int, samples: np.ndarray, sample_rate: int) -> None:
+        """From the bus loop: one block of the voice (int16 mono)."""
+        if sample_rate != self.sample_rate:
+            raise ValueError(f"voice at {sample_rate} Hz, this feed takes {self.sample_rate} Hz")
+        with self._lock:
+            self._blocks.append((dac_time_ns, samples))
+            self._held += len(samples)
+            while self._held > self._max_samples:
+                _, old = self._blocks.popleft()
+                self._held -= len(old)
+            self.last_block_ns = dac_time_ns
+
+    def take(self, start_ns: int, count: int) -> np.ndarray:
+        """The `count` samples from master-clock time `start_ns` on (int16): what the blocks hold there,
+        zeros elsewhere. Blocks wholly before that span are let go."""
+        out = np.zeros(count, dtype=np.int16)
+        rate = self.sample_rate
+        end_ns = start_ns + count * 1_000_000_000 // rate
+        with self._lock:
+            while self._blocks:
+                first_ns, samples = self._blocks[0]
+                if first_ns + len(samples) * 1_000_000_000 // rate > start_ns:
+                    break
+                self._blocks.popleft()
+                self._held -= len(samples)
+            for first_ns, samples in self._blocks:
+                if first_ns >= end_ns:
+                    break
+                # positions in samples from start_ns, rounded to the nearest sample
+                offset = round((first_ns - start_ns) * rate / 1e9)
+                lo, hi = max(0, offset), min(count, offset + len(samples))
+                if lo < hi:
+                    out[lo:hi] = samples[lo - offset:hi - offset]
+        return out

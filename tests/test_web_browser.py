@@ -1,0 +1,175 @@
+"""The web front-end in a real headless Chromium (Debian's chromium and chromium-driver, through selenium)
+with fake media devices: the page connects to `eca up --web`, the face is decoded at the asked size and
+rate, the voice is heard during a say and silent otherwise, the user's speech (a WAV as the microphone)
+reaches the bus and interrupts the agent, the token rule holds, and a second browser sees the same agent.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zmq
+from web_client import user_speech_wav
+
+from protocol.bus import Subscriber
+from protocol.client import AgentClient
+from protocol.endpoints import BusConfig
+from protocol.messages import Say, SpeechFinished, SpeechInterrupted, UserAudio, UserSpeech
+from services.browser import browser_available, chromium, page_stats, wait_for
+from services.processes import LineReader
+from services.testing import BrokerThread, ServiceThread, eca_command, private_bus_config, running
+from services.web.options import WebOptions
+from services.web.service import WebService
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
+                                                   reason=str(browser_available()))]
+RATE = 16_000
+
+
+@pytest.fixture(scope="module")
+def instance() -> Iterator[tuple[BusConfig, str]]:
+    """`eca up --web` (dialogue, gaze, audio and the web service) on a free port; its page's address."""
+    with private_bus_config(services=["dialogue", "gaze", "audio"]) as config:
+        argv = eca_command("up", "--config", str(config.config_path), "--instance", config.instance, "--quiet",
+                           "--web", "--web-port", "0")
+        with running(argv) as (proc, reader):
+            reader.wait_for("[up] ready in", 90.0)
+            yield config, served_url(reader)
+
+
+def served_url(reader: LineReader) -> str:
+    line = reader.lines[reader.wait_for("[web] INFO serving http://", 10.0)]
+    match = re.search(r"(http://\S+/)", line)
+    assert match
+    return match.group(1)
+
+
+def connect(driver: Any, url: str) -> None:
+    driver.get(url)
+    driver.find_element("id", "connect").click()
+    wait_for(driver, "return window.eca.state", 30.0, "the page connecting", lambda s: s == "connected")
+
+
+def video_stats(driver: Any) -> dict[str, Any]:
+    stats = page_stats(driver)
+    assert stats is not None and stats["video"], stats
+    return stats["video"][0]
+
+
+def audio_energy(driver: Any) -> float:
+    stats = page_stats(driver)
+    assert stats is not None and stats["audio"], stats
+    return float(stats["audio"][0]["totalAudioEnergy"] or 0.0)
+
+
+def tone(seconds: float) -> bytes:
+    t = np.arange(int(seconds * RATE)) / RATE
+    return (0.4 * np.sin(2 * np.pi * 300 * t) * (1 + 0.5 * np.sin(2 * np.pi * 3 * t)) * 32767 / 1.5) \
+        .astype("<i2").tobytes()
+
+
+def say(client: AgentClient, seconds: float) -> str:
+    rid = client.new_request_id()
+    client.wait_applied(client.send(Say(agent="ada", request_id=rid, pcm=tone(seconds), sample_rate=RATE)), 10.0)
+    return rid
+
+
+def test_the_page_shows_the_face_at_the_asked_size_and_rate(instance: tuple[BusConfig, str],
+                                                            tmp_path: Path) -> None:
+    config, url = instance
+    with chromium() as driver:
+        connect(driver, url + "?mic=0&width=320&height=240&fps=15")
+        first = wait_for(driver, "return 1", 1.0, "")  # (a no-op round trip)
+        assert first == 1
+        time.sleep(2.0)  # let the first frames and the keyframe pass (pacing, not synchronisation)
+        before = video_stats(driver)
+        time.sleep(3.0)
+        after = video_stats(driver)
+        driver.save_screenshot(str(tmp_path / "page.png"))
+        status = driver.execute_script("return document.getElementById('status').textContent")
+    assert (after["frameWidth"], after["frameHeight"]) == (320, 240)
+    decoded = after["framesDecoded"] - before["framesDecoded"]
+    assert decoded >= 0.7 * 15 * 3, f"{decoded} frames decoded in 3 s at 15 fps"
+    assert status.startswith("connected · rtt") and "fps" in status
+    assert (tmp_path / "page.png").stat().st_size > 10_000
+
+
+def test_the_voice_is_heard_during_a_say_and_silent_otherwise(instance: tuple[BusConfig, str]) -> None:
+    config, url = instance
+    with chromium() as driver, AgentClient(config) as client:
+        connect(driver, url + "?mic=0&width=160&height=120&fps=10")
+        time.sleep(2.0)
+        quiet_start = audio_energy(driver)
+        time.sleep(2.0)
+        quiet = audio_energy(driver) - quiet_start
+        rid = say(client, 3.0)
+        client.wait_for(lambda m: getattr(m, "request_id", None) == rid and m.TYPE == "speech_started", 10.0)
+        time.sleep(0.5)
+        loud_start = audio_energy(driver)
+        time.sleep(2.0)
+        loud = audio_energy(driver) - loud_start
+        assert isinstance(client.wait_for_speech(rid, 20.0), SpeechFinished)
+        time.sleep(1.0)
+        after_start = audio_energy(driver)
+        time.sleep(2.0)
+        after = audio_energy(driver) - after_start
+    assert quiet < 1e-4 and after < 1e-4, (quiet, after)
+    assert loud > 0.05, loud
+
+
+@pytest.fixture(scope="module")
+def user_says(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The fake microphone: four seconds of silence, then the user speaking."""
+    return user_speech_wav(tmp_path_factory.mktemp("microphone") / "user.wav",
+                           "Wait, wait, let me ask you something first.", before_s=4.0, after_s=1.0)
+
+
+def test_the_users_speech_reaches_the_bus_and_interrupts_the_agent(instance: tuple[BusConfig, str],
+                                                                   user_says: Path) -> None:
+    config, url = instance
+    ctx = zmq.Context()
+    bus = Subscriber(ctx, config, ["cmd.ada.user_speech", "stream.ada.user_audio"])
+    bus.wait_ready()
+    try:
+        with chromium(microphone_wav=user_says) as driver, AgentClient(config) as client:
+            connect(driver, url + "?width=160&height=120&fps=10")  # the microphone starts with the connection
+            rid = say(client, 15.0)  # the agent talks; the user cuts in after about four seconds
+            ended = client.wait_for_speech(rid, 30.0)
+        heard = [got.message for got in bus.drain()]
+    finally:
+        bus.close()
+        ctx.term()
+    assert isinstance(ended, SpeechInterrupted) and ended.reason == "the user started speaking", ended
+    assert 2.0 < ended.played_s < 8.0
+    turns = [m.speaking for m in heard if isinstance(m, UserSpeech)]
+    assert turns[:1] == [True]
+    blocks = [m for m in heard if isinstance(m, UserAudio)]
+    assert len(blocks) > 100 and any(b.speaking for b in blocks)
+    assert all(b.sample_rate == 16_000 and len(b.pcm) == 640 for b in blocks)
+
+
+def test_a_second_browser_sees_the_same_agent(instance: tuple[BusConfig, str]) -> None:
+    config, url = instance
+    with chromium() as first, chromium() as second:
+        connect(first, url + "?mic=0&width=160&height=120&fps=10")
+        connect(second, url + "?mic=0&width=160&height=120&fps=10")
+        time.sleep(3.0)
+        decoded = [video_stats(d)["framesDecoded"] for d in (first, second)]
+    assert all(n >= 10 for n in decoded), decoded
+
+
+def test_without_the_token_nothing_happens_and_with_it_the_page_connects() -> None:
+    with private_bus_config() as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, token="s3cret-token", width=160, height=120, fps=10.0))
+        with ServiceThread(service), chromium() as driver:
+            driver.get(f"http://127.0.0.1:{service.port}/")
+            assert "a wrong or missing token" in driver.find_element("tag name", "body").text
+            assert not service.viewers.open
+            connect(driver, f"http://127.0.0.1:{service.port}/?mic=0&token=s3cret-token")
+            assert len(service.viewers.open) == 1

@@ -1,0 +1,79 @@
+"""What the field does to the web service: viewers arriving and leaving in a loop past the limit, a
+viewer that vanishes without a word, a viewer that never connects. Each gets a clear answer or is
+dropped cleanly, the viewers that stay keep their face, and nothing is left open afterwards."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Iterator
+
+import pytest
+from web_client import Client, post
+
+from protocol.endpoints import BusConfig
+from services.runtime import wait_until
+from services.testing import BrokerThread, ServiceThread, private_bus_config
+from services.web.options import WebOptions
+from services.web.service import WebService
+
+pytestmark = pytest.mark.gl
+
+
+@pytest.fixture
+def web() -> Iterator[tuple[BusConfig, WebService]]:
+    with private_bus_config() as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, width=160, height=120, fps=10.0, max_viewers=4,
+                                                connect_timeout_s=2.0))
+        with ServiceThread(service):
+            yield config, service
+
+
+def test_viewers_coming_and_going_past_the_limit(web: tuple[BusConfig, WebService]) -> None:
+    config, service = web
+    url = f"http://127.0.0.1:{service.port}/"
+
+    async def main() -> tuple[list[int], int]:
+        steady = Client(url, ["ada"])
+        await steady.connect()
+        statuses: list[int] = []
+        for _ in range(5):
+            crowd = [Client(url, ["ada"]) for _k in range(4)]
+            for client in crowd:  # one more than the limit leaves room for: 3 get in, 1 is told to wait
+                status, answer = await post(url + "offer", await client.offer_body())
+                statuses.append(status)
+                if status == 200:
+                    await client.accept(answer)
+                else:
+                    assert "try again later" in answer["error"]
+            await asyncio.gather(*(c.frames("ada", "video", 1.0) for c in crowd if c.tracks))
+            for client in crowd:
+                await client.pc.close()
+            await asyncio.sleep(0.5)  # the closes reach the server (pacing, not synchronisation)
+        kept = await steady.frames("ada", "video", 2.0)
+        await steady.pc.close()
+        return statuses, len(kept)
+
+    statuses, kept = asyncio.run(main())
+    assert statuses.count(503) == 5 and statuses.count(200) == 15
+    assert kept >= 10  # the viewer that stayed kept its face all along
+    assert wait_until(lambda: not service.viewers.open, 10.0)
+    assert wait_until(lambda: service._plan is None, 5.0)
+
+
+def test_a_viewer_that_vanishes_or_never_connects_is_dropped(web: tuple[BusConfig, WebService]) -> None:
+    config, service = web
+    url = f"http://127.0.0.1:{service.port}/"
+
+    async def main() -> None:
+        never = Client(url, ["ada"])
+        status, _ = await post(url + "offer", await never.offer_body())  # ...and never takes the answer
+        assert status == 200
+        vanishing = Client(url, ["ada"])
+        await vanishing.connect()
+        await vanishing.frames("ada", "video", 1.0)
+        vanishing.vanish()  # no goodbye: its sockets just stop answering
+        await never.pc.close()
+
+    asyncio.run(main())
+    # well before ICE's own consent check would notice (about 30 s): the receiver reports stopped
+    assert wait_until(lambda: not service.viewers.open, 12.0), service.viewers.open

@@ -1,0 +1,107 @@
+"""The bridges between the web service's bus loop and its WebRTC tracks, and the tracks' timing."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import numpy as np
+import pytest
+
+from agent.clock import VirtualClock
+from services.web.feeds import FrameFeed, Picture, VoiceFeed
+from services.web.tracks import FaceTrack, VoiceTrack
+
+RATE = 48_000
+BLOCK = 480  # 10 ms
+BLOCK_NS = 10_000_000
+
+
+def blocks(feed: VoiceFeed, start_ns: int, count: int, first_value: int = 1) -> np.ndarray:
+    """Add `count` consecutive 10 ms blocks whose samples count up; all the samples added."""
+    samples = (np.arange(count * BLOCK) + first_value).astype(np.int16)
+    for k in range(count):
+        feed.add(start_ns + k * BLOCK_NS, samples[k * BLOCK:(k + 1) * BLOCK], RATE)
+    return samples
+
+
+def test_a_span_of_the_clock_gets_exactly_the_samples_played_then() -> None:
+    feed = VoiceFeed(RATE)
+    played = blocks(feed, 1_000_000_000, 10)
+    # 20 ms from 5 ms into the first block: samples 240 .. 1199
+    got = feed.take(1_005_000_000, 960)
+    assert np.array_equal(got, played[240:1200])
+
+
+def test_where_no_block_played_the_span_is_silence() -> None:
+    feed = VoiceFeed(RATE)
+    played = blocks(feed, 1_000_000_000, 2)  # 20 ms, then nothing (a block late or lost)
+    got = feed.take(1_010_000_000, 960)
+    assert np.array_equal(got[:480], played[480:]) and not got[480:].any()
+    assert not feed.take(2_000_000_000, 960).any()
+
+
+def test_the_feed_holds_a_bounded_span_and_lets_go_of_what_was_taken() -> None:
+    feed = VoiceFeed(RATE, max_s=0.1)
+    blocks(feed, 0, 50)  # 0.5 s offered, 0.1 s kept
+    assert feed._held == round(0.1 * RATE)
+    feed.take(490_000_000, 480)
+    assert feed._held <= 2 * BLOCK
+
+
+def test_a_block_at_another_rate_is_refused() -> None:
+    with pytest.raises(ValueError, match="16000 Hz"):
+        VoiceFeed(RATE).add(0, np.zeros(160, np.int16), 16_000)
+
+
+def test_a_waiting_track_wakes_when_the_drawing_thread_puts_a_picture() -> None:
+    feed = FrameFeed()
+    yuv = np.zeros((72, 64), np.uint8)
+
+    async def main() -> tuple[int, int]:
+        track = FaceTrack(feed, "ada", 64, 48, 30.0, epoch_ns=1_000_000_000)
+        threading.Timer(0.05, lambda: feed.put("ada", Picture(1_100_000_000, yuv, 64, 48))).start()
+        frame = await asyncio.wait_for(track.recv(), 5.0)
+        return frame.pts, (frame.width, frame.height)
+
+    pts, size = asyncio.run(main())
+    assert pts == 9000 and size == (64, 48)  # 100 ms after the epoch on RTP's 90 kHz clock
+
+
+def test_a_track_at_a_lower_rate_skips_pictures_and_scales() -> None:
+    feed = FrameFeed()
+    yuv = np.zeros((144, 128), np.uint8)  # a 128x96 picture
+
+    async def main() -> list[int]:
+        track = FaceTrack(feed, "ada", 64, 48, 10.0, epoch_ns=0)
+        times = []
+        for k in range(1, 13):  # drawn at 30 fps
+            feed.put("ada", Picture(k * 33_333_333, yuv, 128, 96))
+            try:
+                frame = await asyncio.wait_for(track.recv(), 0.01)
+            except TimeoutError:
+                continue
+            assert (frame.width, frame.height) == (64, 48)
+            times.append(k)
+        return times
+
+    assert asyncio.run(main()) == [1, 4, 7, 10]  # one in three
+
+
+def test_the_voice_track_sends_each_frame_when_it_is_due_with_the_samples_of_then() -> None:
+    clock = VirtualClock(1_000_000_000)
+    feed = VoiceFeed(RATE)
+    played = blocks(feed, 1_000_000_000, 5)  # 50 ms
+
+    async def main() -> list[np.ndarray]:
+        track = VoiceTrack(feed, clock)
+        out = []
+        for _ in range(3):
+            frame = await track.recv()
+            out.append(frame.to_ndarray().reshape(-1))
+            clock.advance_ns(20_000_000)
+        return out
+
+    frames = asyncio.run(main())
+    assert np.array_equal(np.concatenate(frames[:2]), played[:1920])  # continuous, no gap, no repeat
+    assert np.array_equal(frames[2][:480], played[1920:]) and not frames[2][480:].any()  # then silence

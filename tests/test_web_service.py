@@ -1,0 +1,234 @@
+"""The web service end to end with a WebRTC client written in Python (aiortc): the page's offer answered,
+the face as video at the asked size, the voice from the bus as audio, the microphone back as speech
+turns and audio on the bus, the token rule, and bad requests refused without opening anything.
+
+(tests/test_web_browser.py drives the same service from a real Chromium.)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import numpy as np
+import pytest
+import zmq
+from aiortc.contrib.media import MediaPlayer
+from web_client import SMALL, Client, post, user_speech_wav
+
+from protocol.bus import Publisher, Subscriber
+from protocol.endpoints import BusConfig
+from protocol.messages import UserAudio, UserSpeech, VoiceBlock
+from services.runtime import wait_until
+from services.testing import BrokerThread, ServiceThread, private_bus_config
+from services.web.options import WebOptions
+from services.web.service import WebService
+
+pytestmark = pytest.mark.gl
+
+
+@pytest.fixture
+def web() -> Iterator[tuple[BusConfig, WebService]]:
+    with private_bus_config(agents=["ada", "bob"]) as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, **SMALL))
+        with ServiceThread(service):
+            yield config, service
+
+
+@pytest.fixture
+def token_web() -> Iterator[tuple[BusConfig, WebService]]:
+    with private_bus_config() as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, token="s3cret-token", **SMALL))
+        with ServiceThread(service):
+            yield config, service
+
+
+def base(service: WebService) -> str:
+    return f"http://127.0.0.1:{service.port}/"
+
+
+def test_the_face_arrives_at_the_asked_size_and_rate(web: tuple[BusConfig, WebService]) -> None:
+    config, service = web
+
+    async def main() -> tuple[dict[str, Any], list[Any]]:
+        client = Client(base(service), ["ada"])
+        answer = await client.connect()
+        try:
+            await client.frames("ada", "video", 2.0)  # the first frames: connection and keyframe
+            return answer, await client.frames("ada", "video", 2.0)
+        finally:
+            await client.pc.close()
+
+    answer, frames = asyncio.run(main())
+    assert (answer["width"], answer["height"], answer["fps"]) == (160, 120, 15.0)
+    assert {(f.width, f.height) for f in frames} == {(160, 120)}
+    assert len(frames) >= 0.6 * 15 * 2, f"{len(frames)} frames in 2 s at 15 fps"
+    picture = frames[-1].to_ndarray(format="rgb24")
+    assert picture.std() > 10  # a face, not a blank frame
+    assert wait_until(lambda: service._plan is None, 10.0)  # the viewer left: nothing is drawn any more
+
+
+def test_two_viewers_see_the_same_agent_and_one_page_two_agents(web: tuple[BusConfig, WebService]) -> None:
+    config, service = web
+
+    async def main() -> tuple[int, int, int]:
+        first, second = Client(base(service), ["ada"]), Client(base(service), ["ada", "bob"])
+        await first.connect()
+        await second.connect()
+        try:
+            a, b, c = await asyncio.gather(first.frames("ada", "video", 3.0), second.frames("ada", "video", 3.0),
+                                           second.frames("bob", "video", 3.0))
+            return len(a), len(b), len(c)
+        finally:
+            await first.pc.close()
+            await second.pc.close()
+
+    counts = asyncio.run(main())
+    assert all(n >= 10 for n in counts), counts
+
+
+def test_the_voice_on_the_bus_is_heard_and_silence_is_silent(web: tuple[BusConfig, WebService]) -> None:
+    config, service = web
+    ctx = zmq.Context()
+    pub = Publisher(ctx, config, "audio")
+    pub.wait_ready()
+
+    def speak(seconds: float) -> None:
+        """Voice blocks of a loud tone, stamped ahead of time as the audio service stamps them."""
+        start = time.monotonic_ns() + 60_000_000
+        t = np.arange(480) / 48_000
+        for k in range(int(seconds * 100)):
+            tone = (0.5 * np.sin(2 * np.pi * 440 * (t + k * 0.01)) * 32767).astype("<i2")
+            pub.publish(VoiceBlock(agent="ada", sample_rate=48_000, first_sample=k * 480,
+                                   dac_time_ns=start + k * 10_000_000, pcm=tone.tobytes(), request_id="r"))
+
+    async def main() -> tuple[float, float]:
+        client = Client(base(service), ["ada"])
+        await client.connect()
+        try:
+            quiet = await client.frames("ada", "audio", 1.5)
+            await asyncio.get_running_loop().run_in_executor(None, speak, 1.0)
+            loud = await client.frames("ada", "audio", 1.0)
+            level = lambda frames: float(np.sqrt(np.mean(np.concatenate(  # noqa: E731
+                [f.to_ndarray().astype(np.float64).reshape(-1) for f in frames]) ** 2)))
+            return level(quiet[len(quiet) // 2:]), level(loud)
+        finally:
+            await client.pc.close()
+
+    try:
+        quiet, loud = asyncio.run(main())
+    finally:
+        pub.close()
+        ctx.term()
+    assert quiet < 50 and loud > 3000, (quiet, loud)
+
+
+@pytest.fixture(scope="module")
+def speech_wav(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return user_speech_wav(tmp_path_factory.mktemp("speech") / "user.wav", "Excuse me, may I ask something?",
+                           before_s=1.0, after_s=2.0)
+
+
+def test_the_users_speech_becomes_turns_and_audio_on_the_bus(web: tuple[BusConfig, WebService],
+                                                             speech_wav: Path) -> None:
+    config, service = web
+    ctx = zmq.Context()
+    sub = Subscriber(ctx, config, ["cmd.ada.user_speech", "cmd.bob.user_speech", "stream.ada.user_audio"])
+    sub.wait_ready()
+    player = MediaPlayer(str(speech_wav))
+
+    async def main() -> None:
+        client = Client(base(service), ["ada", "bob"], mic=player.audio)
+        await client.connect()
+        try:
+            await asyncio.sleep(6.0)  # the WAV plays in real time: let it (pacing, not synchronisation)
+        finally:
+            await client.pc.close()
+
+    try:
+        asyncio.run(main())
+        turns: dict[str, list[bool]] = {"ada": [], "bob": []}
+        audio = 0
+        for got in sub.drain():
+            if isinstance(got.message, UserSpeech):
+                turns[got.message.agent].append(got.message.speaking)
+            elif isinstance(got.message, UserAudio):
+                audio += 1
+                assert got.message.sample_rate == 16_000 and len(got.message.pcm) == 640
+    finally:
+        sub.close()
+        ctx.term()
+    assert turns == {"ada": [True, False], "bob": [True, False]}  # both agents the page watches
+    assert audio >= 3.0 * 50  # 20 ms blocks all along
+
+
+def test_the_token_rule_holds_for_the_page_and_the_offer(token_web: tuple[BusConfig, WebService]) -> None:
+    config, service = token_web
+
+    async def main() -> list[int]:
+        statuses = []
+        async with aiohttp.ClientSession() as session:
+            for path in ("", "?token=wrong-token", "?token=s3cret-token"):
+                async with session.get(base(service) + path) as response:
+                    statuses.append(response.status)
+        client = Client(base(service), ["ada"], token="wrong-token")
+        status, _ = await post(base(service) + "offer", await client.offer_body())
+        statuses.append(status)
+        await client.pc.close()
+        return statuses
+
+    assert asyncio.run(main()) == [403, 403, 200, 403]
+    assert not service.viewers.open  # nothing else happened
+
+
+@pytest.mark.parametrize("change, status, words", [
+    (lambda b: b.update(type="answer"), 400, "'type'"),
+    (lambda b: b.update(sdp="v=0 this is no sdp"), 400, "could not be answered"),
+    (lambda b: b.update(agents=["carol"]), 400, "'agents'"),
+    (lambda b: b.update(video={"width": 100_000, "height": 120, "fps": 15}), 400, "'video.width'"),
+    (lambda b: b.update(video={"width": 160, "height": 120, "fps": float("nan")}), 400, "'video.fps'"),
+    (lambda b: b["streams"].append({"mid": "9", "agent": "ada", "kind": "smell"}), 400, "'streams[2].kind'"),
+    (lambda b: b.update(sdp="x" * 70_000), 413, "over 65536 bytes"),
+])
+def test_a_bad_offer_gets_a_clear_error_and_opens_nothing(web: tuple[BusConfig, WebService], change: Any,
+                                                          status: int, words: str) -> None:
+    config, service = web
+
+    async def main() -> tuple[int, Any]:
+        client = Client(base(service), ["ada"])
+        body = await client.offer_body()
+        change(body)
+        try:
+            return await post(base(service) + "offer", None, raw=json.dumps(body).encode())
+        finally:
+            await client.pc.close()
+
+    got_status, answer = asyncio.run(main())
+    assert got_status == status and words in answer["error"], answer
+    assert not service.viewers.open
+
+
+def test_garbage_bodies_and_commands_are_refused(web: tuple[BusConfig, WebService]) -> None:
+    config, service = web
+
+    async def main() -> list[tuple[int, Any]]:
+        url = base(service)
+        return [
+            await post(url + "offer", None, raw=b"\xff\xfe not json"),
+            await post(url + "offer", None, raw=b"[" * 100_00 + b"]" * 100_00),
+            await post(url + "offer", [1, 2, 3]),
+            await post(url + "command", {"command": {"type": "set_emotion", "agent": "ada", "name": "happy",
+                                                     "intensity": 7}}),
+            await post(url + "command", {"command": {"type": "emotion", "agent": "ada", "name": "happy"}}),
+            await post(url + "command", {"command": {"type": "set_emotion", "agent": "zed", "name": "happy"}}),
+            await post(url + "command", {"command": {"type": "set_emotion", "agent": "ada", "name": "happy"}}),
+        ]
+
+    answers = asyncio.run(main())
+    assert [s for s, _ in answers] == [400, 400, 400, 400, 400, 400, 202]
+    assert "intensity" in answers[3][1]["error"] and "set_emotion" in answers[4][1]["error"]

@@ -1,0 +1,95 @@
+"""A page's part, in Python (aiortc): a WebRTC client of the web service, for the tests."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import numpy as np
+import soundfile as sf
+from aiortc import RTCPeerConnection, RTCSessionDescription
+
+SMALL = {"width": 160, "height": 120, "fps": 15.0}
+
+
+class Client:
+    """One peer connection receiving the agents' faces and voices (and sending a microphone, if given)."""
+
+    def __init__(self, base: str, agents: list[str], mic: Any = None, token: str | None = None,
+                 video: dict[str, float] | None = None) -> None:
+        self.base, self.agents, self.mic, self.token = base, agents, mic, token
+        self.video = video or SMALL
+        self.pc = RTCPeerConnection()
+        self.tracks: dict[tuple[str, str], Any] = {}
+
+    async def offer_body(self) -> dict[str, Any]:
+        # the microphone's section first, as the page does (aiortc routes a sending section that follows
+        # receiving ones of the same kind wrongly)
+        mic = self.pc.addTransceiver(self.mic, direction="sendonly") if self.mic is not None else None
+        sections = []
+        for agent in self.agents:
+            for kind in ("video", "audio"):
+                sections.append((self.pc.addTransceiver(kind, direction="recvonly"), agent, kind))
+        await self.pc.setLocalDescription(await self.pc.createOffer())
+        self.sections = sections
+        return {"type": "offer", "sdp": self.pc.localDescription.sdp, "token": self.token, "agents": self.agents,
+                "video": self.video, "streams": [{"mid": t.mid, "agent": a, "kind": k} for t, a, k in sections],
+                "mic_mid": mic.mid if mic is not None else None}
+
+    async def connect(self) -> dict[str, Any]:
+        body = await self.offer_body()
+        status, answer = await post(self.base + "offer", body)
+        assert status == 200, answer
+        await self.accept(answer)
+        return answer
+
+    async def accept(self, answer: dict[str, Any]) -> None:
+        await self.pc.setRemoteDescription(RTCSessionDescription(sdp=answer["sdp"], type="answer"))
+        self.tracks = {(a, k): t.receiver.track for t, a, k in self.sections}
+
+    def vanish(self) -> None:
+        """Stop answering at all, as a browser whose machine lost its network: the sockets go quiet and
+        no goodbye is sent."""
+        for transceiver in self.pc.getTransceivers():
+            connection = transceiver.sender.transport.transport._connection
+            for protocol in connection._protocols:
+                protocol.transport.close()
+
+    async def frames(self, agent: str, kind: str, seconds: float) -> list[Any]:
+        """What arrives on one received track within `seconds`."""
+        track = self.tracks[(agent, kind)]
+        out = []
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            try:
+                out.append(await asyncio.wait_for(track.recv(), max(0.01, deadline - time.monotonic())))
+            except TimeoutError:
+                break
+        return out
+
+
+async def post(url: str, body: Any, raw: bytes | None = None) -> tuple[int, Any]:
+    """POST JSON (or raw bytes); the status and the decoded answer (text when it is not JSON)."""
+    async with aiohttp.ClientSession() as session:
+        data = raw if raw is not None else json.dumps(body).encode()
+        async with session.post(url, data=data, headers={"Content-Type": "application/json"}) as response:
+            text = await response.text()
+            try:
+                return response.status, json.loads(text)
+            except json.JSONDecodeError:
+                return response.status, text
+
+
+def user_speech_wav(path: Path, sentence: str, before_s: float, after_s: float) -> Path:
+    """What a user says into the microphone: silence, a sentence spoken by espeak-ng, silence."""
+    spoken = path.with_name(path.stem + "-spoken.wav")
+    subprocess.run(["espeak-ng", "-w", str(spoken), sentence], check=True)
+    samples, rate = sf.read(spoken, dtype="float32")
+    silence = lambda seconds: np.zeros(round(seconds * rate), np.float32)  # noqa: E731
+    sf.write(path, np.concatenate([silence(before_s), samples, silence(after_s)]), rate)
+    return path
