@@ -111,7 +111,8 @@ class Say(Message):
     pcm: bytes | None = bounded(None, doc="inline mono PCM, signed 16-bit little-endian")
     sample_rate: int = bounded(0, lo=0, hi=192_000, doc="of pcm or of the streamed chunks; 0 with a file")
     streamed: bool = bounded(False, doc="true: the audio follows as speech_chunk messages")
-    text: str | None = bounded(None, max_len=10_000, doc="what is said, for logs and captions")
+    text: str | None = bounded(None, max_len=10_000,
+                               doc="what is said; with no audio, the audio service speaks it (text-to-speech)")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -393,9 +393,12 @@ class DialogueService(Service):
             self._ack(cmd)
             return
         sources = [cmd.audio_path is not None, cmd.pcm is not None, cmd.streamed]
-        if sum(sources) != 1:
-            raise Rejected("a say request needs exactly one of audio_path, pcm or streamed=true",
+        if sum(sources) > 1:
+            raise Rejected("a say request takes one of audio_path, pcm or streamed=true, not several",
                            cmd.request_id)
+        if not any(sources) and not (cmd.text and cmd.text.strip()):
+            raise Rejected("a say request needs audio (audio_path, pcm or streamed=true) or, to be spoken by the "
+                           "text-to-speech engine, a text", cmd.request_id)
         if (cmd.pcm is not None or cmd.streamed) and cmd.sample_rate < 8000:
             raise Rejected(f"sample_rate {cmd.sample_rate} is too low for PCM (8000 or more)", cmd.request_id)
         if cmd.pcm is not None and len(cmd.pcm) % 2:

@@ -224,7 +224,10 @@ def test_pending_requests_fail_when_the_audio_service_restarts(bus, client: Agen
 def test_bad_say_requests_are_rejected(client: AgentClient) -> None:
     client.send(Say(agent="ada", request_id="both", audio_path="/a.wav", pcm=b"\0\0", sample_rate=16000))
     err = client.wait_for(lambda m: isinstance(m, Error), 5.0)
-    assert "exactly one of" in err.reason and err.request_id == "both"
+    assert "not several" in err.reason and err.request_id == "both"
+    client.send(Say(agent="ada", request_id="nothing", text="   "))
+    err = client.wait_for(lambda m: isinstance(m, Error), 5.0)
+    assert "needs audio" in err.reason and err.request_id == "nothing"
     client.send(Say(agent="ada", request_id="odd", pcm=b"\0\0\0", sample_rate=16000))
     assert "even number" in client.wait_for(lambda m: isinstance(m, Error), 5.0).reason
     client.send(SpeechChunk(agent="ada", request_id="nobody", index=0, pcm=b""))

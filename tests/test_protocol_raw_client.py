@@ -15,6 +15,7 @@ import stat
 import tempfile
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,10 +38,10 @@ class Instance:
     sub: str
 
 
-@pytest.fixture(scope="module")
-def instance() -> Iterator[Instance]:
+@contextmanager
+def up(services: list[str]) -> Iterator[Instance]:
     directory = Path(tempfile.mkdtemp(prefix="eca-"))
-    config_path = write_test_config(directory, services=["dialogue"], agents=[AGENT])
+    config_path = write_test_config(directory, services=services, agents=[AGENT])
     # a say request with no audio service fails sooner (the default waits 3 s)
     config_path.write_text(re.sub(r"(?m)^say_start_timeout_s = [0-9.]+", "say_start_timeout_s = 0.3",
                                   config_path.read_text()))
@@ -53,6 +54,12 @@ def instance() -> Iterator[Instance]:
             yield Instance(name, directory / "run", found.group(1), found.group(2))
     finally:
         shutil.rmtree(directory, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def instance() -> Iterator[Instance]:
+    with up(["dialogue"]) as inst:
+        yield inst
 
 
 class RawClient:
@@ -273,3 +280,25 @@ def test_a_command_for_an_agent_the_instance_does_not_animate_gets_an_error(clie
     _, err = client.expect(lambda t, m: t == "error.bob.error" and m.get("request_id") == "for-bob", timeout_s=2.0,
                            what="an error about the unknown agent")
     assert err["kind"] == "rejected" and "unknown agent" in err["reason"]
+
+
+def test_a_say_with_only_text_is_spoken_and_lives_its_whole_lifecycle() -> None:
+    """A dialogue manager with text and no audio, in any language: the audio service speaks it."""
+    with up(["dialogue", "audio"]) as inst:
+        client = RawClient(inst, [f"event.{AGENT}.", f"stream.{AGENT}.voice", f"error.{AGENT}."])
+        try:
+            client.send("say", request_id="spoken-1", text="Hello from a client that has only text.")
+            client.expect(lambda t, m: t == f"event.{AGENT}.ack" and m["request_id"] == "spoken-1", what="the ack")
+            client.expect(lambda t, m: t == f"event.{AGENT}.speech_started" and m["request_id"] == "spoken-1",
+                          what="speech_started")
+            _, done = client.expect(lambda t, m: t.startswith(f"event.{AGENT}.speech_") and
+                                    m["request_id"] == "spoken-1" and m["type"] != "speech_started",
+                                    timeout_s=30.0, what="the terminal event")
+            voice = [m for t, m in client.inbox if t == f"stream.{AGENT}.voice" and m["request_id"] == "spoken-1"]
+        finally:
+            client.close()
+    assert done["type"] == "speech_finished" and 1.5 < done["played_s"] < 6.0, done
+    import numpy as np
+
+    samples = np.frombuffer(b"".join(m["pcm"] for m in voice), "<i2").astype(np.float64)
+    assert len(samples) / 48_000 > 1.0 and np.sqrt(np.mean(samples ** 2)) > 300  # heard, not silence

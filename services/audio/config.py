@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from agent.config import ConfigError, load_toml, require
 from protocol.messages import MAX_AUDIO_BLOCK_BYTES, VoiceBlock
+from services.tts import EngineSettings
 
 # The device rates a voice block can carry (the protocol's limits on its `sample_rate`).
 _VOICE_RATE = next(f.metadata for f in dataclasses.fields(VoiceBlock) if f.name == "sample_rate")
@@ -28,6 +29,7 @@ class AudioConfig:
     max_dac_ahead_s: float = 1.0
     publish_voice: bool = True
     null_latency_s: float = 0.05
+    tts: EngineSettings = field(default_factory=EngineSettings)
 
     @classmethod
     def load(cls, name: str = "audio") -> AudioConfig:
@@ -68,6 +70,7 @@ class AudioConfig:
             max_dac_ahead_s=require(clock, "max_dac_ahead_s", float, f"{where} [clock]"),
             publish_voice=publish_voice,
             null_latency_s=float(null_latency_s),
+            tts=_tts_from(data.get("tts", {}), f"{where} [tts]"),
         )
         for name in ("sample_rate", "block_frames", "anchor_hz", "publisher_hz", "max_utterance_s", "read_ahead_s",
                      "prepare_slice_s"):
@@ -86,3 +89,12 @@ class AudioConfig:
                                   f"{_VOICE_RATE['hi']:g} Hz, not {cfg.sample_rate}; set [output] "
                                   "publish_voice = false or change 'sample_rate'")
         return cfg
+
+
+def _tts_from(table: Any, where: str) -> EngineSettings:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where} must be a table")
+    try:
+        return EngineSettings.from_table(table, where)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None

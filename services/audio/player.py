@@ -51,6 +51,7 @@ from services.audio.events import (
 from services.audio.files import AudioFileError, MonoReader, open_sound_file
 from services.audio.resample import Resampler
 from services.audio.sinks import Sink
+from services.tts import SpeechSynthesisError, TextToSpeech
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +147,28 @@ class _PcmSource(_Source):
         self.samples = None
 
 
+class _TextSource(_PcmSource):
+    """Text voiced by a text-to-speech engine when the preparer opens it (the engine runs as its own
+    process, off the service loop); then read like PCM held in memory."""
+
+    what = "text"
+
+    def __init__(self, text: str, tts: TextToSpeech, max_seconds: float) -> None:
+        super().__init__(np.zeros(0, np.float32), 0)
+        self.text, self.tts, self.max_seconds = text, tts, max_seconds
+
+    def open(self) -> None:
+        samples, rate = self.tts.speak(self.text)
+        _check_rate(rate)
+        if len(samples) / rate > self.max_seconds:
+            raise ValueError(f"its speech lasts {len(samples) / rate:.0f} s, longer than {self.max_seconds:g} s")
+        self.samples, self.sample_rate = samples, rate
+        super().open()
+
+    def failure_reason(self, exc: Exception) -> str:
+        return f"the text could not be spoken: {exc}"
+
+
 class _StreamSource(_Source):
     """Chunks appended by the caller (`feed`) as they arrive; the preparer takes them in order."""
 
@@ -216,7 +239,7 @@ class _Track:
 class Player:
     """Plays one agent's utterances in order and reports them through `on_event`.
 
-    Requests: `say_file`, `say_pcm`, `say_stream` + `feed`; each returns at once, the audio is prepared
+    Requests: `say_file`, `say_pcm`, `say_text`, `say_stream` + `feed`; each returns at once, the audio is prepared
     by the preparer. `interrupt` stops the voice within one block. Every request ends in exactly one of
     SpeechFinished, SpeechInterrupted, SpeechFailed, in queue order. Utterance ids must be unique among
     the requests still in flight (a repeat raises ValueError).
@@ -228,8 +251,10 @@ class Player:
 
     def __init__(self, sink: Sink, on_event: Callable[[AudioEvent], None], *, agent_id: str = "agent",
                  clock: Clock | None = None, config: AudioConfig | None = None,
-                 lipsync_config: LipSyncConfig | None = None, publish_voice: bool = False) -> None:
+                 lipsync_config: LipSyncConfig | None = None, publish_voice: bool = False,
+                 tts: TextToSpeech | None = None) -> None:
         self.sink = sink
+        self.tts = tts  # voices say_text; None: a text request fails
         self.on_event = on_event
         self.agent_id = agent_id
         self.clock = clock if clock is not None else MonotonicClock()
@@ -327,6 +352,15 @@ class Player:
             self._enqueue_failed(utterance_id, f"bad PCM: {exc}")
             return
         self._enqueue(_Track(utterance_id, _PcmSource(pcm, int(sample_rate))))
+
+    def say_text(self, utterance_id: str, text: str) -> None:
+        """Speak `text` through the player's text-to-speech engine; the engine runs on the preparer, and a
+        missing or failing engine fails the request with its reason."""
+        self._check_new(utterance_id)
+        if self.tts is None:
+            self._enqueue_failed(utterance_id, "the text could not be spoken: no text-to-speech engine is set up")
+            return
+        self._enqueue(_Track(utterance_id, _TextSource(text, self.tts, self.config.max_utterance_s)))
 
     def say_stream(self, utterance_id: str, sample_rate: int) -> None:
         """Open an utterance whose PCM arrives later through `feed` (streaming TTS). It takes its place
@@ -478,7 +512,7 @@ class Player:
             pcm, last = source.read(frames)
             self._ingest(track, pcm, last)
         except Exception as exc:  # it fails this request only; the preparer goes on
-            if not isinstance(exc, ValueError):  # not bad input, so a bug: keep its traceback
+            if not isinstance(exc, ValueError | SpeechSynthesisError):  # not bad input: a bug, keep its traceback
                 log.exception("cannot prepare %s", track.uid)
             self._fail_track(track, source.failure_reason(exc))
 

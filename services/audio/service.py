@@ -47,6 +47,7 @@ from services.audio.config import AudioConfig
 from services.audio.player import Player
 from services.audio.sinks import Sink, open_sink
 from services.runtime import Rejected, Service
+from services.tts import engine as tts_engine
 
 MOUTH_KEYS_PER_MESSAGE = 2000  # 20 s of 10 ms keys: far under the message size cap
 DRAIN_BUDGET_S = 0.003  # per tick, publishing player events; what is left goes out at the next tick (4 ms)
@@ -65,6 +66,7 @@ class AudioService(Service):
         super().__init__(config, **kwargs)
         self.agent_ids: list[str] = list(config.raw.get("agents", {}).get("ids", ["ada"]))
         self.audio_config = AudioConfig.load()
+        self.tts = tts_engine(self.audio_config.tts)  # voices a say that has text and no audio
         self._sink_factory = sink_factory or (lambda: open_sink(config=self.audio_config, clock=self.clock))
         self.events: queue.SimpleQueue[events.AudioEvent] = queue.SimpleQueue()
         self.players: dict[str, Player] = {}
@@ -86,8 +88,8 @@ class AudioService(Service):
         for agent in self.agent_ids:
             sink: Sink = self._sink_factory()
             self.players[agent] = Player(sink, self.events.put, agent_id=agent, clock=self.clock,
-                                         config=self.audio_config,
-                                         publish_voice=self.audio_config.publish_voice).start()
+                                         config=self.audio_config, publish_voice=self.audio_config.publish_voice,
+                                         tts=self.tts).start()
             self._publish_playback(agent)
 
     def teardown(self) -> None:
@@ -132,8 +134,10 @@ class AudioService(Service):
                 player.say_file(msg.request_id, msg.audio_path)
             elif msg.pcm is not None:
                 player.say_pcm(msg.request_id, pcm16(msg.pcm), msg.sample_rate)
-            else:
+            elif msg.streamed:
                 player.say_stream(msg.request_id, msg.sample_rate)
+            else:  # text only (the dialogue service lets no other request through)
+                player.say_text(msg.request_id, msg.text or "")
         except ValueError as exc:
             self._refuse(msg, f"the audio service refused it: {exc}")
             return

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 from agent.script import DEFAULT_AGENT
@@ -20,7 +19,7 @@ from protocol.codec import ProtocolError
 from protocol.endpoints import BusConfigError, load_bus_config
 from protocol.messages import Message, Say, SpeechFinished
 from services import cli_args
-from services.tts import SpeechSynthesisError, synthesize
+from services.tts import SpeechSynthesisError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     k.add_argument("--yaw", type=float, default=0.0)
     k.add_argument("--pitch", type=float, default=0.0)
     k.add_argument("--target", default="")
-    k = kinds.add_parser("say", help="speak a sound file, or text through espeak-ng")
+    k = kinds.add_parser("say", help="speak a sound file, or text (voiced by the instance's text-to-speech)")
     src = k.add_mutually_exclusive_group(required=True)
     src.add_argument("--file", type=Path)
     src.add_argument("--text")
@@ -87,16 +86,16 @@ def _send(client: AgentClient, args: argparse.Namespace) -> Message | None:
     """Send the command, wait for its acknowledgement; the state it caused (or the say's ending)."""
     t = args.timeout
     if args.kind == "say":
-        path = args.file
-        if args.text is not None:
-            path = synthesize(args.text, Path(tempfile.mkdtemp(prefix="eca-say-")) / "say.wav")
-        elif path.is_dir():
-            raise SpeechSynthesisError(f"{path}: is a directory, not a sound file")
-        elif not path.is_file():
-            raise SpeechSynthesisError(f"{path}: no such file")
         rid = client.new_request_id()
-        client.wait_applied(client.send(Say(agent=client.agent, request_id=rid,
-                                            audio_path=str(Path(path).resolve()), text=args.text)), t)
+        if args.text is not None:  # spoken by the instance's own text-to-speech engine: works from anywhere
+            say = Say(agent=client.agent, request_id=rid, text=args.text)
+        elif args.file.is_dir():
+            raise SpeechSynthesisError(f"{args.file}: is a directory, not a sound file")
+        elif not args.file.is_file():
+            raise SpeechSynthesisError(f"{args.file}: no such file")
+        else:
+            say = Say(agent=client.agent, request_id=rid, audio_path=str(args.file.resolve()))
+        client.wait_applied(client.send(say), t)
         print(f"request {rid} accepted")
         return client.wait_for_speech(rid, timeout_s=max(t, 120.0)) if args.wait else None
     sent = {
