@@ -1,7 +1,7 @@
 """Counter-based random numbers: a splitmix64 hash of (seed, stream, counter), computed on whole arrays.
 
 Every agent gets its own reproducible stream without one generator object per agent, so adding an
-agent never changes another agent's draws (SPEC §3, "Scale").
+agent never changes another agent's draws (docs/gaze.md: many agents in arrays, each its own stream).
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """Perlin's 1-D gradient noise and his blink pulse, vectorised and seeded.
 
 Perlin's ResponsiveFace drove idle motion and blinks with `noise(t)`; its blink was
-`pulse(t/2 + noise(t/1.5) + 0.5*noise(t/3), 0.05)` (SPEC §3, condition b and c).
+`pulse(t/2 + noise(t/1.5) + 0.5*noise(t/3), 0.05)`, as the paper's conditions b and c use it
+(docs/gaze.md).
 """
 
 from __future__ import annotations

@@ -12,7 +12,6 @@ from __future__ import annotations
 from protocol.messages import Message
 
 STATE_PREFIX = b"state."
-HELLO_PREFIX = "sys.hello."
 CATEGORIES = ("cmd", "state", "event", "stream", "play", "audio", "sys", "error")
 
 

@@ -121,7 +121,7 @@ def test_talking_intervals_follow_eq_4_and_5(
     table = reference(grid)
     result = stats.kstest(holds, lambda x: np.interp(x, grid, table))
     assert result.pvalue > 0.01, result
-    assert holds.mean() * 30.0 == pytest.approx(mean_frames, rel=0.1)  # SPEC: about 100 / 12 frames
+    assert holds.mean() * 30.0 == pytest.approx(mean_frames, rel=0.1)  # the fits' implied means: about 100 / 12 frames
 
 
 @pytest.mark.parametrize(("kind", "mean", "sd"), [("mutual", 237.5, 47.1), ("away", 13.0, 7.1)])

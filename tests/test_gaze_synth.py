@@ -28,7 +28,7 @@ def test_progress_is_the_running_integral_of_eq_3() -> None:
     v = 14.0 * np.exp(-(math.pi / 4.0) * (x - 3.0) ** 2)
     running = np.concatenate([[0.0], np.cumsum((v[1:] + v[:-1]) / 2.0 * np.diff(x))])
     np.testing.assert_allclose(saccade_progress(x / 6.0), running / running[-1], atol=1e-9)
-    assert abs(running[-1] - 28.0) < 0.01  # SPEC: "its area is 28"
+    assert abs(running[-1] - 28.0) < 0.01  # the paper's eq. 3: its area is 28
 
 
 def test_lands_exactly_at_onset_plus_duration() -> None:
