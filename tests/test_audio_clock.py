@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from agent.clock import VirtualClock
-from services.audio import ClockAnchor, FakeSink, NullSink, Player, SpeechFinished, SpeechStarted, sinks
+from services.audio import ClockAnchor, FakeSink, NullSink, Player, SpeechFinished, SpeechStarted, output
 from services.audio.clockmap import CallbackStamp, ClockMap
 from services.audio.resample import Resampler, resample
 
@@ -97,10 +97,10 @@ def test_no_device_falls_back_to_a_null_sink_with_one_warning(monkeypatch, caplo
     import services.audio.sounddevice_sink as sds
 
     monkeypatch.setattr(sds, "no_output_reason", lambda device=None: "PortAudio lists no output device")
-    monkeypatch.setattr(sinks, "_warned_no_device", False)
-    with caplog.at_level(logging.WARNING, logger="services.audio.sinks"):
-        first = sinks.open_sink(SR, 480)
-        second = sinks.open_sink(SR, 480)
+    monkeypatch.setattr(output, "_warned_no_device", False)
+    with caplog.at_level(logging.WARNING, logger="services.audio.output"):
+        first = output.open_sink(SR, 480)
+        second = output.open_sink(SR, 480)
     assert isinstance(first, NullSink) and isinstance(second, NullSink)
     warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 1

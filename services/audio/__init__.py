@@ -15,8 +15,9 @@ from services.audio.events import (
     SpeechStarted,
     VoiceBlock,
 )
+from services.audio.output import open_sink
 from services.audio.player import Player
-from services.audio.sinks import FakeSink, NullSink, Sink, open_sink
+from services.audio.sinks import FakeSink, NullSink, Sink
 
 __all__ = [
     "AudioEvent",

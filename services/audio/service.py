@@ -44,8 +44,9 @@ from protocol.messages import SpeechStarted as SpeechStartedMsg
 from protocol.messages import VoiceBlock as VoiceBlockMsg
 from services.audio import events
 from services.audio.config import AudioConfig
+from services.audio.output import open_sink
 from services.audio.player import Player
-from services.audio.sinks import Sink, open_sink
+from services.audio.sinks import Sink
 from services.runtime import Rejected, Service
 from services.tts import engine as tts_engine
 
