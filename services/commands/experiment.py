@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from services.experiment import CONDITIONS, plot_trajectory, slug, write_index
+    from services.experiment import CONDITIONS, Panel, plot_trajectory, poster_frame, write_index, write_poster
 
     try:
         if args.seconds is not None and not args.seconds > 0:
@@ -45,24 +45,28 @@ def run(args: argparse.Namespace) -> int:
         timeline = replace(timeline, cues=tuple(c for c in timeline.cues if c.t_s < args.seconds),
                            length_s=min(timeline.length_s, args.seconds))
     out = args.output
-    rows = []
+    panels = []
     try:
         out.mkdir(parents=True, exist_ok=True)
         for cond in CONDITIONS:
             settings = replace(base, eyes=cond.key)
-            video = f"{slug(cond.key)}.mp4"
-            plot = f"{slug(cond.key)}_trajectory.png"
-            csv_path = None if args.no_csv else out / f"{slug(cond.key)}.csv"
-            result = render_video(timeline, voices, loaded.agent, settings, out / video, csv_path, label=cond.key)
-            plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, cond.label, out / plot)
-            rows.append((cond, video, plot))
-            print(f"{cond.label}: {out / video}", flush=True)
+            panel = Panel.of(cond)
+            csv_path = None if args.no_csv else out / Path(panel.video).with_suffix(".csv")
+            result = render_video(timeline, voices, loaded.agent, settings, out / panel.video, csv_path,
+                                  label=cond.key)
+            poster_t = float(result.t_s[poster_frame(result.t_s, result.lid)])
+            write_poster(out / panel.video, poster_t, out / panel.poster)
+            plot_trajectory(result.eye_yaw_deg, result.lid, settings.fps, cond.key, out / panel.plot)
+            panels.append(panel)
+            print(f"{cond.label}: {out / panel.video}", flush=True)
+        notes = (f"The same dialogue ({', '.join(Path(s).name for s in args.scripts)}, "
+                 f"{timeline.length_s:.0f} s) under each of the {len(panels)} eye conditions, {args.view} view, "
+                 f"seed {args.seed}. Before it plays, each video shows its first frame from 1 s on with the eyes "
+                 "open. Below each video: the horizontal pupil position over time (the paper's Figure 4), lid "
+                 "closures in red.")
+        write_index(out, "Eye conditions of Rodrigues et al., side by side", panels, notes, base.size)
     except RENDER_ERRORS as exc:
         print_render_failure("experiment", exc)
         return 1
-    notes = (f"The same dialogue ({', '.join(Path(s).name for s in args.scripts)}, {timeline.length_s:.0f} s) "
-             f"under each eye condition, {args.view} view, seed {args.seed}. Below each video: the horizontal "
-             "pupil position over time (the paper's Figure 4), lid closures in red.")
-    write_index(out, "Eye conditions of Rodrigues et al., side by side", rows, notes)
     print(f"index: {out / 'index.html'} and {out / 'index.md'}")
     return 0
