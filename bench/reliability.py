@@ -65,6 +65,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from bench.report import Report, machine, percentile, wait_until_ns  # noqa: E402
 from services.processes import subprocess_env  # noqa: E402 (after the path is set)
 
 AGENT = "ada"
@@ -96,6 +97,11 @@ FINAL_COMMANDS: dict[str, dict[str, Any]] = {
     "eyes": {"type": "set_eyes", "mode": "saccade"},
 }
 STATE_KINDS = tuple(FINAL_COMMANDS)
+
+
+# Load for the says: a pure Python loop per core, which ends itself if the bench dies without stopping it.
+BUSY_LOOP = ("import os\nparent = os.getppid()\nwhile os.getppid() == parent:\n"
+             "    for _ in range(1_000_000):\n        pass\n")
 
 
 def is_final(kind: str, state: dict[str, Any]) -> bool:
@@ -585,26 +591,6 @@ def run_monitor(config_path: str, instance: str, seed: int) -> int:
 # --- orchestration ---------------------------------------------------------------------------------
 
 
-@dataclass
-class Figure:
-    name: str
-    value: Any
-    target: str
-    met: bool | None  # None: for information, no target
-    unit: str = ""
-    note: str = ""
-
-
-@dataclass
-class Report:
-    figures: list[Figure] = field(default_factory=list)
-    details: dict[str, Any] = field(default_factory=dict)
-
-    def add(self, name: str, value: Any, target: str = "-", met: bool | None = None, unit: str = "",
-            note: str = "") -> None:
-        self.figures.append(Figure(name, value, target, met, unit, note))
-
-
 def rss_kib(pid: int) -> int | None:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -718,22 +704,6 @@ def json_line(reader: Any, timeout_s: float, start: int = 0, prefix: str = "{") 
     return json.loads(text[text.index("{"):])
 
 
-def wait_until_ns(t_ns: int, while_waiting: Callable[[], None] | None = None) -> None:
-    """Pacing: return at the scheduled monotonic time (the measurement's schedule, not a synchronisation)."""
-    while (left := t_ns - time.monotonic_ns()) > 0:
-        if while_waiting is not None:
-            while_waiting()
-        time.sleep(min(left / 1e9, 1.0))
-
-
-def percentile(values: list[float], q: float) -> float:
-    s = sorted(values)
-    pos = (len(s) - 1) * q
-    lo = int(pos)
-    hi = min(lo + 1, len(s) - 1)
-    return s[lo] + (s[hi] - s[lo]) * (pos - lo)
-
-
 def fps_windows(frames_t_ns: list[int], start_ns: int, end_ns: int) -> list[int]:
     """Frames published in each whole 1 s window of [start, end)."""
     n = int((end_ns - start_ns) // 1_000_000_000)
@@ -743,18 +713,6 @@ def fps_windows(frames_t_ns: list[int], start_ns: int, end_ns: int) -> list[int]
         if 0 <= i < n:
             counts[i] += 1
     return counts
-
-
-def machine() -> dict[str, Any]:
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cores": os.cpu_count(), "cpu": model, "load_average": [round(x, 2) for x in os.getloadavg()]}
 
 
 # --- phase 1 + 2: flood and settle ----------------------------------------------------------------
@@ -787,7 +745,8 @@ def flood_phase(args: argparse.Namespace, config: Any, up: Up, monitor: subproce
         next_progress = [start_ns + 10_000_000_000]
         rss_series: list[tuple[float, dict[str, int | None]]] = []  # a plateau or a steady climb
 
-        def progress() -> None:
+        def progress(left_s: float) -> None:
+            time.sleep(min(left_s, 1.0))
             now = time.monotonic_ns()
             rss_series.append((round((now - start_ns) / 1e9, 1),
                                {name: rss_kib(pid) for name, pid in up.pids().items()}))
@@ -1092,7 +1051,7 @@ def says_phase(args: argparse.Namespace, config: Any, up: Up, workdir: Path, rep
     busy: list[subprocess.Popen[bytes]] = []
     try:
         for _ in range(os.cpu_count() or 1):
-            busy.append(subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True,
+            busy.append(subprocess.Popen([sys.executable, "-c", BUSY_LOOP], start_new_session=True,
                                          stdin=subprocess.DEVNULL))
         report.add("busy processes", len(busy), "-", None, "", "pure Python loops, one per core, for the says")
         try:
@@ -1207,29 +1166,6 @@ def run(args: argparse.Namespace, report: Report) -> None:
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def format_value(f: Figure) -> str:
-    text = f"{f.value}{' ' + f.unit if f.unit and not isinstance(f.value, str) else ''}"
-    return text if len(text) <= 24 else text[:21] + "..."  # the JSON keeps it whole
-
-
-def print_table(report: Report, header: str, out: Any) -> None:
-    print(header, file=out)
-    name_w = max((len(f.name) for f in report.figures), default=10)
-    value_w = max((len(format_value(f)) for f in report.figures), default=8)
-    target_w = max((len(f.target) for f in report.figures), default=6)
-    for f in report.figures:
-        verdict = "info" if f.met is None else ("met" if f.met else "MISSED")
-        print(f"  {f.name:<{name_w}}  {format_value(f):>{value_w}}  target {f.target:<{target_w}}  {verdict:<6}  "
-              f"{f.note}".rstrip(), file=out)
-    said = report.details.get("up_events_whole_run", {}).get("notable_lines", [])
-    worth = [line for line in said if "no audio output" not in line]
-    if worth:
-        print("eca up said (restarts, errors):", file=out)
-        for line in worth[:12]:
-            print(f"  {line[:200]}", file=out)
-    out.flush()
-
-
 def stop_on_signal(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
@@ -1273,14 +1209,14 @@ def main(argv: list[str] | None = None) -> int:
     header = (f"reliability on {host['cores']} cores ({host['cpu'] or 'unknown CPU'}), load average "
               f"{'/'.join(f'{x:g}' for x in host['load_average'])} at start; {wall_s:.0f} s. Figures come from "
               f"a shared machine: other work on it moves them.")
-    print_table(report, header, sys.stderr if args.json else sys.stdout)
+    said = report.details.get("up_events_whole_run", {}).get("notable_lines", [])
+    report.print_table(header, sys.stderr if args.json else sys.stdout,
+                       [line for line in said if "no audio output" not in line], "eca up said (restarts, errors):")
     if args.json:
         print(json.dumps({
             "bench": "reliability", "machine": host, "wall_s": round(wall_s, 1),
             "options": {k: v for k, v in vars(args).items() if k not in ("role", "config", "instance", "index")},
-            "figures": [f.__dict__ for f in report.figures],
-            "met": all(f.met for f in report.figures if f.met is not None),
-            "details": report.details,
+            **report.as_json(),
         }, default=str))
     return 0
 

@@ -34,13 +34,35 @@ RATE = 16_000
 
 @pytest.fixture(scope="module")
 def instance() -> Iterator[tuple[BusConfig, str]]:
-    """`eca up --web` (dialogue, gaze, audio and the web service) on a free port; its page's address."""
+    """`eca up --web` (dialogue, gaze, audio and the web service) on a free port; its page's address. Its
+    viewer watchdog is strict (2 s without receiver reports on any stream): a healthy page must stay, a
+    closed one goes soon."""
     with private_bus_config(services=["dialogue", "gaze", "audio"]) as config:
+        text = config.config_path.read_text()
+        strict, found = re.subn(r"^silent_timeout_s = [0-9.]+", "silent_timeout_s = 2.0", text, count=1,
+                                flags=re.MULTILINE)
+        assert found, "configs/default.toml has a [web] silent_timeout_s to tighten"
+        config.config_path.write_text(strict)
         argv = eca_command("up", "--config", str(config.config_path), "--instance", config.instance, "--quiet",
                            "--web", "--web-port", "0")
         with running(argv) as (proc, reader):
             reader.wait_for("[up] ready in", 90.0)
             yield config, served_url(reader)
+
+
+def test_a_healthy_page_stays_connected_past_the_watchdog(instance: tuple[BusConfig, str]) -> None:
+    """Chromium reports on a received audio stream only every 2.5-7.5 s; the watchdog counts every stream's
+    reports, so a page that receives the face and the voice outlives a 2 s watchdog many times over."""
+    config, url = instance
+    with chromium() as driver:
+        connect(driver, url + "?mic=0&width=160&height=120&fps=10")
+        time.sleep(9.0)  # the behaviour under test is what happens over this time (not synchronisation)
+        assert driver.execute_script("return window.eca.state") == "connected"
+        before = video_stats(driver)["framesDecoded"]
+        deadline = time.monotonic() + 5.0
+        while video_stats(driver)["framesDecoded"] <= before and time.monotonic() < deadline:
+            time.sleep(0.1)  # polling the page's counters
+        assert video_stats(driver)["framesDecoded"] > before  # frames still arrive
 
 
 def served_url(reader: LineReader) -> str:

@@ -54,7 +54,7 @@ class WebOptions:
     max_fps: float = 30.0
     max_viewers: int = 16
     connect_timeout_s: float = 15.0  # a viewer that does not connect within this is closed
-    silent_timeout_s: float = 5.0  # a connected viewer that sends no receiver report for this long is closed
+    silent_timeout_s: float = 10.0  # a connected viewer that sends no receiver report for this long is closed
     vad: VadSettings = field(default_factory=VadSettings)
 
     def check(self) -> WebOptions:

@@ -169,9 +169,12 @@ def parse_offer(body: dict[str, Any], options: WebOptions, agents: tuple[str, ..
         raise BadRequest("'mic_mid' must be null or a string of 1-32 characters")
     if len({p[0] for p in parsed} | ({mic} if mic else set())) != len(parsed) + (1 if mic else 0):
         raise BadRequest("'streams' and 'mic_mid' must name each section once")
+    calibration = body.get("calibration", False)
+    if not isinstance(calibration, bool):
+        raise BadRequest("'calibration' must be true or false")
     # even sizes: the encoders work on 2x2 chroma blocks
     view = ViewRequest(tuple(watched), width - width % 2, height - height % 2, min(float(fps), options.max_fps),
-                       tuple(parsed), mic)
+                       tuple(parsed), mic, calibration)
     return sdp, view
 
 

@@ -34,7 +34,7 @@ class FaceTrack(MediaStreamTrack):
         self.width, self.height = width, height
         self.period_ns = round(1e9 / fps)
         self.epoch_ns = epoch_ns
-        self._last_ns = epoch_ns - self.period_ns
+        self._last_ns = epoch_ns - self.period_ns * 3 // 4  # the first picture is at the epoch or later: pts >= 0
         self.sent = 0
 
     async def recv(self) -> VideoFrame:

@@ -23,6 +23,7 @@ from aiortc.rtcpeerconnection import or_direction
 
 from agent.clock import Clock
 from protocol.messages import Message, UserAudio, UserSpeech
+from services.web.calibration import click_track, flash_track
 from services.web.feeds import FrameFeed, VoiceFeed
 from services.web.microphone import MicBlock, Microphone
 from services.web.options import VadSettings
@@ -41,6 +42,7 @@ class ViewRequest:
     fps: float
     streams: tuple[tuple[str, str, str], ...]  # (mid, agent, "video" | "audio") for each media section it receives
     mic_mid: str | None  # the section its microphone comes in, if it sends one
+    calibration: bool = False  # synthetic flashes and clicks instead of the agents (services/web/calibration.py)
 
 
 class Backend(Protocol):
@@ -71,7 +73,7 @@ class Viewer:
 
 class Viewers:
     def __init__(self, backend: Backend, max_viewers: int, vad: VadSettings, connect_timeout_s: float = 15.0,
-                 silent_timeout_s: float = 5.0) -> None:
+                 silent_timeout_s: float = 10.0) -> None:
         self.backend = backend
         self.max_viewers = max_viewers
         self.vad = vad
@@ -100,8 +102,9 @@ class Viewers:
         self.backend.watch(number, request)
         viewer.pc.on("connectionstatechange", lambda: self._on_state(viewer))
         asyncio.get_running_loop().call_later(self.connect_timeout_s, self._check_connected, viewer)
-        log.info("viewer %d: %s at %dx%d, %g fps%s", number, ", ".join(request.agents), request.width,
-                 request.height, request.fps, ", with a microphone" if request.mic_mid else "")
+        log.info("viewer %d: %s at %dx%d, %g fps%s%s", number, ", ".join(request.agents), request.width,
+                 request.height, request.fps, ", with a microphone" if request.mic_mid else "",
+                 ", calibration flashes and clicks" if request.calibration else "")
         return viewer.pc.localDescription.sdp
 
     def _attach(self, viewer: Viewer) -> None:
@@ -112,9 +115,13 @@ class Viewers:
             transceiver = by_mid.get(mid)
             if transceiver is None or transceiver.kind != kind:
                 raise ValueError(f"the offer has no {kind} section with mid {mid!r}")
-            track: MediaStreamTrack = (
-                FaceTrack(backend.frames, agent, request.width, request.height, request.fps, epoch_ns)
-                if kind == "video" else VoiceTrack(backend.voice(agent), backend.clock))
+            track: MediaStreamTrack
+            if request.calibration:
+                track = (flash_track(backend.clock, request.width, request.height, request.fps, epoch_ns)
+                         if kind == "video" else click_track(backend.clock))
+            else:
+                track = (FaceTrack(backend.frames, agent, request.width, request.height, request.fps, epoch_ns)
+                         if kind == "video" else VoiceTrack(backend.voice(agent), backend.clock))
             transceiver.sender.replaceTrack(track)
             transceiver.direction = or_direction(transceiver.direction, "sendonly")
             # one media stream per agent (its msid): the browser lines up the voice with the face it
@@ -161,17 +168,23 @@ class Viewers:
             viewer.watchdog = asyncio.ensure_future(self._watch_answers(viewer))
 
     async def _watch_answers(self, viewer: Viewer) -> None:
-        """Close the viewer when its receiver reports stop coming (a browser sends them every second or so
-        for each stream it receives)."""
+        """Close the viewer when its receiver reports stop coming. Every stream it receives counts: Chromium
+        reports on video every 0.2-1 s but on audio only every 2.5-7.5 s (libwebrtc's 5 s +- 50 %), so
+        watching one audio stream alone closed healthy pages."""
         loop = asyncio.get_running_loop()
         last = loop.time()
-        seen: datetime | None = None
-        sender = viewer.pc.getTransceivers()[-1].sender  # any stream of the viewer's reports on it
+        seen: dict[int, datetime] = {}
+        senders = [t.sender for t in viewer.pc.getTransceivers() if t.sender.track is not None]
         while not viewer.closed:
             await asyncio.sleep(1.0)  # a periodic look, not synchronisation
-            reports = [s.timestamp for s in (await sender.getStats()).values() if s.type == "remote-inbound-rtp"]
-            if reports and reports[0] != seen:
-                seen, last = reports[0], loop.time()
+            answered = False
+            for k, sender in enumerate(senders):
+                stamps = [s.timestamp for s in (await sender.getStats()).values() if s.type == "remote-inbound-rtp"]
+                if stamps and stamps[0] != seen.get(k):
+                    seen[k] = stamps[0]
+                    answered = True
+            if answered:
+                last = loop.time()
             elif loop.time() - last > self.silent_timeout_s:
                 log.info("viewer %d: no answer for %g s; closing it", viewer.number, self.silent_timeout_s)
                 await self.close(viewer)

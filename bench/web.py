@@ -1,0 +1,1377 @@
+"""Web front-end: A/V offset as the browser presents it, command -> frame latency, and cost per viewer.
+
+Starts `eca up --web` (dialogue, gaze, audio and the web service; no renderer) on a private instance and
+a free port, and drives a real headless Chromium (services/browser.py) on the product page. What the
+bench measures in the page it injects (selenium's execute_script); the page itself is not changed. The
+instance's viewer watchdog waits 30 s instead of 5 s (see instance(): with 5 s it drops healthy pages).
+
+1. A/V offset as the browser presents it. One page receives three streams at once: the agent (the
+   page's own connection, 640x480 at 30 fps) and two references, peer connections whose offers ask for
+   the web service's calibration mode (services/web/calibration.py): a white flash at each whole second
+   of the master clock and a click in the audio at exactly that time, sent by the face's and voice's own
+   track classes, so they go through the same server, encoders, network and browser. The agent says
+   loud vowel bursts (250 ms of /a/, gaps drawn from the seeded generator, 0.9-1.2 s, so the onsets fall
+   at every phase of the frame slots); the lip-sync opens the mouth on each.
+   Video: `requestVideoFrameCallback` on each <video>; each presented frame is drawn into a canvas and
+   measured (the agent: the dark red pixels of the open mouth in a box around it; a reference: the
+   luma of the picture's centre); its time is the callback's `expectedDisplayTime`. The mouth opens at
+   the first frame whose count crosses half-way between the closed and open levels.
+   Audio: each stream goes into one AudioContext (MediaStreamAudioSourceNode) and an AudioWorklet that
+   finds onsets sample-exactly (the first sample over 0.05 of full scale after 0.3 s below it; an
+   AnalyserNode shows only the newest window when polled, so an onset's sample is lost). The onset's
+   context time is mapped to the page's clock with `AudioContext.getOutputTimestamp()` (the context
+   time now at the output, and the `performance.now()` when it is there): when the onset is heard.
+   Offset = audio onset - mouth opening (flash), ms; positive = audio late. The browser aligns each
+   connection's streams in steps during the first 20-40 s: the figures come from `--measure-s` after
+   `--settle-s`. Targets: the face's offset within +-15 ms of the references' (their mean), and the
+   face's offset within ATSC IS-191 (audio at most 15 ms early, 45 ms late). The WebAudio path of the
+   page can differ from the <video> element's own audio output by a constant, which the difference
+   cancels. The browser leaves each connection off by a different amount (its sync corrects only
+   differences over about 30 ms): how far apart the two identical references settle says whether the
+   face - reference figure is decidable in this run. Also shown: the lip-sync's own timing at the
+   source (the mouth keys on the bus), each connection's offset per 10 s since connecting, the
+   browser's own estimate (getStats estimatedPlayoutTimestamp), and each path from the master clock to
+   heard or shown.
+2. Command -> first frame presented that shows it: `--trials` set_emotion commands (surprised / angry,
+   transition 0) at seeded pauses; the page keeps a small grey thumbnail of every presented frame; the
+   first frame after a command nearer the new expression than the old is the one. The page's clock and
+   this host's monotonic clock are tied by GETs of a tiny server of the bench (the browser's time at the
+   middle of the fastest round trip; its half-length is the uncertainty). Parts: bus (command -> the
+   dialogue's state, its t_ns), state -> frame received by the browser (rVFC receiveTime), received ->
+   presented (presentationTime), presented -> displayed (expectedDisplayTime), all measured per command;
+   within them, estimated: draw and VP8 encode per frame (timed in the bench process on the same renderer
+   and aiortc's encoder, before the instance starts), network (half the ICE round trip), jitter buffer and
+   decode (getStats averages over the phase), the wait for the frame slot (the rest). Target p95 <= 100 ms.
+3. Cost per viewer: CPU (share of one core, /proc/<pid>/stat utime+stime over a window) and RSS of the
+   web service with 0 viewers, then 1, 2, 4, 8 (`--viewers`) of one agent at 640x480/30 fps: the first is
+   the Chromium page (it measures the frame rate it receives, getStats framesDecoded), the others are
+   aiortc clients in a helper process that receive but do not decode (the server's work is the same),
+   then all leave. Targets: <= 10 % of a core per additional viewer, >= 28 fps received with 8 viewers,
+   RSS back within 10 % of its 0-viewer level after all leave. The service does not report its draw
+   time; the bench's own draw of the face (the baseline) stands for it.
+
+Figures are printed one per line against their target (met / MISSED / info); the bench always exits 0.
+With --json the table goes to stderr and one JSON object to stdout. Progress lines go to stderr.
+
+    python bench/web.py [--settle-s 40] [--measure-s 30] [--trials 40] [--viewers 1,2,4,8] [--seed 0]
+                        [--skip-av] [--skip-latency] [--skip-viewers] [--json]
+
+A full run takes about 3 minutes on 2 cores (start and baselines 10 s, A/V 75 s, latency 35 s,
+viewers 60 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import os
+import random
+import re
+import signal
+import statistics
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from bench.report import Report, machine, percentile, wait_until_ns  # noqa: E402
+from services.processes import subprocess_env  # noqa: E402 (after the path is set)
+
+AGENT = "ada"
+WIDTH, HEIGHT, FPS = 640, 480, 30.0
+READY_TIMEOUT_S = 90.0
+CONNECT_TIMEOUT_S = 30.0
+
+# A/V
+BURST_S = 0.25
+BURST_GAP_S = (0.9, 1.2)  # onset to onset, drawn per burst: onsets at every phase of the frame slots
+SAY_RATE_HZ = 16_000
+ONSET_LEVEL = 0.05  # of full scale: the first sample over it after ONSET_QUIET_S below it is an onset
+ONSET_QUIET_S = 0.3
+PAIR_WINDOW_MS = 300.0  # an audio onset and a mouth opening (flash) this close belong together
+MOUTH_BOX = (0.34, 0.58, 0.66, 0.92)  # x0, y0, x1, y1 of the picture, around the mouth at 640x480
+MAX_SAY_S = 100.0  # the say's inline PCM (16 kHz, 16 bit) stays well under the bus's 4 MiB message cap
+TRAJECTORY_WINDOW_S = 10.0
+REFERENCES = ("reference A", "reference B")  # two: how far apart two identical connections settle
+
+# latency
+EMOTIONS = ("surprised", "angry")  # brows, eyes and mouth all move: far apart in a thumbnail
+PAUSE_S = (0.6, 0.9)  # between commands, drawn per command: commands land at every phase of the slots
+SIGNATURE_SIZE = (32, 24)
+
+# viewers
+VIEWER_SETTLE_S = 3.0
+VIEWER_WINDOW_S = 6.0
+AFTER_LEAVING_S = 5.0
+
+# Targets
+TARGET_AV_DIFF_MS = 15.0
+ATSC_EARLY_MS, ATSC_LATE_MS = 15.0, 45.0
+TARGET_LATENCY_P95_MS = 100.0
+TARGET_CPU_PER_VIEWER = 10.0  # % of one core
+TARGET_FPS_MIN = 28.0
+TARGET_RSS_RETURN = 0.10
+
+
+def progress(line: str) -> None:
+    print(f"[web-bench] {line}", file=sys.stderr, flush=True)
+
+
+def spread(values: list[float]) -> dict[str, float]:
+    if not values:
+        return {"n": 0}
+    return {"n": len(values), "median": round(statistics.median(values), 2), "p10": round(percentile(values, 0.1), 2),
+            "p90": round(percentile(values, 0.9), 2), "p95": round(percentile(values, 0.95), 2),
+            "mean": round(statistics.fmean(values), 2)}
+
+
+# --- what the bench injects into the page ----------------------------------------------------------
+
+PAGE_JS = """
+if (!window.ecaBench) {
+  const B = window.ecaBench = {frames: {}, onsets: {}, ctx: null, references: {}, signature: false,
+                               paused: false, mouthBox: arguments[0], signatureSize: arguments[1],
+                               onset: arguments[2]};
+  const canvases = {};
+  function pixels(purpose, video, x0, y0, x1, y1, w, h) {
+    // the part [x0, x1) x [y0, y1) of the frame (fractions of the picture), drawn at w x h
+    const vw = video.videoWidth, vh = video.videoHeight;
+    const sx = Math.round(x0 * vw), sy = Math.round(y0 * vh);
+    const sw = Math.round((x1 - x0) * vw), sh = Math.round((y1 - y0) * vh);
+    w = w || sw; h = h || sh;
+    let c = canvases[purpose];
+    if (!c || c.width !== w || c.height !== h) {
+      const canvas = document.createElement("canvas");
+      canvas.width = w; canvas.height = h;
+      c = canvases[purpose] = canvas;
+      c.g = canvas.getContext("2d", {willReadFrequently: true});
+    }
+    c.g.drawImage(video, sx, sy, sw, sh, 0, 0, w, h);
+    return c.g.getImageData(0, 0, w, h).data;
+  }
+  function openMouth(video) {  // the dark red of the open mouth's inside
+    const [x0, y0, x1, y1] = B.mouthBox;
+    const d = pixels("mouth", video, x0, y0, x1, y1);
+    let n = 0;
+    for (let i = 0; i < d.length; i += 4) {
+      const r = d[i], g = d[i + 1], b = d[i + 2];
+      if (r > 60 && r < 200 && g < 70 && b < 90 && r - g > 50) n++;
+    }
+    return n;
+  }
+  function centreLuma(video) {
+    const d = pixels("centre", video, 0.45, 0.45, 0.55, 0.55);
+    let s = 0;
+    for (let i = 0; i < d.length; i += 4) s += d[i] + d[i + 1] + d[i + 2];
+    return s / (3 * d.length / 4);
+  }
+  function thumbnail(video) {
+    const [w, h] = B.signatureSize;
+    const d = pixels("thumbnail", video, 0, 0, 1, 1, w, h);
+    const out = new Array(w * h);
+    for (let i = 0; i < w * h; i++) out[i] = Math.round((d[4 * i] + d[4 * i + 1] + d[4 * i + 2]) / 3);
+    return out;
+  }
+  B.watch = (name, video, kind) => {
+    B.frames[name] = [];
+    const onFrame = (now, m) => {
+      if (!B.paused && video.videoWidth) {
+        const f = {e: m.expectedDisplayTime, p: m.presentationTime, r: m.receiveTime ?? null,
+                   rtp: m.rtpTimestamp ?? null, w: m.width, h: m.height};
+        if (kind === "face") {
+          f.mouth = openMouth(video);
+          if (B.signature) f.sig = thumbnail(video);
+        } else {
+          f.luma = centreLuma(video);
+        }
+        B.frames[name].push(f);
+      }
+      video.requestVideoFrameCallback(onFrame);
+    };
+    video.requestVideoFrameCallback(onFrame);
+  };
+  const WORKLET = `
+    class Onsets extends AudioWorkletProcessor {
+      constructor(options) {
+        super();
+        this.level = options.processorOptions.level;
+        this.quietFrames = Math.round(options.processorOptions.quietS * sampleRate);
+        this.quiet = 0;
+      }
+      process(inputs) {
+        const channel = inputs[0] && inputs[0][0];
+        if (!channel) return true;
+        for (let i = 0; i < channel.length; i++) {
+          if (Math.abs(channel[i]) >= this.level) {
+            if (this.quiet >= this.quietFrames) this.port.postMessage({frame: currentFrame + i});
+            this.quiet = 0;
+          } else {
+            this.quiet++;
+          }
+        }
+        return true;
+      }
+    }
+    registerProcessor("eca-onsets", Onsets);`;
+  B.startAudio = async () => {
+    if (B.ctx) return;
+    const ctx = new AudioContext();
+    await ctx.audioWorklet.addModule(URL.createObjectURL(new Blob([WORKLET], {type: "text/javascript"})));
+    await ctx.resume();
+    B.silent = ctx.createGain();
+    B.silent.gain.value = 0;  // the worklet must be pulled by the destination; nothing is added to the output
+    B.silent.connect(ctx.destination);
+    B.ctx = ctx;
+  };
+  B.listen = (name, stream) => {
+    const ctx = B.ctx;
+    B.onsets[name] = [];
+    const node = new AudioWorkletNode(ctx, "eca-onsets", {processorOptions: {level: B.onset[0], quietS: B.onset[1]}});
+    node.port.onmessage = (event) => {
+      // when the onset's sample is at the output, on the page's clock
+      const ts = ctx.getOutputTimestamp();
+      const heard = ts.performanceTime + (event.data.frame / ctx.sampleRate - ts.contextTime) * 1000;
+      if (!B.paused) B.onsets[name].push(heard);
+    };
+    ctx.createMediaStreamSource(stream).connect(node);
+    node.connect(B.silent);
+  };
+}
+"""
+
+# what the page measured since the last take (the arrays are emptied in place: the callbacks keep filling them)
+TAKE_JS = """
+const B = window.ecaBench;
+const out = {frames: {}, onsets: {}, now: performance.now()};
+for (const k of Object.keys(B.frames)) { out.frames[k] = B.frames[k].splice(0); }
+for (const k of Object.keys(B.onsets)) { out.onsets[k] = B.onsets[k].splice(0); }
+return out;
+"""
+
+CALIBRATION_JS = """
+const [name, slot, agent, width, height, fps, done] = arguments;
+(async () => {
+  const B = window.ecaBench;
+  const pc = new RTCPeerConnection();
+  const video = pc.addTransceiver("video", {direction: "recvonly"});
+  const audio = pc.addTransceiver("audio", {direction: "recvonly"});
+  const element = document.createElement("video");
+  element.autoplay = true;
+  element.playsInline = true;
+  // in view, so the browser composites (and presents) its frames
+  element.style.cssText = `position: fixed; right: ${170 * slot}px; bottom: 0; width: 160px; height: 120px;
+                           z-index: 10`;
+  const stream = new MediaStream();
+  element.srcObject = stream;
+  document.body.append(element);
+  pc.ontrack = (event) => stream.addTrack(event.track);
+  await pc.setLocalDescription(await pc.createOffer());
+  if (pc.iceGatheringState !== "complete") {
+    await new Promise((resolve) => pc.addEventListener("icegatheringstatechange",
+      () => { if (pc.iceGatheringState === "complete") resolve(); }));
+  }
+  const body = {type: "offer", sdp: pc.localDescription.sdp, agents: [agent], video: {width, height, fps},
+                streams: [{mid: video.mid, agent, kind: "video"}, {mid: audio.mid, agent, kind: "audio"}],
+                mic_mid: null, calibration: true};
+  const response = await fetch("/offer", {method: "POST", headers: {"Content-Type": "application/json"},
+                                          body: JSON.stringify(body)});
+  const answer = await response.json();
+  if (!response.ok) throw new Error(answer.error || `the server answered ${response.status}`);
+  await pc.setRemoteDescription({type: "answer", sdp: answer.sdp});
+  B.references[name] = {pc, element, stream};
+  return "ok";
+})().then(done, (error) => done(`error: ${error.message || error}`));
+"""
+
+STREAMS_READY_JS = """
+const B = window.ecaBench, face = window.eca && window.eca.faces[AGENT];
+const ready = (s) => s && s.getVideoTracks().length > 0 && s.getAudioTracks().length > 0;
+const references = Object.values(B.references);
+return Boolean(window.eca.state === "connected" && face && ready(face.srcObject) && references.length
+               && references.every((r) => r.pc.connectionState === "connected" && ready(r.stream)));
+"""
+
+# each connection's A/V offset as the browser reckons it: what video and audio play out now, in the
+# sender's NTP time (getStats estimatedPlayoutTimestamp); + = video ahead = audio late
+SYNC_JS = """
+const done = arguments[arguments.length - 1];
+const B = window.ecaBench;
+const pcs = {face: window.eca.pc};
+for (const [name, r] of Object.entries(B.references)) pcs[name] = r.pc;
+Promise.all(Object.entries(pcs).map(async ([name, pc]) => {
+  if (!pc || pc.connectionState !== "connected") return [name, null];
+  const playout = {};
+  (await pc.getStats()).forEach((s) => {
+    if (s.type === "inbound-rtp" && s.estimatedPlayoutTimestamp) playout[s.kind] = s.estimatedPlayoutTimestamp;
+  });
+  return [name, playout.video && playout.audio ? {at: performance.now(), offset: playout.video - playout.audio} : null];
+})).then((pairs) => done(Object.fromEntries(pairs)), () => done({}));
+"""
+
+CLOSE_CALIBRATION_JS = """
+const B = window.ecaBench;
+if (B) {
+  for (const r of Object.values(B.references)) { r.pc.close(); r.element.remove(); }
+  B.references = {};
+}
+"""
+
+START_MEASURING_JS = """
+const [agent, done] = arguments;
+const B = window.ecaBench, face = window.eca.faces[agent];
+B.startAudio().then(() => {
+  B.watch("face", face, "face");
+  for (const [name, r] of Object.entries(B.references)) {
+    B.watch(name, r.element, "reference");
+    B.listen(name, r.stream);
+  }
+  B.listen("face", face.srcObject);
+  done({sampleRate: B.ctx.sampleRate, baseLatency: B.ctx.baseLatency, outputLatency: B.ctx.outputLatency});
+}, (error) => done({error: String(error.message || error)}));
+"""
+
+# inbound video of one peer connection (the page's, or the reference's), and the ICE round trip
+VIDEO_STATS_JS = """
+const [which, done] = arguments;
+const pc = which === "face" ? window.eca.pc : window.ecaBench.references[which] && window.ecaBench.references[which].pc;
+if (!pc) { done(null); return; }
+pc.getStats().then((report) => {
+  const out = {at: performance.now()};
+  report.forEach((s) => {
+    if (s.type === "inbound-rtp" && s.kind === "video") Object.assign(out, {
+      framesDecoded: s.framesDecoded, framesReceived: s.framesReceived, framesDropped: s.framesDropped,
+      framesPerSecond: s.framesPerSecond, jitterBufferDelay: s.jitterBufferDelay,
+      jitterBufferEmittedCount: s.jitterBufferEmittedCount, totalDecodeTime: s.totalDecodeTime,
+      totalProcessingDelay: s.totalProcessingDelay, totalAssemblyTime: s.totalAssemblyTime,
+      jitterBufferTargetDelay: s.jitterBufferTargetDelay, decoderImplementation:
+      s.decoderImplementation, frameWidth: s.frameWidth, frameHeight: s.frameHeight, codecId: s.codecId});
+    if (s.type === "candidate-pair" && s.nominated && s.currentRoundTripTime != null) out.rttS = s.currentRoundTripTime;
+  });
+  report.forEach((s) => {
+    if (s.type === "inbound-rtp" && s.kind === "audio") out.audio = {jitterBufferDelay: s.jitterBufferDelay,
+      jitterBufferEmittedCount: s.jitterBufferEmittedCount, jitterBufferTargetDelay: s.jitterBufferTargetDelay,
+      jitter: s.jitter};
+  });
+  if (out.codecId) { const c = report.get(out.codecId); out.codec = c && c.mimeType; }
+  done(out);
+}, (error) => done({error: String(error)}));
+"""
+
+CLOCK_JS = """
+const [url, n, done] = arguments;
+(async () => {
+  const out = [];
+  for (let i = 0; i < n; i++) {
+    const t0 = performance.now();
+    const text = await (await fetch(url, {cache: "no-store"})).text();
+    out.push([t0, performance.now(), text]);
+  }
+  return out;
+})().then(done, (error) => done({error: String(error)}));
+"""
+
+
+# --- the page's clock against this host's monotonic clock -----------------------------------------
+
+
+class TimeServer:
+    """A tiny HTTP server answering each GET with this host's monotonic time (ns), for the page."""
+
+    def __init__(self) -> None:
+        class Handler(BaseHTTPRequestHandler):
+            def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+                body = str(time.monotonic_ns()).encode()
+                self.send_response(200)
+                self.send_header("Access-Control-Allow-Origin", "*")  # the page is another origin (port)
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Cache-Control", "no-store")
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args: Any) -> None:
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/now"
+        self._thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.1},
+                                        daemon=True, name="time-server")
+
+    def __enter__(self) -> TimeServer:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+        self._thread.join(timeout=5)
+
+
+@dataclass(frozen=True)
+class ClockTie:
+    """host monotonic ms = page ms + offset_ms, to within +-uncertainty_ms."""
+
+    offset_ms: float
+    uncertainty_ms: float
+
+    def host_ms(self, page_ms: float) -> float:
+        return page_ms + self.offset_ms
+
+
+def tie_clocks(driver: Any, server: TimeServer, round_trips: int = 40) -> ClockTie:
+    """The browser's time at the middle of the fastest of `round_trips` GETs, against the host's."""
+    got = driver.execute_async_script(CLOCK_JS, server.url, round_trips)
+    if isinstance(got, dict):
+        raise RuntimeError(f"the page could not reach the bench's clock: {got['error']}")
+    t0, t1, host = min(got, key=lambda r: r[1] - r[0])
+    return ClockTie(int(host) / 1e6 - (t0 + t1) / 2, (t1 - t0) / 2)
+
+
+def combined_tie(ties: list[ClockTie]) -> tuple[ClockTie, float]:
+    """One tie from several (the mean; the uncertainty covers each and their spread), and the drift seen."""
+    offsets = [t.offset_ms for t in ties]
+    drift = max(offsets) - min(offsets)
+    return ClockTie(statistics.fmean(offsets), max(t.uncertainty_ms for t in ties) + drift / 2), drift
+
+
+# --- the instance ----------------------------------------------------------------------------------
+
+
+@dataclass
+class Instance:
+    config: Any
+    reader: Any
+    url: str
+    web_pid: int
+
+    def viewers_watching(self, since: int = 0) -> int | None:
+        """How many viewers the web service says watch, from its latest 'left' line from line `since` on
+        (None: none)."""
+        for line in reversed(self.reader.lines[since:]):
+            m = re.search(r"\[web\] INFO viewer \d+ left \((\d+) watching\)", line)
+            if m:
+                return int(m.group(1))
+        return None
+
+
+@contextmanager
+def instance() -> Iterator[Instance]:
+    from services.testing import eca_command, private_bus_config, running
+
+    with private_bus_config(services=["dialogue", "gaze", "audio"]) as config:
+        # The product's own viewer watchdog runs (silent_timeout_s): the bench's connections last minutes,
+        # so a healthy page closed as silent shows in the figures below.
+        argv = eca_command("up", "--config", str(config.config_path), "--instance", config.instance, "--quiet",
+                           "--web", "--web-port", "0")
+        progress(f"starting eca up --web (instance {config.instance})")
+        with running(argv, stop_timeout_s=10.0) as (proc, reader):
+            try:
+                reader.wait_for("[up] ready in", READY_TIMEOUT_S)
+            except TimeoutError:
+                said = [line for line in reader.lines if re.search(r"ERROR|Error|not restarted", line)]
+                raise RuntimeError(f"eca up was not ready within {READY_TIMEOUT_S:g} s: "
+                                   f"{' | '.join(said[-3:]) or 'no error printed'}") from None
+            line = reader.lines[reader.wait_for("[web] INFO serving http://", 10.0)]
+            url = re.search(r"(http://\S+/)", line)
+            ready = reader.lines[reader.wait_for("[web] INFO ready (pid", 10.0)]
+            pid = re.search(r"ready \(pid (\d+)\)", ready)
+            assert url is not None and pid is not None
+            yield Instance(config, reader, url.group(1), int(pid.group(1)))
+
+
+def open_page(driver: Any, url: str) -> None:
+    driver.get(f"{url}?mic=0&width={WIDTH}&height={HEIGHT}&fps={FPS:g}")
+    connect_page(driver)
+
+
+def connect_page(driver: Any) -> None:
+    from services.browser import wait_for
+
+    driver.find_element("id", "connect").click()
+    wait_for(driver, "return window.eca.state", CONNECT_TIMEOUT_S, "the page connecting", lambda s: s == "connected")
+
+
+def video_stats(driver: Any, which: str = "face") -> dict[str, Any]:
+    got = driver.execute_async_script(VIDEO_STATS_JS, which)
+    return got or {}
+
+
+# --- in-process baselines: the face drawn once, and one viewer's VP8 encode -----------------------
+
+
+def draw_and_encode_baselines(frames: int = 150) -> dict[str, float]:
+    """Per frame at 640x480, in this process: compose + draw + read-back + yuv (what the service does once
+    per frame slot), and aiortc's VP8 encode of the result (what it does per viewer)."""
+    import fractions
+
+    import av
+    from aiortc.codecs.vpx import Vp8Encoder
+
+    from agent.face.model import FaceModel
+    from services.renderer import Renderer, create_headless_context, read_rgb
+
+    ctx = create_headless_context()
+    try:
+        renderer = Renderer(ctx, (WIDTH, HEIGHT))
+        model = FaceModel(seed=1)
+        encoder = Vp8Encoder()
+        period_ns = round(1e9 / FPS)
+        draw_ms: list[float] = []
+        encode_ms: list[float] = []
+        for i in range(frames + 20):  # the first 20: shader variants compile, the encoder starts
+            t_ns = i * period_ns
+            if i % 30 == 0:
+                model.set_emotion(EMOTIONS[(i // 30) % 2], 1.0, t_ns=t_ns)
+            model.set_eyes(15.0 * math.sin(i * 0.11), 8.0 * math.cos(i * 0.07), 1.0 if i % 90 < 5 else None)
+            model.set_mouth({"say_ah": 0.5 + 0.5 * math.sin(i * 0.4)})
+            t0 = time.perf_counter()
+            renderer.render(model.frame_at(t_ns).values)
+            rgb = read_rgb(renderer.fbo)
+            yuv = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p").to_ndarray()
+            t1 = time.perf_counter()
+            frame = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+            frame.pts = i * 3000
+            frame.time_base = fractions.Fraction(1, 90_000)
+            encoder.encode(frame)
+            t2 = time.perf_counter()
+            if i >= 20:
+                draw_ms.append(1e3 * (t1 - t0))
+                encode_ms.append(1e3 * (t2 - t1))
+    finally:
+        ctx.release()
+    return {"draw_ms": statistics.median(draw_ms), "draw_p95_ms": percentile(draw_ms, 0.95),
+            "encode_ms": statistics.median(encode_ms), "encode_p95_ms": percentile(encode_ms, 0.95),
+            "frames": frames}
+
+
+# --- 1. A/V offset ---------------------------------------------------------------------------------
+
+
+def vowel_bursts(rng: random.Random, seconds: float) -> tuple[bytes, list[float]]:
+    """PCM (16-bit, SAY_RATE_HZ) of loud /a/ bursts with seeded gaps, and each burst's onset (s)."""
+    rate = SAY_RATE_HZ
+    t = np.arange(round(BURST_S * rate)) / rate
+    f0 = 140.0
+    vowel = np.zeros_like(t)
+    for h in range(1, int(4000 / f0)):  # harmonics shaped by the formants of /a/: the lip-sync's "open"
+        f = h * f0
+        gain = sum(1 / math.sqrt(1 + ((f - formant) / (bw / 2)) ** 2)
+                   for formant, bw in ((750, 90), (1150, 110), (2600, 160)))
+        vowel += gain * np.sin(2 * np.pi * f * t)
+    ramp = round(0.002 * rate)  # 2 ms: a sharp onset without a click
+    envelope = np.ones_like(t)
+    envelope[:ramp] = np.linspace(0, 1, ramp)
+    envelope[-ramp:] = np.linspace(1, 0, ramp)
+    vowel = 0.5 * vowel / np.abs(vowel).max() * envelope
+    onsets: list[float] = []
+    at = 0.5
+    while at + BURST_S < seconds:
+        onsets.append(at)
+        at += rng.uniform(*BURST_GAP_S)
+    pcm = np.zeros(round(seconds * rate))
+    for onset in onsets:
+        i = round(onset * rate)
+        pcm[i:i + len(vowel)] = vowel
+    return (pcm * 32767).astype("<i2").tobytes(), onsets
+
+
+def mouth_openings(frames: list[dict[str, Any]]) -> tuple[list[float], dict[str, float]]:
+    """Display times (page ms) of the frames where the open-mouth count crosses half-way up."""
+    counts = [f["mouth"] for f in frames]
+    if len(counts) < 10:
+        return [], {}
+    closed, open_ = percentile(counts, 0.1), percentile(counts, 0.95)
+    threshold = (closed + open_) / 2
+    levels = {"closed_px": closed, "open_px": open_, "threshold_px": threshold}
+    if open_ - closed < 200:  # the mouth never opened: no bursts seen
+        return [], levels
+    out = [b["e"] for a, b in zip(frames, frames[1:], strict=False) if a["mouth"] < threshold <= b["mouth"]]
+    return out, levels
+
+
+def flashes(frames: list[dict[str, Any]]) -> list[float]:
+    """Display times (page ms) of the first white frame of each flash."""
+    return [b["e"] for a, b in zip(frames, frames[1:], strict=False) if a["luma"] < 128 <= b["luma"]]
+
+
+def pair_offsets(onsets: list[float], events: list[float]) -> list[tuple[float, float]]:
+    """For each audio onset, (its time, onset - the nearest video event within PAIR_WINDOW_MS): + = audio late."""
+    out = []
+    events = sorted(events)
+    for onset in onsets:
+        nearest = min(events, key=lambda e: abs(onset - e), default=None)
+        if nearest is not None and abs(onset - nearest) <= PAIR_WINDOW_MS:
+            out.append((onset, onset - nearest))
+    return out
+
+
+def by_window(pairs: list[tuple[float, float]], tie: ClockTie, start_ms: float, seconds: float) -> list[dict[str, Any]]:
+    """The median offset per TRAJECTORY_WINDOW_S since `start_ms` (host clock)."""
+    out = []
+    for w0 in np.arange(0.0, seconds, TRAJECTORY_WINDOW_S):
+        lo, hi = start_ms + 1e3 * w0, start_ms + 1e3 * (w0 + TRAJECTORY_WINDOW_S)
+        window = [o for t, o in pairs if lo <= tie.host_ms(t) < hi]
+        out.append({"from_s": float(w0), "median_ms": round(statistics.median(window), 1) if window else None,
+                    "n": len(window)})
+    return out
+
+
+def jaw_crossings(keys: list[Any], dac0_ms: float, onsets_ms: list[float]) -> list[float]:
+    """Per burst (its onset on the master clock, ms): when the lip-sync's jaw (say_ah) first reaches half
+    its peak in the burst, minus the onset (ms), with the keys interpolated linearly as the face does."""
+    times: list[float] = []
+    jaw: list[float] = []
+    for k in keys:
+        times += [dac0_ms + 1e3 * i / k.sample_rate for i in k.sample_index]
+        jaw += k.weights.get("say_ah", [0.0] * len(k.sample_index))
+    t, w = np.asarray(times), np.asarray(jaw)
+    out = []
+    for onset in onsets_ms:
+        near = (t >= onset - 50) & (t <= onset + 1e3 * BURST_S)
+        if not near.any() or w[near].max() <= 0:
+            continue
+        half = w[near].max() / 2
+        idx = np.nonzero(near & (w >= half))[0][0]
+        if idx == 0 or w[idx - 1] >= half:
+            out.append(float(t[idx] - onset))
+            continue
+        frac = (half - w[idx - 1]) / (w[idx] - w[idx - 1])
+        out.append(float(t[idx - 1] + frac * (t[idx] - t[idx - 1]) - onset))
+    return out
+
+
+def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: TimeServer, report: Report,
+             rng: random.Random) -> None:
+    import zmq
+
+    from protocol.bus import Subscriber
+    from protocol.client import AgentClient
+    from protocol.messages import MouthKeys, Say, SpeechStarted
+    from services.browser import wait_for
+
+    details: dict[str, Any] = {}
+    report.details["av"] = details
+    for slot, name in enumerate(REFERENCES):
+        answer = driver.execute_async_script(CALIBRATION_JS, name, slot, AGENT, WIDTH, HEIGHT, FPS)
+        if answer != "ok":
+            raise RuntimeError(f"{name} did not connect: {answer}")
+    wait_for(driver, STREAMS_READY_JS.replace("AGENT", json.dumps(AGENT)), CONNECT_TIMEOUT_S,
+             "every stream with its tracks", bool)
+    details["audio_context"] = driver.execute_async_script(START_MEASURING_JS, AGENT)
+    connected_ns = time.monotonic_ns()
+    names = ("face", *REFERENCES)
+    frames: dict[str, list[dict[str, Any]]] = {n: [] for n in names}
+    onsets: dict[str, list[float]] = {n: [] for n in names}
+    # the browser's own A/V offset per connection: (page ms, estimatedPlayoutTimestamp video - audio)
+    sync: dict[str, list[tuple[float, float]]] = {n: [] for n in names}
+
+    def take() -> None:
+        got = driver.execute_script(TAKE_JS)
+        for name in names:
+            frames[name] += got["frames"].get(name, [])
+            onsets[name] += got["onsets"].get(name, [])
+        for name, polled in driver.execute_async_script(SYNC_JS).items():
+            if polled is not None:
+                sync[name].append((polled["at"], polled["offset"]))
+
+    measure_start_ns = connected_ns + int(args.settle_s * 1e9)
+    measure_end_ns = measure_start_ns + int(args.measure_s * 1e9)
+    # bursts from the start when the say fits the bus's message cap (the face settles in view), else only
+    # while measuring; the say is sent a little before the first window it covers, its first burst 0.5 s in
+    say_lead_s = 0.3
+    whole = args.settle_s + args.measure_s <= MAX_SAY_S
+    say_at_ns = connected_ns if whole else measure_start_ns - int(say_lead_s * 1e9)
+    pcm, burst_onsets = vowel_bursts(rng, (measure_end_ns - say_at_ns) / 1e9 + 0.5)
+    keys: list[MouthKeys] = []
+    rid = "bench-web-bursts"
+    ctx = zmq.Context()
+    mouth_sub = Subscriber(ctx, inst.config, [f"stream.{AGENT}.mouth"])  # the lip-sync's keys, at the source
+
+    def pull_while_waiting(left_s: float) -> None:
+        take()
+        for got in mouth_sub.drain():
+            if isinstance(got.message, MouthKeys) and got.message.request_id == rid:
+                keys.append(got.message)
+        time.sleep(min(left_s, 1.0))  # pacing; the page keeps measuring meanwhile
+
+    try:
+        mouth_sub.wait_ready()
+        with AgentClient(inst.config, agent=AGENT, source="bench-web", ctx=ctx) as client:
+            progress(f"A/V: settling {args.settle_s:g} s, then measuring {args.measure_s:g} s "
+                     f"({len(burst_onsets)} vowel bursts; {len(REFERENCES)} references, a flash and a click a "
+                     "second)")
+            ties = [tie_clocks(driver, server)]
+            wait_until_ns(say_at_ns, pull_while_waiting)
+            client.send(Say(agent=AGENT, request_id=rid, pcm=pcm, sample_rate=SAY_RATE_HZ, text="vowel bursts"))
+            started = client.wait_for(lambda m: isinstance(m, SpeechStarted) and m.request_id == rid, 10.0)
+            wait_until_ns(measure_end_ns, pull_while_waiting)
+            pull_while_waiting(0.0)
+            ties.append(tie_clocks(driver, server))
+    finally:
+        mouth_sub.close()
+        ctx.term()
+    driver.execute_script(CLOSE_CALIBRATION_JS)  # the references are not needed any more
+    tie, drift = combined_tie(ties)
+    details.update(clock_offset_ms=tie.offset_ms, clock_uncertainty_ms=tie.uncertainty_ms, clock_drift_ms=drift,
+                   browser_estimate=sync)
+    start_ms, end_ms = measure_start_ns / 1e6, measure_end_ns / 1e6
+    connected_ms, total_s = connected_ns / 1e6, args.settle_s + args.measure_s
+
+    def in_window(t_page: float) -> bool:
+        return start_ms <= tie.host_ms(t_page) < end_ms
+
+    def since_source(t_page: float) -> float:
+        """For a reference's flash or click: ms since the whole second of the master clock it marks."""
+        t = tie.host_ms(t_page)
+        return t - math.floor(t / 1e3) * 1e3
+
+    openings, levels = mouth_openings(frames["face"])
+    video_events = {"face": openings, **{n: flashes(frames[n]) for n in REFERENCES}}
+    offsets: dict[str, list[float]] = {}
+    for name in names:
+        pairs = pair_offsets(onsets[name], video_events[name])
+        offsets[name] = [o for t, o in pairs if in_window(t)]
+        details[name] = {"offsets": spread(offsets[name]), "offsets_ms": offsets[name],
+                         "by_window": by_window(pairs, tie, connected_ms, total_s),
+                         "onsets": sum(map(in_window, onsets[name])),
+                         "video_events": sum(map(in_window, video_events[name])),
+                         "frames": sum(in_window(f["e"]) for f in frames[name])}
+    dac0_ms = started.dac_time_ns / 1e6  # type: ignore[attr-defined]
+    burst_dac = [dac0_ms + 1e3 * o for o in burst_onsets]
+    details["face"]["mouth_levels"] = levels
+    details["face"]["bursts_in_window"] = sum(1 for t in burst_dac if start_ms <= t < end_ms)
+    # paths from the master clock at the source to heard / shown in the page (host clock)
+    paths = {
+        "face: burst at source -> heard": [d for d in (nearest_after(tie.host_ms(t), burst_dac)
+                                                       for t in onsets["face"] if in_window(t)) if d is not None],
+        "face: burst at source -> mouth shown": [
+            d for d in (nearest_after(tie.host_ms(t), burst_dac, early_ms=100.0) for t in openings if in_window(t))
+            if d is not None],
+    }
+    for name in REFERENCES:
+        paths[f"{name}: click at source -> heard"] = [since_source(t) for t in onsets[name] if in_window(t)]
+        paths[f"{name}: flash at source -> shown"] = [since_source(t) for t in video_events[name] if in_window(t)]
+    details["paths_ms"] = {k: spread(v) for k, v in paths.items()}
+    lipsync = jaw_crossings(keys, dac0_ms, [t for t in burst_dac if start_ms <= t < end_ms])
+    details["lipsync_at_source_ms"] = spread(lipsync)
+
+    face = offsets["face"]
+    refs = {n: statistics.median(offsets[n]) for n in REFERENCES if offsets[n]}
+    if not face or len(refs) < len(REFERENCES):
+        report.add("A/V: pairs measured", ", ".join(f"{n} {len(offsets[n])}" for n in names), "> 0 each", False,
+                   "", f"mouth levels {levels}")
+    if face:
+        fm = statistics.median(face)
+        report.add("A/V offset, face (audio - mouth)", round(fm, 1), f"-{ATSC_EARLY_MS:g}..+{ATSC_LATE_MS:g}",
+                   -ATSC_EARLY_MS <= fm <= ATSC_LATE_MS, "ms",
+                   f"ATSC IS-191; + = audio late; p10 {percentile(face, 0.1):.1f}, p90 {percentile(face, 0.9):.1f}, "
+                   f"n {len(face)}")
+    for name, rm in refs.items():
+        report.add(f"A/V offset, {name} (click - flash)", round(rm, 1), "-", None, "ms",
+                   f"source-aligned; p10 {percentile(offsets[name], 0.1):.1f}, p90 "
+                   f"{percentile(offsets[name], 0.9):.1f}, n {len(offsets[name])}")
+    if face and refs:
+        ref_mean = statistics.fmean(refs.values())
+        diff = statistics.median(face) - ref_mean
+        report.add("A/V offset, face - reference", round(diff, 1), f"+-{TARGET_AV_DIFF_MS:g}",
+                   abs(diff) <= TARGET_AV_DIFF_MS, "ms", f"against the references' mean, {ref_mean:.1f} ms")
+        if len(refs) > 1:
+            apart = max(refs.values()) - min(refs.values())
+            report.add("A/V references apart", round(apart, 1), f"<= {TARGET_AV_DIFF_MS:g}",
+                       apart <= TARGET_AV_DIFF_MS, "ms",
+                       "identical streams, separate connections: beyond the target, the row above is not decidable")
+        if lipsync:
+            lag = statistics.median(lipsync)
+            quantum = 1e3 / FPS / 2
+            report.add("  of which lip-sync at the source", round(-lag, 1), "-", None, "ms",
+                       f"measured: the jaw half open {lag:+.1f} ms from the burst's onset (mouth keys on the bus)")
+            report.add("  of which frame quantization", round(-quantum, 1), "-", None, "ms",
+                       "estimated: the mouth shows at the first frame after it opens, half a frame later on average")
+            report.add("  rest (drawing, sending, the browser)", round(diff + lag + quantum, 1), "-", None, "ms",
+                       "face - reference less the two above")
+    for name in names:
+        polled = [o for t, o in sync[name] if in_window(t)]
+        if polled:
+            report.add(f"A/V browser's own estimate, {name}", round(statistics.median(polled), 1), "-", None, "ms",
+                       f"getStats estimatedPlayoutTimestamp video - audio; range {min(polled):g}..{max(polled):g}")
+    for name in names:
+        steps = [w for w in details[name]["by_window"] if w["median_ms"] is not None]
+        if steps:
+            report.add(f"A/V {name} while settling", " -> ".join(f"{w['median_ms']:g}" for w in steps), "-", None,
+                       "", f"median ms per {TRAJECTORY_WINDOW_S:g} s since connecting")
+    for label, values in details["paths_ms"].items():
+        if values.get("n"):
+            report.add(f"A/V {label}", values["median"], "-", None, "ms",
+                       f"p10 {values['p10']}, p90 {values['p90']}, n {values['n']}")
+    report.add("A/V page clock tie", round(tie.uncertainty_ms, 2), "-", None, "ms",
+               f"+- (GET round trips; drift between start and end {drift:.2f} ms)")
+
+
+def nearest_after(t_ms: float, sources: list[float], early_ms: float = 0.0) -> float | None:
+    """t - the latest source time at most `early_ms` after t (a burst's onset at the source), if within 1 s."""
+    before = [s for s in sources if s - early_ms <= t_ms]
+    if not before:
+        return None
+    d = t_ms - max(before)
+    return d if d < 1e3 else None
+
+
+# --- 2. command -> frame ---------------------------------------------------------------------------
+
+
+def latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: TimeServer, report: Report,
+                  rng: random.Random, baselines: dict[str, float] | None, connected_ns: int) -> None:
+    import zmq
+
+    from protocol.bus import Subscriber
+    from protocol.client import AgentClient
+    from protocol.messages import EmotionState
+
+    details: dict[str, Any] = {}
+    report.details["latency"] = details
+    if driver.execute_script("return Boolean(window.ecaBench && window.ecaBench.frames.face)") is not True:
+        driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S])
+        driver.execute_script("window.ecaBench.watch('face', window.eca.faces[arguments[0]], 'face')", AGENT)
+    driver.execute_script("window.ecaBench.signature = true")
+    settled_ns = connected_ns + int(args.settle_s * 1e9)
+    if time.monotonic_ns() < settled_ns:  # the browser's A/V sync, which holds the video, settles first
+        progress(f"latency: the page's connection settles for {(settled_ns - time.monotonic_ns()) / 1e9:.0f} s")
+        wait_until_ns(settled_ns)
+    frames: list[dict[str, Any]] = []
+    states: list[tuple[int, str]] = []
+    commands: list[tuple[int, str]] = []
+    ctx = zmq.Context()
+    sub = Subscriber(ctx, inst.config, [f"state.{AGENT}.emotion"])
+    sub.wait_ready()
+
+    def listen(left_s: float) -> None:
+        got = sub.recv(left_s)
+        while got is not None:
+            if isinstance(got.message, EmotionState):
+                states.append((got.message.t_ns, got.message.name))
+            got = sub.recv(0.0)
+
+    try:
+        with AgentClient(inst.config, agent=AGENT, source="bench-web-latency", ctx=ctx) as client:
+            progress(f"latency: {args.trials} set_emotion commands ({' / '.join(EMOTIONS)}, transition 0)")
+            ties = [tie_clocks(driver, server)]
+            before = video_stats(driver)
+            client.set_emotion(EMOTIONS[1], 1.0, transition_s=0.0)
+            wait_until_ns(time.monotonic_ns() + 1_000_000_000, listen)
+            driver.execute_script(TAKE_JS)  # what came before the first command
+            for i in range(args.trials):
+                name = EMOTIONS[i % 2]
+                sent = client.set_emotion(name, 1.0, transition_s=0.0)
+                commands.append((sent.t_ns, name))
+                wait_until_ns(sent.t_ns + int(rng.uniform(*PAUSE_S) * 1e9), listen)
+                if i % 8 == 7:
+                    frames += driver.execute_script(TAKE_JS)["frames"].get("face", [])
+            frames += driver.execute_script(TAKE_JS)["frames"].get("face", [])
+            after = video_stats(driver)
+            ties.append(tie_clocks(driver, server))
+            listen(0.0)
+    finally:
+        sub.close()
+        ctx.term()
+    driver.execute_script("window.ecaBench.signature = false")
+    tie, drift = combined_tie(ties)
+    details.update(clock_offset_ms=tie.offset_ms, clock_uncertainty_ms=tie.uncertainty_ms, clock_drift_ms=drift,
+                   stats_before=before, stats_after=after)
+    trials = analyse_trials(commands, states, [f for f in frames if "sig" in f], tie)
+    details["trials"] = trials
+    measured = [t for t in trials if "total_ms" in t]
+    totals = [t["total_ms"] for t in measured]
+    if not totals:
+        report.add("command -> frame shown", "none seen", f"p95 <= {TARGET_LATENCY_P95_MS:g}", False, "ms",
+                   f"{len(trials)} commands; {len(frames)} frames")
+        return
+    s = spread(totals)
+    report.add("command -> frame shown, p50", s["median"], "-", None, "ms",
+               f"n {s['n']} of {len(trials)}; to the frame's expectedDisplayTime")
+    report.add("command -> frame shown, p95", s["p95"], f"<= {TARGET_LATENCY_P95_MS:g}",
+               s["p95"] <= TARGET_LATENCY_P95_MS, "ms", f"max {max(totals):.1f}")
+    parts = {k: spread([t[k] for t in measured if k in t]) for k in
+             ("bus_ms", "state_to_received_ms", "received_to_presented_ms", "presented_to_displayed_ms")}
+    details["parts"] = parts
+    # estimated splits of the measured parts
+    jitter = _per(after, before, "jitterBufferDelay", "jitterBufferEmittedCount")
+    decode = _per(after, before, "totalDecodeTime", "framesDecoded")
+    audio_jitter = _per(after.get("audio", {}), before.get("audio", {}), "jitterBufferDelay",
+                        "jitterBufferEmittedCount")
+    rtt = after.get("rttS")
+    estimates: dict[str, float] = {}
+    if baselines:
+        estimates.update(draw_ms=baselines["draw_ms"], encode_ms=baselines["encode_ms"])
+    if rtt is not None:
+        estimates["network_ms"] = 1e3 * rtt / 2
+    s2r = parts["state_to_received_ms"].get("median")
+    if s2r is not None and {"draw_ms", "encode_ms", "network_ms"} <= estimates.keys():
+        estimates["slot_wait_ms"] = s2r - estimates["draw_ms"] - estimates["encode_ms"] - estimates["network_ms"]
+    if jitter is not None:
+        estimates["jitter_buffer_ms"] = 1e3 * jitter
+    if decode is not None:
+        estimates["decode_ms"] = 1e3 * decode
+    if audio_jitter is not None:
+        estimates["audio_jitter_buffer_ms"] = 1e3 * audio_jitter
+    details["estimates"] = estimates
+    details["frames_decoded_in_phase"] = _delta(after, before, "framesDecoded")
+    rows: list[tuple[str, str, list[tuple[str, str, str]]]] = [
+        ("bus_ms", "bus: command -> state published", []),
+        ("state_to_received_ms", "state -> frame received", [
+            ("slot_wait_ms", "wait for the frame slot", "the part less the three below"),
+            ("draw_ms", "draw", "the face drawn in the bench, same renderer and size"),
+            ("encode_ms", "VP8 encode", "aiortc's encoder in the bench"),
+            ("network_ms", "network", "ICE round trip / 2, getStats")]),
+        ("received_to_presented_ms", "received -> presented", [
+            ("jitter_buffer_ms", "jitter buffer", "getStats mean per frame: held to play with the audio"),
+            ("decode_ms", "decode", "getStats mean per frame"),
+            ("audio_jitter_buffer_ms", "(audio jitter buffer)", "getStats mean per sample: what the video waits "
+             f"on; interarrival jitter {1e3 * (after.get('audio', {}).get('jitter') or 0):.1f} ms")]),
+        ("presented_to_displayed_ms", "presented -> displayed", []),
+    ]
+    for key, label, children in rows:
+        p = parts[key]
+        if p.get("n"):
+            report.add(f"  {label}", p["median"], "-", None, "ms", f"measured, median; p95 {p['p95']}")
+        for child, child_label, note in children:
+            if child in estimates:
+                report.add(f"    {child_label}", round(estimates[child], 2), "-", None, "ms", f"estimated: {note}")
+    report.add("latency clock tie", round(tie.uncertainty_ms, 2), "-", None, "ms",
+               f"+- (GET round trips; drift {drift:.2f} ms); codec {after.get('codec')}, "
+               f"decoder {after.get('decoderImplementation')}")
+
+
+def _delta(after: dict[str, Any], before: dict[str, Any], key: str) -> float | None:
+    a, b = after.get(key), before.get(key)
+    return None if a is None or b is None else float(a) - float(b)
+
+
+def _per(after: dict[str, Any], before: dict[str, Any], total: str, count: str) -> float | None:
+    t, n = _delta(after, before, total), _delta(after, before, count)
+    return None if t is None or not n else t / n
+
+
+def analyse_trials(commands: list[tuple[int, str]], states: list[tuple[int, str]], frames: list[dict[str, Any]],
+                   tie: ClockTie) -> list[dict[str, Any]]:
+    """Per command: the first frame shown after it that is nearer the new expression than the old (the old:
+    the frames shown in the 150 ms before the command; the new: those in the 200 ms before the next)."""
+    frames = sorted(frames, key=lambda f: f["e"])
+    shown = np.array([tie.host_ms(f["e"]) for f in frames])
+    sigs = np.array([f["sig"] for f in frames], dtype=float) if frames else np.zeros((0, 1))
+    out = []
+    for i, (sent_ns, name) in enumerate(commands):
+        sent_ms = sent_ns / 1e6
+        end_ms = commands[i + 1][0] / 1e6 if i + 1 < len(commands) else sent_ms + 1e3 * PAUSE_S[0]
+        trial: dict[str, Any] = {"emotion": name, "sent_ms": sent_ms}
+        out.append(trial)
+        old = sigs[(shown >= sent_ms - 150) & (shown < sent_ms)]
+        new = sigs[(shown >= end_ms - 200) & (shown < end_ms)]
+        if not len(old) or not len(new):
+            trial["skipped"] = "no frames before the command or before the next"
+            continue
+        old_mean, new_mean = old.mean(axis=0), new.mean(axis=0)
+        apart = float(np.abs(old_mean - new_mean).mean())
+        if apart < 2.0:  # mean grey-level change per thumbnail pixel: the expression did not change
+            trial["skipped"] = f"the face did not change ({apart:.2f})"
+            continue
+        after = np.nonzero((shown > sent_ms) & (shown < end_ms))[0]
+        hit = next((k for k in after if np.abs(sigs[k] - new_mean).mean() < np.abs(sigs[k] - old_mean).mean()), None)
+        if hit is None:
+            trial["skipped"] = "no frame showed it"
+            continue
+        f = frames[hit]
+        trial["total_ms"] = shown[hit] - sent_ms
+        state = next((t for t, n in states if n == name and t >= sent_ns), None)
+        if state is not None:
+            trial["bus_ms"] = (state - sent_ns) / 1e6
+            if f.get("r") is not None:
+                trial["state_to_received_ms"] = tie.host_ms(f["r"]) - state / 1e6
+        if f.get("r") is not None:
+            trial["received_to_presented_ms"] = f["p"] - f["r"]
+        trial["presented_to_displayed_ms"] = f["e"] - f["p"]
+    return out
+
+
+# --- 3. cost per viewer ----------------------------------------------------------------------------
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+
+
+def rss_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+@contextmanager
+def load_process(url: str) -> Iterator[tuple[subprocess.Popen[bytes], Any]]:
+    """The helper process holding the aiortc viewers; killed (its group) afterwards."""
+    from services.processes import LineReader
+
+    argv = [sys.executable, str(Path(__file__).resolve()), "--role", "load", "--url", url]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE, env=subprocess_env(), cwd=REPO,
+                            start_new_session=True)
+    try:
+        yield proc, LineReader(proc.stdout)
+    finally:
+        try:
+            assert proc.stdin is not None
+            proc.stdin.close()  # it closes its connections and exits
+            proc.wait(timeout=10)
+        except (OSError, subprocess.TimeoutExpired):
+            pass
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=5)
+
+
+def ask(proc: subprocess.Popen[bytes], reader: Any, line: str, timeout_s: float) -> dict[str, Any]:
+    """Send a command line to the load process; its JSON answer."""
+    assert proc.stdin is not None
+    start = len(reader.lines)
+    proc.stdin.write((line + "\n").encode())
+    proc.stdin.flush()
+    index = reader.wait_for("{", timeout_s, start)
+    return json.loads(reader.lines[index])
+
+
+def measure_window(pid: int, driver: Any | None, load: tuple[Any, Any] | None, seconds: float) -> dict[str, Any]:
+    """The web service's CPU share and RSS over `seconds`; the page's and the aiortc viewers' frame rates."""
+    page0 = video_stats(driver) if driver is not None else {}
+    load0 = ask(*load, "stats", 10.0) if load is not None else {}
+    t0, c0 = time.monotonic(), cpu_seconds(pid)
+    time.sleep(seconds)  # the measuring window
+    t1, c1 = time.monotonic(), cpu_seconds(pid)
+    out: dict[str, Any] = {"cpu_pct": 100.0 * (c1 - c0) / (t1 - t0), "rss_mib": rss_mib(pid)}
+    if driver is not None:
+        page1 = video_stats(driver)
+        frames = _delta(page1, page0, "framesDecoded")
+        span_s = (page1.get("at", 0) - page0.get("at", 0)) / 1e3
+        if frames is not None and span_s > 0:
+            out["page_fps"] = frames / span_s
+        out["page_fps_browser"] = page1.get("framesPerSecond")
+        out["page_dropped"] = _delta(page1, page0, "framesDropped")
+    if load is not None:
+        load1 = ask(*load, "stats", 10.0)
+        if load1.get("clients"):
+            out["load_fps_each"] = (load1["video_frames"] - load0["video_frames"]) / (
+                load1["t"] - load0["t"]) / load1["clients"]
+        out["load_cpu_pct"] = 100.0 * (load1["cpu_s"] - load0["cpu_s"]) / (load1["t"] - load0["t"])
+    return out
+
+
+def wait_watching(inst: Instance, count: int, timeout_s: float, since: int) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if inst.viewers_watching(since) == count:
+            return True
+        time.sleep(0.1)  # polling the service's output for its line
+    return False
+
+
+def disconnect_page(driver: Any) -> None:
+    """The page's connections closed (the bench's measuring paused): it watches nothing."""
+    driver.execute_script(CLOSE_CALIBRATION_JS)
+    driver.execute_script("""
+      if (window.ecaBench) window.ecaBench.paused = true;
+      if (window.eca && window.eca.pc) document.getElementById("connect").click();""")
+
+
+def least_squares_slope(xs: list[float], ys: list[float]) -> float | None:
+    if len(set(xs)) < 2:
+        return None
+    return float(np.polyfit(np.asarray(xs, float), np.asarray(ys, float), 1)[0])
+
+
+def viewers_phase(args: argparse.Namespace, inst: Instance, driver: Any, report: Report,
+                  baselines: dict[str, float] | None) -> None:
+    details: dict[str, Any] = {"levels": []}
+    report.details["viewers"] = details
+    pid = inst.web_pid
+    mark = len(inst.reader.lines)
+    disconnect_page(driver)
+    if not wait_watching(inst, 0, 20.0, mark):
+        raise RuntimeError("the page's viewers did not leave")
+    progress(f"viewers: 0 (baseline), then {', '.join(map(str, args.viewers))}; "
+             f"{VIEWER_WINDOW_S:g} s windows after {VIEWER_SETTLE_S:g} s")
+    time.sleep(VIEWER_SETTLE_S)  # the service lets go of its drawing
+    zero = measure_window(pid, None, None, VIEWER_WINDOW_S)
+    details["zero"] = zero
+    levels: list[tuple[int, dict[str, Any]]] = []
+    with load_process(inst.url) as load:
+        ask(*load, "hello", 30.0)
+        page_connected = False
+        for n in args.viewers:
+            if not page_connected:
+                connect_page(driver)
+                page_connected = True
+            got = ask(*load, f"set {n - 1}", 60.0)
+            if got.get("connected") != n - 1:
+                raise RuntimeError(f"the aiortc viewers did not all connect: {got}")
+            time.sleep(VIEWER_SETTLE_S)  # the new viewers' first frames and keyframes pass
+            m = measure_window(pid, driver, load, VIEWER_WINDOW_S)
+            levels.append((n, m))
+            details["levels"].append({"viewers": n, **m})
+            progress(f"  {n} viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
+                     f"page {m.get('page_fps', float('nan')):.1f} fps")
+        mark = len(inst.reader.lines)
+        ask(*load, "set 0", 30.0)
+    disconnect_page(driver)
+    left = wait_watching(inst, 0, 20.0, mark)
+    time.sleep(AFTER_LEAVING_S)  # what the service lets go of when the last viewer leaves
+    after = measure_window(pid, None, None, VIEWER_WINDOW_S)
+    details["after"] = after
+    details["all_left"] = left
+
+    report.add("viewers: web CPU with 0 viewers", round(zero["cpu_pct"], 1), "-", None, "% core",
+               f"RSS {zero['rss_mib']:.0f} MiB")
+    for n, m in levels:
+        note = f"RSS {m['rss_mib']:.0f} MiB; page {m.get('page_fps', float('nan')):.1f} fps"
+        if "load_fps_each" in m:
+            note += f"; aiortc viewers {m['load_fps_each']:.1f} fps each (their process {m['load_cpu_pct']:.0f} %)"
+        report.add(f"viewers: web CPU with {n}", round(m["cpu_pct"], 1), "-", None, "% core", note)
+    xs = [float(n) for n, _ in levels]
+    slope = least_squares_slope(xs, [m["cpu_pct"] for _, m in levels])
+    if slope is not None:
+        report.add("viewers: CPU per additional viewer", round(slope, 1), f"<= {TARGET_CPU_PER_VIEWER:g}",
+                   slope <= TARGET_CPU_PER_VIEWER, "% core", f"least squares over {', '.join(map(str, args.viewers))}")
+    if levels:
+        first = levels[0][1]["cpu_pct"] - zero["cpu_pct"]
+        note = "the face drawn for the first viewer (plus its encode)"
+        if baselines:
+            note += (f"; bench: draw {baselines['draw_ms']:.1f} ms/frame = {baselines['draw_ms'] * FPS / 10:.0f} % "
+                     f"at {FPS:g} fps, encode {baselines['encode_ms']:.1f} ms = "
+                     f"{baselines['encode_ms'] * FPS / 10:.0f} %")
+        report.add(f"viewers: CPU 0 -> {levels[0][0]}", round(first, 1), "-", None, "% core", note)
+        n_max, m_max = levels[-1]
+        fps = m_max.get("page_fps")
+        report.add(f"viewers: page frame rate with {n_max}", "none" if fps is None else round(fps, 1),
+                   f">= {TARGET_FPS_MIN:g}", fps is not None and fps >= TARGET_FPS_MIN, "fps",
+                   f"getStats framesDecoded; the browser's own figure {m_max.get('page_fps_browser')}")
+    rss_slope = least_squares_slope(xs, [m["rss_mib"] for _, m in levels])
+    if rss_slope is not None:
+        report.add("viewers: RSS per additional viewer", round(rss_slope, 1), "-", None, "MiB")
+    back = abs(after["rss_mib"] - zero["rss_mib"]) / zero["rss_mib"]
+    report.add("viewers: RSS after all left vs 0 viewers", round(after["rss_mib"] - zero["rss_mib"], 1),
+               f"+-{100 * TARGET_RSS_RETURN:g} %", back <= TARGET_RSS_RETURN and left, "MiB",
+               f"{after['rss_mib']:.0f} vs {zero['rss_mib']:.0f} MiB ({100 * back:.1f} %); CPU after "
+               f"{after['cpu_pct']:.1f} %" + ("" if left else "; the viewers did not all leave"))
+
+
+# --- the load process: aiortc viewers that receive but do not decode -------------------------------
+
+
+class CountingNullDecoder:
+    """Takes encoded frames and counts them: the server's work per viewer is the same, the load's CPU is
+    not spent decoding pictures nobody looks at."""
+
+    counts: dict[str, int] = {"video": 0, "audio": 0}
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+
+    def decode(self, encoded_frame: Any) -> list[Any]:
+        CountingNullDecoder.counts[self.kind] += 1
+        return []
+
+
+def run_load(url: str) -> int:
+    import aiohttp
+    import aiortc.rtcrtpreceiver
+    from aiortc import RTCPeerConnection, RTCSessionDescription
+
+    aiortc.rtcrtpreceiver.get_decoder = (  # type: ignore[attr-defined]
+        lambda codec: CountingNullDecoder(codec.mimeType.split("/")[0].lower()))
+
+    async def connect(session: aiohttp.ClientSession) -> RTCPeerConnection:
+        pc = RTCPeerConnection()
+        sections = [(pc.addTransceiver(kind, direction="recvonly"), kind) for kind in ("video", "audio")]
+        await pc.setLocalDescription(await pc.createOffer())
+        body = {"type": "offer", "sdp": pc.localDescription.sdp, "agents": [AGENT],
+                "video": {"width": WIDTH, "height": HEIGHT, "fps": FPS},
+                "streams": [{"mid": t.mid, "agent": AGENT, "kind": k} for t, k in sections], "mic_mid": None}
+        async with session.post(url + "offer", json=body) as response:
+            answer = await response.json()
+            if response.status != 200:
+                await pc.close()
+                raise RuntimeError(f"offer refused ({response.status}): {answer}")
+        await pc.setRemoteDescription(RTCSessionDescription(sdp=answer["sdp"], type="answer"))
+        return pc
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        lines: asyncio.Queue[str | None] = asyncio.Queue()
+
+        def read_stdin() -> None:
+            for line in sys.stdin:
+                loop.call_soon_threadsafe(lines.put_nowait, line.strip())
+            loop.call_soon_threadsafe(lines.put_nowait, None)
+
+        threading.Thread(target=read_stdin, daemon=True).start()
+        clients: list[RTCPeerConnection] = []
+
+        def say(obj: dict[str, Any]) -> None:
+            print(json.dumps(obj), flush=True)
+
+        async with aiohttp.ClientSession() as session:
+            try:
+                while (line := await lines.get()) is not None:
+                    if line == "hello":
+                        say({"hello": True})
+                    elif line.startswith("set "):
+                        want = int(line.split()[1])
+                        while len(clients) > want:
+                            await clients.pop().close()
+                        while len(clients) < want:
+                            clients.append(await connect(session))
+                        deadline = loop.time() + CONNECT_TIMEOUT_S
+                        while loop.time() < deadline and any(c.connectionState != "connected" for c in clients):
+                            await asyncio.sleep(0.05)  # polling the connection states
+                        say({"connected": sum(c.connectionState == "connected" for c in clients)})
+                    elif line == "stats":
+                        say({"clients": len(clients), "video_frames": CountingNullDecoder.counts["video"],
+                             "t": time.monotonic(), "cpu_s": time.process_time()})
+            finally:
+                for c in clients:
+                    await c.close()
+
+    asyncio.run(main())
+    return 0
+
+
+# --- the run ---------------------------------------------------------------------------------------
+
+
+def guarded(phase: str, report: Report, body: Callable[[], None]) -> None:
+    """Run a phase; a failure of the bench itself becomes a figure, and the next phase still runs."""
+    try:
+        body()
+    except Exception as exc:
+        report.add(phase, "bench failed", "runs", False, "", f"{type(exc).__name__}: {exc}"[:200])
+        report.details.setdefault("exceptions", []).append(traceback.format_exc())
+        progress(f"{phase} failed: {type(exc).__name__}: {exc}")
+
+
+def run(args: argparse.Namespace, report: Report) -> None:
+    from services.browser import browser_available, chromium
+
+    problem = browser_available()
+    if problem:
+        report.add("browser", "missing", "present", False, "", problem)
+        return
+    rng = random.Random(args.seed)
+    baselines: dict[str, float] | None = None
+    if not (args.skip_latency and args.skip_viewers):
+        progress("baselines: the face drawn and VP8-encoded at 640x480 in this process")
+        baselines = draw_and_encode_baselines()
+        report.details["baselines"] = baselines
+        report.add("baseline: face draw per frame (bench)", round(baselines["draw_ms"], 2), "-", None, "ms",
+                   f"compose + draw + read-back + yuv, {WIDTH}x{HEIGHT}; p95 {baselines['draw_p95_ms']:.2f}")
+        report.add("baseline: VP8 encode per frame (bench)", round(baselines["encode_ms"], 2), "-", None, "ms",
+                   f"aiortc's encoder, {WIDTH}x{HEIGHT}; p95 {baselines['encode_p95_ms']:.2f}")
+    with instance() as inst, TimeServer() as server, chromium() as driver:
+        report.details["web_pid"] = inst.web_pid
+        report.details["rss_at_start_mib"] = rss_mib(inst.web_pid)
+        open_page(driver, inst.url)
+        connected_ns = time.monotonic_ns()
+        driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S])
+        if not args.skip_av:
+            guarded("A/V offset", report, lambda: av_phase(args, inst, driver, server, report, rng))
+        if not args.skip_latency:
+            guarded("command -> frame", report,
+                    lambda: latency_phase(args, inst, driver, server, report, rng, baselines, connected_ns))
+        if not args.skip_viewers:
+            guarded("cost per viewer", report, lambda: viewers_phase(args, inst, driver, report, baselines))
+        said = [line for line in inst.reader.lines if re.search(r"ERROR|Traceback|WARNING|restarting", line)
+                and "no audio output" not in line]
+        report.details["eca_up_notable_lines"] = said[:40]
+        web_lines = [line for line in inst.reader.lines if line.startswith("[web]")]
+        report.details["web_lines"] = web_lines[:300]
+        silent = [line for line in web_lines if "no answer for" in line]
+        report.add("viewers the service closed as silent", len(silent), "0", not silent, "",
+                   "the product's watchdog, at its default silent_timeout_s")
+
+
+def parse_viewers(text: str) -> list[int]:
+    try:
+        counts = sorted({int(v) for v in text.split(",") if v.strip()})
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--viewers must look like 1,2,4,8, got {text!r}") from None
+    if not counts or counts[0] < 1 or counts[-1] > 16:
+        raise argparse.ArgumentTypeError("--viewers: counts from 1 to 16 (the service's max_viewers)")
+    return counts
+
+
+def stop_on_signal(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--settle-s", type=float, default=40.0, help="A/V: time the browser gets to settle (s)")
+    parser.add_argument("--measure-s", type=float, default=30.0, help="A/V: measuring time after it (s)")
+    parser.add_argument("--trials", type=int, default=40, help="latency: commands (default 40)")
+    parser.add_argument("--viewers", type=parse_viewers, default=[1, 2, 4, 8], help="viewer counts (1,2,4,8)")
+    parser.add_argument("--skip-av", action="store_true", help="skip the A/V offset")
+    parser.add_argument("--skip-latency", action="store_true", help="skip command -> frame")
+    parser.add_argument("--skip-viewers", action="store_true", help="skip the cost per viewer")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", action="store_true", help="print one JSON object (the table goes to stderr)")
+    parser.add_argument("--role", choices=["load"], help=argparse.SUPPRESS)
+    parser.add_argument("--url", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.role == "load":
+        return run_load(args.url)
+    if args.settle_s < 0 or not 5 <= args.measure_s <= MAX_SAY_S:
+        parser.error(f"--settle-s must be >= 0 and --measure-s in 5..{MAX_SAY_S:g}")
+    if args.trials < 2:
+        parser.error("--trials must be at least 2")
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, stop_on_signal)  # unwinds like Ctrl-C: eca up, the browser and helpers go
+    host = machine()
+    t0 = time.monotonic()
+    report = Report()
+    try:
+        run(args, report)
+    except KeyboardInterrupt:
+        report.add("run", "interrupted", "complete", False)
+    except Exception as exc:  # the bench reports its own failure as a figure rather than dying
+        report.add("run", "bench failed", "complete", False, "", f"{type(exc).__name__}: {exc}"[:200])
+        report.details.setdefault("exceptions", []).append(traceback.format_exc())
+    wall_s = time.monotonic() - t0
+    header = (f"web front-end on {host['cores']} cores ({host['cpu'] or 'unknown CPU'}), load average "
+              f"{'/'.join(f'{x:g}' for x in host['load_average'])} at start; {wall_s:.0f} s; headless Chromium, "
+              f"{WIDTH}x{HEIGHT} at {FPS:g} fps. Figures come from a shared machine: other work on it moves them.")
+    report.print_table(header, sys.stderr if args.json else sys.stdout, report.details.get("eca_up_notable_lines", []),
+                       "eca up said (warnings, errors, restarts):", value_width=28)
+    if args.json:
+        print(json.dumps({
+            "bench": "web", "machine": host, "wall_s": round(wall_s, 1),
+            "options": {k: v for k, v in vars(args).items() if k not in ("role", "url")},
+            **report.as_json(),
+        }, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

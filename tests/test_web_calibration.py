@@ -1,0 +1,186 @@
+"""The web service's calibration mode (services/web/calibration.py): flashes and clicks at the whole seconds
+of the master clock, sent by the face's and the voice's own tracks, and the offer flag that asks for them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from web_client import SMALL, Client, post
+
+from agent.clock import NS_PER_S, VirtualClock
+from services.testing import BrokerThread, ServiceThread, private_bus_config
+from services.web.calibration import CLICK_S, ClickFeed, FlashFeed, click_track, flash_track
+from services.web.options import WebOptions
+from services.web.service import WebService
+from services.web.tracks import VIDEO_RATE
+
+RATE = 48_000
+FRAME_NS = 20_000_000  # the voice track's 20 ms
+
+
+def is_white(frame: Any) -> bool:
+    return float(frame.to_ndarray(format="gray").mean()) > 128
+
+
+def video_frames(clock: VirtualClock, fps: float, seconds: float, start_ns: int) -> list[tuple[int, bool]]:
+    """(slot time, white) of each frame a flash track sends for `seconds` from `start_ns`, the clock moved
+    on a frame at a time so that each is due when asked for."""
+    clock.set_ns(start_ns)
+    track = flash_track(clock, 64, 48, fps, epoch_ns=start_ns)
+
+    async def main() -> list[tuple[int, bool]]:
+        out = []
+        for i in range(1, round(seconds * fps) + 1):
+            frame = await track.recv()
+            slot_ns = start_ns + -(-frame.pts * NS_PER_S // VIDEO_RATE)  # pts was floored from the slot time
+            out.append((slot_ns, is_white(frame)))
+            clock.set_ns(start_ns + round(i * NS_PER_S / fps))
+        return out
+
+    return asyncio.run(main())
+
+
+def test_the_flash_is_white_exactly_at_each_whole_second_and_black_between() -> None:
+    clock = VirtualClock()
+    frames = video_frames(clock, 30.0, 3.0, start_ns=7 * NS_PER_S - 100_000_000)
+    white = [t for t, w in frames if w]
+    assert white == [7 * NS_PER_S, 8 * NS_PER_S, 9 * NS_PER_S]
+    assert len(frames) == 90 and sum(1 for _, w in frames if not w) == 87
+    slots = [t for t, _ in frames]
+    assert all(abs(b - a - 33_333_333) < 20_000 for a, b in zip(slots, slots[1:], strict=False))  # each slot once
+
+
+def test_at_a_rate_that_misses_the_second_the_nearest_slot_flashes_once_a_second() -> None:
+    clock = VirtualClock()
+    fps = 24.5  # slots at k / 24.5 s: most whole seconds fall between two
+    frames = video_frames(clock, fps, 4.0, start_ns=3 * NS_PER_S - 50_000_000)
+    white = [t for t, w in frames if w]
+    assert len(white) == 4
+    half_period = NS_PER_S / fps / 2
+    for second, t in zip(range(3, 7), white, strict=True):
+        # within half a frame; at 3 and 5 s two slots are equally near: the earlier flashes
+        assert -half_period - 20_000 <= t - second * NS_PER_S < half_period  # (pts: 11 us steps)
+
+
+def test_a_track_that_falls_behind_skips_to_the_current_slot() -> None:
+    clock = VirtualClock(5 * NS_PER_S)
+    feed = FlashFeed(clock, 64, 48, 30.0)
+    clock.advance_ns(NS_PER_S + 10_000_000)  # a second late: the slot at 6 s has passed 10 ms ago
+    picture = asyncio.run(feed.next_after("calibration", 5 * NS_PER_S))
+    assert picture.frame_ns == 6 * NS_PER_S and picture.yuv[0, 0] > 128
+
+
+def click_samples(clock: VirtualClock, start_ns: int, frames: int) -> np.ndarray:
+    """The samples a click track sends in `frames` 20 ms frames from `start_ns`, each asked for when due."""
+    clock.set_ns(start_ns)
+    track = click_track(clock)
+
+    async def main() -> np.ndarray:
+        out = []
+        for k in range(frames):
+            frame = await track.recv()
+            assert frame.sample_rate == RATE and frame.pts == k * 960
+            out.append(frame.to_ndarray().reshape(-1))
+            clock.advance_ns(FRAME_NS)
+        return np.concatenate(out)
+
+    return asyncio.run(main())
+
+
+@pytest.mark.parametrize("start_ns", [1_980_000_007, 1_995_000_000, 2_000_000_000])
+def test_the_click_starts_at_the_sample_of_each_whole_second(start_ns: int) -> None:
+    clock = VirtualClock()
+    samples = click_samples(clock, start_ns, frames=60)  # 1.2 s: one whole second, maybe two
+    click = ClickFeed(RATE).click
+    seconds = [s for s in range(1, 5) if start_ns <= s * NS_PER_S < start_ns + 60 * FRAME_NS]
+    expected = np.zeros_like(samples)
+    for second in seconds:
+        first = round((second * NS_PER_S - start_ns) * RATE / NS_PER_S)
+        expected[first:first + len(click)] = click[:len(expected) - first]
+    assert np.array_equal(samples, expected)
+    assert len(click) == round(CLICK_S * RATE) and np.abs(click).max() > 10_000
+
+
+def test_a_flash_and_its_click_are_at_the_same_master_clock_time() -> None:
+    clock = VirtualClock()
+    start_ns = 11 * NS_PER_S - 40_000_000
+    white = [t for t, w in video_frames(clock, 30.0, 0.1, start_ns) if w]
+    samples = click_samples(VirtualClock(), start_ns, frames=5)
+    first_click_ns = start_ns + int(np.nonzero(samples)[0][0]) * NS_PER_S // RATE
+    assert white == [11 * NS_PER_S]
+    # the click's first sample is the first at or after the second (the sine starts at zero: sample 1)
+    assert 0 < first_click_ns - white[0] <= 2 * NS_PER_S // RATE
+
+
+# --- the offer flag, end to end ------------------------------------------------------------------
+
+
+@pytest.fixture
+def web() -> Iterator[WebService]:
+    with private_bus_config() as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, **SMALL))
+        with ServiceThread(service):
+            yield service
+
+
+def base(service: WebService) -> str:
+    return f"http://127.0.0.1:{service.port}/"
+
+
+@pytest.mark.gl
+def test_an_offer_asking_for_calibration_gets_flashes_and_clicks_a_second_apart(web: WebService) -> None:
+    async def main() -> tuple[list[Any], list[Any]]:
+        client = Client(base(web), ["ada"])
+        body = await client.offer_body()
+        body["calibration"] = True
+        status, answer = await post(base(web) + "offer", body)
+        assert status == 200, answer
+        await client.accept(answer)
+        try:
+            video, audio = await asyncio.gather(client.frames("ada", "video", 3.5),
+                                                client.frames("ada", "audio", 3.5))
+            return video, audio
+        finally:
+            await client.pc.close()
+
+    video, audio = asyncio.run(main())
+    flashes = [f.pts for f in video if is_white(f)]
+    assert len(flashes) >= 2 and len(video) - len(flashes) > 20
+    assert all(abs(b - a - VIDEO_RATE) <= 1 for a, b in zip(flashes, flashes[1:], strict=False))  # 1 s of RTP clock
+    assert all(float(f.to_ndarray(format="gray").std()) < 10 for f in video)  # no face: one flat picture each
+    loud = [f.pts for f in audio if np.abs(f.to_ndarray()).max() > 3_000]
+    clicks = [b for a, b in zip([None, *loud], loud, strict=False) if a is None or b - a > 960 * 5]
+    assert len(clicks) >= 2
+    assert all(abs(b - a - RATE) <= 960 for a, b in zip(clicks, clicks[1:], strict=False))  # a second apart
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("value", ["yes", 1, None])
+def test_a_calibration_flag_that_is_not_a_boolean_is_refused(web: WebService, value: Any) -> None:
+    async def main() -> tuple[int, Any]:
+        client = Client(base(web), ["ada"])
+        body = await client.offer_body()
+        body["calibration"] = value
+        try:
+            return await post(base(web) + "offer", body)
+        finally:
+            await client.pc.close()
+
+    status, answer = asyncio.run(main())
+    assert status == 400 and "'calibration' must be true or false" in answer["error"]
+    assert not web.viewers.open
+
+
+def test_the_flag_reaches_the_view_request() -> None:
+    from services.web.server import parse_offer
+
+    body = {"type": "offer", "sdp": "v=0", "streams": [{"mid": "0", "agent": "ada", "kind": "video"}]}
+    _, plain = parse_offer(body, WebOptions(), ("ada",))
+    _, calibrating = parse_offer({**body, "calibration": True}, WebOptions(), ("ada",))
+    assert not plain.calibration and calibrating.calibration
+
