@@ -46,7 +46,8 @@ HOLD_TABLE_INTERVALS = 32_768
 
 
 class PythonAgent:
-    """One agent of the same model, in plain Python: the per-agent baseline.
+    """One agent of the same model, in plain Python: the per-agent baseline (with `fixational`, the small
+    saccades and drift of mode saccade+noise+blink as well).
 
     It does what the engine does for each agent and tick: advance its timers in time order (saccade
     decisions with the role's and emotion's statistics around its gaze target, spontaneous and
@@ -54,11 +55,23 @@ class PythonAgent:
     the same quantile tables as the engine's, the cheapest exact inverse CDF in Python too.
     """
 
-    def __init__(self, params: GazeParams, index: int, seed: int, role: str, tables: dict[str, list[float]]) -> None:
+    def __init__(self, params: GazeParams, index: int, seed: int, role: str, tables: dict[str, list[float]],
+                 fixational: bool = False) -> None:
         self.p = params
         self.index = index
         self.rng = random.Random(seed)
+        self.role_name = role
         self.role = params.roles[role]
+        # Mode saccade+noise+blink: small saccades (scans over the partner's face, microsaccades) and drift
+        # between the Eyes Alive saccades; the offset from the fixation's base point, the point held (0 the
+        # gaze target, then the face features), and when the next small saccade starts.
+        self.fixational = fixational
+        self.offset = (0.0, 0.0)
+        self.held = 0
+        self.landed = 0
+        self.next_small = 1 << 62
+        self.small_mutual = False
+        self.scan_cumulative = list(np.cumsum(params.fixation.feature_weights(role, index & 1)))[:-1]
         self.cumulative_direction = list(np.cumsum(params.direction_probability))
         self.bins = [math.radians(b) for b in params.direction_bins_deg]
         self.tables = tables
@@ -97,6 +110,8 @@ class PythonAgent:
     def _decide(self, t: int, onsets: list[tuple], blinks: list[tuple[int, int]]) -> None:
         p = self.p
         start = self._position(t)
+        if self.fixational and t >= self.end:  # the small saccades left the eye off the fixation's base
+            start = tuple(max(-30.0, min(30.0, s + o)) for s, o in zip(start, self.offset, strict=True))
         mutual = self.rng.random() < min(max(self.role.mutual_probability + self.mutual_shift, 0.0), 1.0)
         magnitude = -p.a_scale_deg * math.log((p.p_max - self.rng.random() * (p.p_max - self.p_min)) / p.p_ref)
         magnitude *= self.magnitude_scale
@@ -115,6 +130,9 @@ class PythonAgent:
         self.onset, self.end = t, t + duration
         self.from_, self.to = start, target
         self.next_saccade = self.end + round(hold * NS)
+        if self.fixational:  # a new fixation at the landing point
+            self.offset, self.held, self.landed, self.small_mutual = (0.0, 0.0), 0, self.end, mutual
+            self.next_small = self.end + self._small_interval()
         onsets.append((
             t, self.index, start, target, amplitude if mutual else magnitude, amplitude,
             math.degrees(math.atan2(d_pitch, d_yaw)) % 360.0, duration * 1e-9, "mutual" if mutual else "away", hold,
@@ -129,15 +147,54 @@ class PythonAgent:
             self.next_blink += self._blink_interval()
             blinks.append((t, self.index))
 
+    def _small_interval(self) -> int:
+        fix = self.p.fixation
+        mean = 1.0 / fix.event_rate_hz(self.role_name, self.small_mutual)
+        return round((fix.refractory_s + self.rng.expovariate(1.0 / (mean - fix.refractory_s))) * NS)
+
+    def _small_saccade(self, t: int, onsets: list[tuple]) -> None:
+        """A scan (mutual gaze only) or a microsaccade, after the drift since the last landing."""
+        fix, p = self.p.fixation, self.p
+        sigma = math.sqrt(2.0 * fix.drift_diffusion_deg2_per_s * (t - self.landed) * 1e-9)
+        off = (self.offset[0] + self.rng.gauss(0.0, sigma), self.offset[1] + self.rng.gauss(0.0, sigma))
+        rate = fix.event_rate_hz(self.role_name, self.small_mutual)
+        if self.rng.random() < (rate - fix.microsaccade_rate_hz) / rate:
+            self.held = 1 + bisect.bisect_right(self.scan_cumulative, self.rng.random())
+            to_off = tuple(fix.features_deg[self.held - 1])
+            kind = "scan"
+        else:
+            while (amplitude := fix.microsaccade_median_deg * math.exp(
+                    fix.microsaccade_log_sd * self.rng.gauss(0.0, 1.0))) > fix.microsaccade_max_deg:
+                pass
+            point = (0.0, 0.0) if self.held == 0 else tuple(fix.features_deg[self.held - 1])
+            spread = math.radians(fix.correction_spread_deg)
+            heading = math.atan2(point[1] - off[1], point[0] - off[0]) + self.rng.uniform(-spread, spread)
+            to_off = (off[0] + amplitude * math.cos(heading), off[1] + amplitude * math.sin(heading))
+            kind = "micro"
+        limit = p.eye_yaw_limit_deg
+        start = tuple(max(-limit, min(limit, b + o)) for b, o in zip(self.to, off, strict=True))
+        end = tuple(max(-limit, min(limit, b + o)) for b, o in zip(self.to, to_off, strict=True))
+        amplitude = math.hypot(end[0] - start[0], end[1] - start[1])
+        duration = round((p.d0_s + p.d_s_per_deg * amplitude) * NS)
+        self.offset, self.landed = to_off, t + duration
+        self.next_small = t + self._small_interval()
+        onsets.append((t, self.index, start, end, amplitude, amplitude,
+                       math.degrees(math.atan2(end[1] - start[1], end[0] - start[0])) % 360.0, duration * 1e-9,
+                       kind, (self.next_small - t - duration) * 1e-9))
+
     def tick(self, t: int, onsets: list[tuple], blinks: list[tuple[int, int]]) -> tuple[float, float, float]:
-        while min(self.next_saccade, self.next_blink) <= t:
-            if self.next_saccade <= self.next_blink:
+        while min(self.next_saccade, self.next_blink, self.next_small) <= t:
+            if self.next_small < min(self.next_saccade, self.next_blink):
+                self._small_saccade(self.next_small, onsets)
+            elif self.next_saccade <= self.next_blink:
                 self._decide(self.next_saccade, onsets, blinks)
             else:
                 self.blink_onset = self.next_blink
                 blinks.append((self.next_blink, self.index))
                 self.next_blink += self._blink_interval()
         yaw, pitch = self._position(t)
+        if t >= self.end and self.fixational:
+            yaw, pitch = yaw + self.offset[0], pitch + self.offset[1]
         elapsed = (t - self.blink_onset) * 1e-9
         curve_s, curve_c = self.p.blink.lid_curve_s, self.p.blink.lid_curve_closure
         lid = 0.0
@@ -169,15 +226,16 @@ def hold_tables(params: GazeParams, role: str) -> dict[str, list[float]]:
     }
 
 
-def time_both(params: GazeParams, n: int, python_n: int, ticks: int) -> tuple[float, float]:
+def time_both(params: GazeParams, n: int, python_n: int, ticks: int, mode: str) -> tuple[float, float]:
     """Median seconds per 60 Hz tick of the engine (n agents) and of plain Python (python_n agents).
 
     The two are timed in alternating blocks, so load from other processes hits both alike: `ticks` Python
     ticks in blocks of PYTHON_BLOCK_TICKS, each block followed by ENGINE_BLOCK_TICKS engine ticks.
     """
-    engine = GazeEngine(n, seed=1, params=params, role="talking")
+    engine = GazeEngine(n, seed=1, params=params, role="talking", mode=mode)
     tables = hold_tables(params, "talking")
-    agents = [PythonAgent(params, i, i, "talking", tables) for i in range(python_n)]
+    fixational = mode == "saccade+noise+blink"
+    agents = [PythonAgent(params, i, i, "talking", tables, fixational) for i in range(python_n)]
     for second in range(1, 11):  # warm-up to the steady state; onsets are exact whatever the step
         engine.tick(second * NS)
         python_tick(agents, second * NS)
@@ -206,16 +264,20 @@ def main(argv: list[str] | None = None) -> int:
                         help="measured 60 Hz ticks of plain Python per size (the engine gets more)")
     parser.add_argument("--python-agents", type=int, default=100_000,
                         help="largest crowd timed in plain Python (larger ones are scaled per agent)")
+    parser.add_argument("--mode", choices=["saccade+blink", "saccade+noise+blink"], default=None,
+                        help="eye mode of every agent (default: the configured default, the paper's recommendation)")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     args = parser.parse_args(argv)
     if min(args.sizes) < 1 or args.ticks < 1 or args.python_agents < 1:
         parser.error("--sizes, --ticks and --python-agents must be at least 1")
     params = GazeParams.load()
+    mode = args.mode or params.default_mode
+    print(f"eye mode {mode}, role talking, 60 Hz ticks")
     results = []
     print(f"{'agents':>10} {'engine ms/tick':>15} {'ticks/s':>10} {'python ms/tick':>15} {'ratio':>8}  target")
     for n in args.sizes:
         python_n = min(n, args.python_agents)
-        engine_s, python_s = time_both(params, n, python_n, args.ticks)
+        engine_s, python_s = time_both(params, n, python_n, args.ticks, mode)
         python_s *= n / python_n
         target = TARGETS_MS.get(n)
         row = {
@@ -235,7 +297,8 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     if args.json:
-        print(json.dumps({"bench": "gaze_engine", "statistic": "median", "tick_hz": 60, "results": results}))
+        print(json.dumps({"bench": "gaze_engine", "statistic": "median", "tick_hz": 60, "mode": mode,
+                          "results": results}))
     return 0
 
 

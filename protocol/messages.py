@@ -13,9 +13,11 @@ from typing import Any, ClassVar, Literal
 
 PROTOCOL_VERSION = 1
 
+# The shared names (agent/vocabulary.py defines them for the models; tests/test_protocol_vocabulary.py
+# holds the two alike, so the protocol needs no import of the models).
 Role = Literal["talking", "listening", "silence"]
-EyeMode = Literal["static", "noise", "saccade", "saccade+blink"]
-SaccadeKind = Literal["mutual", "away", "head"]
+EyeMode = Literal["static", "noise", "saccade", "saccade+blink", "saccade+noise+blink"]
+SaccadeKind = Literal["mutual", "away", "head", "scan", "micro"]
 
 # Pseudo agent id of messages that concern no single agent (heartbeats, broker replies).
 ALL_AGENTS = "*"
@@ -88,7 +90,8 @@ class MoveHead(Message):
 class SetEyes(Message):
     TYPE = "set_eyes"
     CATEGORY = "cmd"
-    mode: EyeMode = bounded(doc="static, noise, saccade or saccade+blink (the paper's conditions)")
+    mode: EyeMode = bounded(doc="static, noise, saccade, saccade+blink (the paper's conditions and its "
+                                "future work) or saccade+noise+blink (its recommendation)")
     request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
@@ -341,7 +344,9 @@ class Saccade(Message):
     amplitude_deg: float = bounded(lo=0.0, hi=180.0, doc="angular size")
     direction_deg: float = bounded(lo=0.0, hi=360.0, doc="0 = agent's right, 90 = up")
     duration_s: float = bounded(lo=0.0, hi=1.0, doc="flight time; the eye lands at onset + duration")
-    kind: SaccadeKind = bounded(doc="mutual (back to the target), away, or head (leading a head turn)")
+    kind: SaccadeKind = bounded(doc="mutual (back to the target), away, head (leading a head turn), or the "
+                                    "small saccades of saccade+noise+blink: scan (over the partner's face), "
+                                    "micro (a microsaccade)")
     hold_s: float = bounded(0.0, lo=0.0, hi=600.0, doc="planned fixation after landing")
 
 

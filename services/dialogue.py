@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 
 from agent.face.emotions import canonical_emotion_name, load_emotion_table
+from agent.gaze.params import default_eye_mode
 from protocol.bus import Received
 from protocol.codec import encode
 from protocol.endpoints import BusConfig
@@ -103,7 +104,7 @@ def default_state(agent: str) -> AgentState:
         role=RoleState(agent=agent, role="listening", speaker="user"),
         emotion=EmotionState(agent=agent, name="natural", intensity=1.0, transition_s=0.0),
         head=HeadState(agent=agent, duration_s=0.0),
-        eyes=EyesState(agent=agent, mode="saccade+blink"),
+        eyes=EyesState(agent=agent, mode=default_eye_mode()),  # type: ignore[arg-type]
         gaze_target=GazeTargetState(agent=agent, target="user"),
     )
 

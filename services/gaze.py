@@ -21,7 +21,7 @@ import numpy as np
 
 from agent.config import load_toml
 from agent.gaze.engine import GazeEngine
-from agent.gaze.params import KINDS, MODES
+from agent.gaze.params import KINDS
 from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, EyesState, EyeState, GazeTargetState, HeadState, RoleState, Saccade
 from services.runtime import Rejected, Service
@@ -40,7 +40,7 @@ class GazeService(Service):
         self.head_deg = (float(units["turn_deg"]), float(units["nod_deg"]))
         self.engine = GazeEngine(len(self.agent_ids), int(table.get("seed", 0) if seed is None else seed),
                                  start_ns=self.clock.now_ns())
-        self.modes = ["saccade+blink"] * len(self.agent_ids)
+        self.modes = [self.engine.mode_of(i) for i in range(len(self.agent_ids))]
         # Agents whose message in this batch may have started a saccade: the service ticks right after the
         # batch and sends their eye states then; the others' keep the rate_hz schedule.
         self.touched: set[int] = set()
@@ -133,5 +133,3 @@ class GazeService(Service):
             self.publish(EyeState(agent=agent, t_ns=tick.t_ns, yaw_deg=float(yaw[i]), pitch_deg=float(pitch[i]),
                                   lid=float(lid[i]), mode=self.modes[i]))  # type: ignore[arg-type]
 
-
-assert set(MODES) == {"static", "noise", "saccade", "saccade+blink"}  # the protocol's EyeMode literal

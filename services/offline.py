@@ -16,6 +16,7 @@ import numpy as np
 
 from agent.animator import TimelineAnimator, Utterance
 from agent.face.flexors import FLEXOR_NAMES
+from agent.gaze.params import default_eye_mode
 from agent.lipsync.estimator import mouth_track
 from agent.script import SayCue, Timeline
 from services.audio.files import read_sound_file
@@ -30,7 +31,7 @@ class RenderSettings:
     fps: float = 30.0
     size: tuple[int, int] = (640, 480)
     view: str = "full"
-    eyes: str | None = "saccade+blink"  # None: the script's own eye-mode cues decide
+    eyes: str | None = field(default_factory=default_eye_mode)  # None: the script's own eye-mode cues decide
     seed: int = 0
 
 

@@ -14,7 +14,10 @@ from agent.gaze.synth import eye_position_at
 from agent.noise import perlin_blink
 
 S = 1_000_000_000
-MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))
+MUTUAL, AWAY, HEAD, SCAN, MICRO = (KINDS.index(k) for k in ("mutual", "away", "head", "scan", "micro"))
+# The Eyes Alive statistics hold alike with the statistical blink model and with the fixational movements of
+# the paper's recommendation riding on them.
+EYES_ALIVE_MODES = ("saccade+blink", "saccade+noise+blink")
 
 
 @pytest.fixture(scope="module")
@@ -32,13 +35,18 @@ def _concat(onsets: list[SaccadeOnsets]) -> dict[str, np.ndarray]:
     return {name: np.concatenate([getattr(o, name) for o in onsets]) for name in fields}
 
 
-@pytest.fixture(scope="module")
-def talking_crowd(params: GazeParams) -> dict[str, np.ndarray]:
-    engine = GazeEngine(20_000, seed=11, params=params)
+def _eyes_alive(onsets: dict[str, np.ndarray], after_ns: int = -1) -> dict[str, np.ndarray]:
+    """The Eyes Alive saccades (mutual, away, head) among the onsets, those after `after_ns`."""
+    keep = (onsets["kind"] <= HEAD) & (onsets["onset_ns"] > after_ns)
+    return {name: column[keep] for name, column in onsets.items()}
+
+
+@pytest.fixture(scope="module", params=EYES_ALIVE_MODES)
+def talking_crowd(params: GazeParams, request: pytest.FixtureRequest) -> dict[str, np.ndarray]:
+    engine = GazeEngine(20_000, seed=11, params=params, mode=request.param)
     engine.set_role(np.arange(20_000), "talking", 0)
-    onsets = _concat(_run(engine, 12 * S, S))
-    later = onsets["onset_ns"] > 0  # drop the start-up decision, made in the default role (silence)
-    return {name: column[later] for name, column in onsets.items()}
+    # Drop the decision at 0, made once the role is in; the start-up one went with it (same instant).
+    return _eyes_alive(_concat(_run(engine, 12 * S, S)), after_ns=0)
 
 
 def test_mutual_fraction_and_holds_while_talking(params: GazeParams, talking_crowd: dict[str, np.ndarray]) -> None:
@@ -66,24 +74,25 @@ def test_away_saccades_use_the_drawn_magnitude_and_direction(
     np.testing.assert_allclose(duration, 0.025 + 0.0024 * talking_crowd["amplitude_deg"], atol=1e-9)
 
 
-def test_listening_mutual_fraction(params: GazeParams) -> None:
-    engine = GazeEngine(25_000, seed=12, params=params)
+@pytest.mark.parametrize("mode", EYES_ALIVE_MODES)
+def test_listening_mutual_fraction(params: GazeParams, mode: str) -> None:
+    engine = GazeEngine(25_000, seed=12, params=params, mode=mode)
     engine.set_role(np.arange(25_000), "listening", 0)
-    onsets = _concat(_run(engine, 40 * S, 4 * S))
-    onsets = {name: column[onsets["onset_ns"] > 0] for name, column in onsets.items()}
+    onsets = _eyes_alive(_concat(_run(engine, 40 * S, 4 * S)), after_ns=0)
     assert onsets["kind"].size >= 100_000
     assert abs(100.0 * np.mean(onsets["kind"] == MUTUAL) - 75.0) < 1.0
 
 
-def test_role_switch_decides_at_once_in_the_new_regime(params: GazeParams) -> None:
+@pytest.mark.parametrize("mode", EYES_ALIVE_MODES)
+def test_role_switch_decides_at_once_in_the_new_regime(params: GazeParams, mode: str) -> None:
     n = 20_000
-    engine = GazeEngine(n, seed=13, params=params)
+    engine = GazeEngine(n, seed=13, params=params, mode=mode)
     engine.set_role(np.arange(n), "listening", 0)
     engine.tick(5 * S)
     switch_ns = 5 * S + 123_457
     engine.set_role(np.arange(n), "talking", switch_ns)
     onsets = engine.tick(5 * S + S // 60).saccades
-    at_switch = onsets.onset_ns == switch_ns
+    at_switch = (onsets.onset_ns == switch_ns) & (onsets.kind <= HEAD)
     assert at_switch.sum() == n  # every agent, at the event's own time
     assert abs(100.0 * np.mean(onsets.kind[at_switch] == MUTUAL) - 41.0) < 1.5  # talking's, not 75%
     assert engine.role_of(0) == "talking"
@@ -141,10 +150,11 @@ def test_engine_saccades_land_exactly_on_target(params: GazeParams) -> None:
         assert tuple(landed) == (onsets.to_yaw_deg[k], onsets.to_pitch_deg[k])
 
 
+@pytest.mark.parametrize("mode", EYES_ALIVE_MODES)
 @pytest.mark.parametrize(("role", "rate"), [("talking", 26.0), ("listening", 26.0), ("silence", 17.0)])
-def test_blink_rates_by_role(params: GazeParams, role: str, rate: float) -> None:
+def test_blink_rates_by_role(params: GazeParams, role: str, rate: float, mode: str) -> None:
     n, minutes = 4_000, 2.0
-    engine = GazeEngine(n, seed=16, params=params)
+    engine = GazeEngine(n, seed=16, params=params, mode=mode)
     engine.set_role(np.arange(n), role, 0)
     blinks = sum(len(engine.tick(t).blinks) for t in range(S, int(minutes * 60) * S + 1, S))
     assert blinks / (n * minutes) == pytest.approx(rate, rel=0.02)
@@ -209,8 +219,9 @@ def test_tick_rate_does_not_change_the_trajectory(params: GazeParams) -> None:
 
 
 def test_eye_modes(params: GazeParams) -> None:
-    engine = GazeEngine(4, seed=20, params=params)
+    engine = GazeEngine(4, seed=20, params=params, mode="saccade+blink")
     assert engine.mode_of(0) == "saccade+blink"
+    assert GazeEngine(1, seed=20, params=params).mode_of(0) == params.default_mode == "saccade+noise+blink"
     engine.set_mode(0, "static", 0)
     engine.set_mode(1, "noise", 0)
     engine.set_mode(2, "saccade", 0)
@@ -248,15 +259,15 @@ def test_target_defines_mutual_gaze(params: GazeParams) -> None:
     assert np.median(np.abs(offsets - onsets["magnitude_deg"][away])) < 1e-9
 
 
-def test_emotion_shifts_mutual_gaze_with_intensity(params: GazeParams) -> None:
+@pytest.mark.parametrize("mode", EYES_ALIVE_MODES)
+def test_emotion_shifts_mutual_gaze_with_intensity(params: GazeParams, mode: str) -> None:
     n = 20_000
     fractions = []
     for intensity in (0.0, 0.5, 1.0):
-        engine = GazeEngine(n, seed=22, params=params)
+        engine = GazeEngine(n, seed=22, params=params, mode=mode)
         engine.set_emotion(np.arange(n), "angry", intensity, 0)
         engine.set_role(np.arange(n), "talking", 0)
-        onsets = _concat(_run(engine, 6 * S, 3 * S))
-        kinds = onsets["kind"][onsets["onset_ns"] > 0]
+        kinds = _eyes_alive(_concat(_run(engine, 6 * S, 3 * S)), after_ns=0)["kind"]
         fractions.append(100.0 * np.mean(kinds == MUTUAL))
     assert fractions == pytest.approx([41.0, 53.5, 66.0], abs=1.0)
     assert params.emotion("half-angry").mutual_shift == pytest.approx(0.5 * params.emotion("angry").mutual_shift)
@@ -296,13 +307,16 @@ def test_disappointed_gaze_drops(params: GazeParams) -> None:
     assert disappointed > natural + 0.15
 
 
-def test_eye_state_follows_the_latest_onsets(params: GazeParams) -> None:
+@pytest.mark.parametrize("mode", EYES_ALIVE_MODES)
+def test_eye_state_follows_the_latest_onsets(params: GazeParams, mode: str) -> None:
     """The eye state a tick hands out (kept from tick to tick and rewritten only where it changes) is where
     each agent's latest reported saccade puts the eye, and the lid its latest blink; through role changes,
-    head turns, long and short steps, and blinks cancelled by a mode switch."""
+    head turns, long and short steps, and blinks cancelled by a mode switch. A small saccade (scan,
+    microsaccade) moves the eye state to its landing at its onset; the others follow their trajectory."""
     n = 120
-    engine = GazeEngine(n, seed=31, params=params, role="talking")
+    engine = GazeEngine(n, seed=31, params=params, role="talking", mode=mode)
     rng = np.random.default_rng(5)
+    small = np.zeros(n, dtype=bool)
     onset = np.zeros(n, dtype=np.int64)
     from_deg, to_deg, duration = np.zeros((n, 2)), np.zeros((n, 2)), np.ones(n)
     last_blink = np.full(n, -(10**18))
@@ -314,7 +328,7 @@ def test_eye_state_follows_the_latest_onsets(params: GazeParams) -> None:
             engine.set_mode(static, "static", event_t)
             last_blink[static] = -(10**18)  # blinks in progress are cancelled
         if step == 450:
-            engine.set_mode(static, "saccade+blink", event_t)
+            engine.set_mode(static, mode, event_t)
         if step % 40 == 20:
             engine.set_role(rng.choice(n, 30, replace=False), ["listening", "talking", "silence"][step % 3], event_t)
         if step % 60 == 30:
@@ -324,12 +338,13 @@ def test_eye_state_follows_the_latest_onsets(params: GazeParams) -> None:
         s = tick.saccades
         for k in range(len(s)):  # sorted by onset: the last one of an agent is its latest
             a = s.agent[k]
-            onset[a], duration[a] = s.onset_ns[k], s.duration_s[k]
+            onset[a], duration[a], small[a] = s.onset_ns[k], s.duration_s[k], s.kind[k] >= SCAN
             from_deg[a] = s.from_yaw_deg[k], s.from_pitch_deg[k]
             to_deg[a] = s.to_yaw_deg[k], s.to_pitch_deg[k]
         for a, b in zip(tick.blinks.agent, tick.blinks.onset_ns, strict=True):
             last_blink[a] = b
         expected = eye_position_at(t, onset, from_deg, to_deg, duration)
+        expected[small] = to_deg[small]
         saccading = np.ones(n, dtype=bool)
         if 250 <= step < 450:
             saccading[static] = False

@@ -29,7 +29,7 @@ def test_shipped_constants() -> None:
     assert (params.d0_s, params.d_s_per_deg) == (0.025, 0.0024)
     assert params.roles["talking"].mutual_probability == 0.41
     assert params.roles["listening"].mutual_probability == 0.75
-    assert params.default_mode == "saccade+blink"
+    assert params.default_mode == "saccade+noise+blink"
     assert tuple(params.emotions) == EMOTIONS
     assert params.emotion("natural", 1.0) == params.emotion("angry", 0.0)
 
@@ -44,7 +44,7 @@ def test_shipped_constants() -> None:
         ),
         ("d0_s = 0.025", 'd0_s = "fast"', r"\[duration\]: 'd0_s' must be float"),
         ('like = "listening"', 'like = "shouting"', r"\[silence\]: 'like' must be one of talking, listening"),
-        ('default = "saccade+blink"', 'default = "blinky"', r"\[modes\]: 'default' must be one of"),
+        ('default = "saccade+noise+blink"', 'default = "blinky"', r"\[modes\]: 'default' must be one of"),
         (
             "mutual_poly = [32.2815,",
             "mutual_poly = [-32.2815,",

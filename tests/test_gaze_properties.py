@@ -16,7 +16,7 @@ MS = 1_000_000
 events = st.lists(
     st.tuples(
         st.integers(min_value=1, max_value=400),  # ms since the previous step
-        st.sampled_from(["tick", "role", "mode", "head", "target", "emotion"]),
+        st.sampled_from(["tick", "role", "mode", "head", "target", "emotion", "targets", "shift", "blink"]),
         st.integers(min_value=0, max_value=N_AGENTS - 1),
         st.floats(min_value=-60.0, max_value=60.0, allow_nan=False),
         st.floats(min_value=-60.0, max_value=60.0, allow_nan=False),
@@ -54,6 +54,13 @@ def _replay(script: list[tuple[int, str, int, float, float, int]], seed: int) ->
             engine.set_head(agent, a, b, t)
         elif action == "target":
             engine.set_target(agent, a, b, t)
+        elif action == "targets":
+            engine.set_targets(agent, [a, b, 0.0][: 1 + choice % 3], [b, a, 0.0][: 1 + choice % 3],
+                               [1.0, 0.5, 0.25][: 1 + choice % 3], t)
+        elif action == "shift":
+            engine.shift_gaze(agent, ("mutual", "away")[choice % 2], t)
+        elif action == "blink":
+            engine.blink_at(agent, t)
         else:
             engine.set_emotion(agent, emotions[choice % len(emotions)], (a + 60.0) / 120.0, t)
     return out

@@ -151,7 +151,7 @@ def test_the_csv_header_and_rows_read_back_in_the_documented_units(tmp_path: Pat
     script = tmp_path / "bob.xml"
     script.write_text(BOB_DIALOGUE)
     out = tmp_path / "bob.mp4"
-    assert fast_render([str(script), "-o", str(out), "--eyes", "saccade+blink", "--seed", "3"]) == 0
+    assert fast_render([str(script), "-o", str(out), "--eyes", "saccade+noise+blink", "--seed", "3"]) == 0
     lines = out.with_suffix(".csv").read_text().splitlines()
     assert lines[0].split(",") == ["t_s", "role", "emotion", "emotion_intensity", "eye_yaw_deg", "eye_pitch_deg",
                                    "lid", *FLEXOR_NAMES]
@@ -162,7 +162,7 @@ def test_the_csv_header_and_rows_read_back_in_the_documented_units(tmp_path: Pat
     table = read_csv(out.with_suffix(".csv"))
     assert np.allclose(np.diff(table["t_s"]), 0.1)
     # the eyes in degrees: the look flexors are the same angles over the 30-degree eye range
-    assert np.abs(table["eye_yaw_deg"]).max() > 0.5  # the saccades moved them
+    assert np.abs(table["eye_yaw_deg"]).max() > 0.5  # the saccades (scans over the partner's face) moved them
     assert np.all(np.abs(table["eye_yaw_deg"]) <= 30.0) and np.all(np.abs(table["eye_pitch_deg"]) <= 30.0)
     assert np.allclose(table["eye_yaw_deg"] / 30.0, table["look_x"], atol=1e-5)
     assert np.allclose(table["eye_pitch_deg"] / 30.0, table["look_y"], atol=1e-5)

@@ -17,6 +17,7 @@ import pytest
 import zmq
 from web_client import user_speech_wav
 
+from agent.vocabulary import EYE_MODES
 from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
@@ -115,6 +116,9 @@ def test_the_page_shows_the_face_at_the_asked_size_and_rate(instance: tuple[BusC
         after = video_stats(driver)
         driver.save_screenshot(str(tmp_path / "page.png"))
         status = driver.execute_script("return document.getElementById('status').textContent")
+        eye_buttons = driver.execute_script("return [...document.querySelectorAll('#eyes button')]"
+                                            ".map((b) => b.textContent)")
+    assert eye_buttons == list(EYE_MODES)  # the panel offers every eye mode the service knows
     assert (after["frameWidth"], after["frameHeight"]) == (320, 240)
     decoded = after["framesDecoded"] - before["framesDecoded"]
     assert decoded >= 0.7 * 15 * 3, f"{decoded} frames decoded in 3 s at 15 fps"

@@ -32,7 +32,9 @@ def test_keys_stand_for_commands_given_the_agent_state() -> None:
     assert action_for_key("-", AgentStatus("ada", intensity=0.0)).intensity == 0.0  # type: ignore[union-attr]
     assert action_for_key("t", st) == SetRole(agent="ada", role="talking", speaker="ada")
     assert action_for_key("t", AgentStatus("ada", role="talking")).role == "listening"  # type: ignore[union-attr]
-    assert action_for_key("e", st) == SetEyes(agent="ada", mode="static")
+    assert action_for_key("e", st) == SetEyes(agent="ada", mode="saccade+noise+blink")
+    last = AgentStatus("ada", eye_mode="saccade+noise+blink")
+    assert action_for_key("e", last) == SetEyes(agent="ada", mode="static")
     assert action_for_key("e", AgentStatus("ada", eye_mode="noise")).mode == "saccade"  # type: ignore[union-attr]
     left = action_for_key("left", st)
     assert isinstance(left, MoveHead) and (left.turn, left.nod) == (0.25, 0.2)  # the agent's right: screen left

@@ -29,11 +29,10 @@ import numpy as np
 
 from agent.face.frame import FlexorFrame
 from agent.face.model import MOUTH_FLEXORS, FaceModel
+from agent.gaze.params import default_eye_mode
 from agent.gaze.synth import eye_position_one
+from agent.vocabulary import EYE_MODES, ROLES, SACCADE_MODES
 
-SACCADE_MODES: frozenset[str] = frozenset({"saccade", "saccade+blink"})
-EYE_MODES: tuple[str, ...] = ("static", "noise", "saccade", "saccade+blink")
-ROLES: tuple[str, ...] = ("talking", "listening", "silence")
 _NEVER = 1 << 62
 
 
@@ -126,7 +125,7 @@ class LiveScene:
         self.max_utterances = max_utterances
         self.role = "listening"
         self.speaker = ""
-        self.eye_mode = "saccade+blink"  # the commanded mode (eyes state) until eye samples say otherwise
+        self.eye_mode = default_eye_mode()  # the commanded mode (eyes state) until eye samples say otherwise
         self.emotion: tuple[str, float] = ("natural", 1.0)
         self.head: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._settled_change_ns = 0

@@ -27,7 +27,12 @@ arithmetic, sets the tick time):
   sort of a packed key.
 
 Events from outside (role, emotion, mode, head, target) take effect at their own timestamp; one stamped
-before the last tick is applied at the last tick's time.
+before the last tick is applied at the last tick's time. A decision an event starts (role, mode, a forced
+gaze shift) runs once every cue of its instant is in: at the next tick, or the agent's next later event.
+
+In mode saccade+noise+blink the fixational eye movements (fixation.py) run between the Eyes Alive
+saccades, on their own timers and stream; a launch first runs the small saccades due before it, starts
+from where they left the eye, and starts a new fixation where it lands.
 """
 
 from __future__ import annotations
@@ -36,11 +41,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from agent.counter_rng import splitmix64
+from agent.counter_rng import splitmix64, uniform01
 from agent.gaze.events import BlinkOnsets, GazeTick, SaccadeOnsets
+from agent.gaze.fixation import Fixations
 from agent.gaze.generator import direction_weights
 from agent.gaze.inflight import Flights, LiveBlinks
 from agent.gaze.params import KINDS, MODES, ROLES, GazeParams, check_name
+from agent.gaze.rows import aligned_rows, as_rows, column_pair, float_bits, stream_keys, uniform_draws
 from agent.gaze.synth import saccade_progress
 from agent.noise import perlin1d, perlin_blink
 
@@ -48,13 +55,16 @@ __all__ = ["GazeEngine", "GazeTick", "SaccadeOnsets", "BlinkOnsets", "DEFAULT_RO
 
 NEVER_NS = 1 << 62
 _NS = 1_000_000_000
-_TWO_POW_MINUS_53 = 1.0 / float(1 << 53)
-_COUNTER_STEPS = np.arange(8, dtype=np.uint64)  # a draw of k uniforms reads counters c .. c + k - 1
 _HOLD_TABLE_INTERVALS = 32_768
 _HOLD_ROW = _HOLD_TABLE_INTERVALS + 1
 
-STATIC, NOISE, SACCADE, SACCADE_BLINK = (MODES.index(m) for m in ("static", "noise", "saccade", "saccade+blink"))
+STATIC, NOISE, SACCADE, SACCADE_BLINK, FIXATIONAL = (
+    MODES.index(m) for m in ("static", "noise", "saccade", "saccade+blink", "saccade+noise+blink")
+)  # the blink model runs in modes from SACCADE_BLINK on; the fixational movements in FIXATIONAL
 MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))
+# Cues that shape an agent's next decision (a per-agent bit set, cleared by the decision or a new hold).
+FORCE_MUTUAL, FORCE_AWAY, TURN_BLINK = 1, 2, 4
+TOWARD: dict[str, int] = {"mutual": FORCE_MUTUAL, "away": FORCE_AWAY}
 assert (MUTUAL, AWAY) == (0, 1)  # a decision's kind is its "away" flag read as int8
 DEFAULT_ROLE = "silence"
 
@@ -67,20 +77,18 @@ DEFAULT_ROLE = "silence"
     ROLE, MODE, KIND, HOLD_BASE, TARGET_YAW, TARGET_PITCH,
     P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE, BLINK_SPREAD_NS, BLINK_ONSET,
 ) = range(24)  # fmt: skip
-# 24 columns are 192 bytes, three whole cache lines when the matrix starts on a line (_aligned_rows): a
+# 24 columns are 192 bytes, three whole cache lines when the matrix starts on a line (aligned_rows): a
 # 23-column row straddles four lines at most offsets, and the rows an event batch gathers and scatters
 # back are the bulk of a tick's random memory traffic. The latest blink onset rides in the row, written
 # with the rest of it, instead of costing a random write of its own per blink.
 _N_COLUMNS = 24
-_CACHE_LINE = 64
 # The compact copy of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch.
 _FLIGHT = slice(ONSET, TO_PITCH + 1)
-_ROW = np.dtype((np.void, _N_COLUMNS * 8))  # a whole row as one element: copied by one memcpy
 
 # Per-agent 1-D arrays outside the rows: name -> (dtype, initial value). The next event time is scanned
 # every tick; the mode is read by events; the rest only by set_head / set_emotion / set_role.
 _COLUMNS_1D: dict[str, tuple[type, float | int]] = {
-    "next_event": (np.int64, NEVER_NS), "mode": (np.int8, 0),
+    "next_event": (np.int64, NEVER_NS), "mode": (np.int8, 0), "cues": (np.int8, 0),
     "head_yaw": (np.float64, 0.0), "head_pitch": (np.float64, 0.0),
     "head_ref_yaw": (np.float64, 0.0), "head_ref_pitch": (np.float64, 0.0),
     "magnitude_scale": (np.float64, 1.0), "mutual_shift": (np.float64, 0.0),
@@ -89,25 +97,8 @@ _COLUMNS_1D: dict[str, tuple[type, float | int]] = {
 
 
 def derive_seed(seed: int, purpose: int) -> int:
-    """Independent seeds for the saccade, blink and noise streams of one engine seed."""
+    """Independent seeds for the saccade, blink, noise, fixational and target-choice streams of one seed."""
     return int(splitmix64(np.uint64((seed * 8 + purpose) & 0xFFFFFFFFFFFFFFFF)))
-
-
-def _splitmix64_inplace(z: np.ndarray, scratch: np.ndarray) -> None:
-    """counter_rng.splitmix64 on a uint64 array in place (array arithmetic wraps without warnings)."""
-    z += np.uint64(0x9E3779B97F4A7C15)
-    np.right_shift(z, np.uint64(30), out=scratch)
-    z ^= scratch
-    z *= np.uint64(0xBF58476D1CE4E5B9)
-    np.right_shift(z, np.uint64(27), out=scratch)
-    z ^= scratch
-    z *= np.uint64(0x94D049BB133111EB)
-    np.right_shift(z, np.uint64(31), out=scratch)
-    z ^= scratch
-
-
-def _float_bits(values: np.ndarray | float) -> np.ndarray:
-    return np.asarray(values, dtype=np.float64).view(np.int64)
 
 
 class GazeEngine:
@@ -131,6 +122,7 @@ class GazeEngine:
         self._stream_seeds = (derive_seed(self.seed, 1), derive_seed(self.seed, 2))
         self._seed_noise = derive_seed(self.seed, 3)
         self._seed_perlin_blink = derive_seed(self.seed, 4)
+        self._seed_target_choice = derive_seed(self.seed, 6)
         self._now_ns = int(start_ns)
         p = self.params
         blink = p.blink
@@ -156,6 +148,13 @@ class GazeEngine:
         self._rows = np.empty((0, _N_COLUMNS), np.int64)
         for name, (dtype, _) in _COLUMNS_1D.items():
             setattr(self, "_" + name, np.empty(0, dtype=dtype))
+        self._fixations = Fixations(p, derive_seed(self.seed, 5))
+        self._fixating = 0  # agents in mode saccade+noise+blink
+        self._cued = 0  # agents with cues for their next decision (the "cues" column)
+        # Agents whose mutual gaze chooses among several points (set_targets): points, cumulative weights,
+        # and each one's count of draws from the target-choice stream.
+        self._target_sets: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._target_draws: dict[int, int] = {}
         self._flights = Flights()
         self._flight_stale = False  # set when an eye in flight is relaunched or stopped from outside
         self._live_blinks = LiveBlinks(blink.lid_curve_s, blink.lid_curve_closure, 0)
@@ -200,15 +199,14 @@ class GazeEngine:
         new = np.arange(self._n, self._n + count, dtype=np.int64)
         rows = np.zeros((count, _N_COLUMNS), np.int64)  # the bits of 0.0 are 0: eyes at the primary position
         rows[:, ONSET] = rows[:, END] = t
-        rows[:, NEXT_SACCADE] = t if mode_code >= SACCADE else NEVER_NS
+        rows[:, NEXT_SACCADE] = t if mode_code >= SACCADE else NEVER_NS  # the first decision, at t
         rows[:, NEXT_BLINK] = NEVER_NS
         rows[:, BLINK_ONSET] = -NEVER_NS
         for column, seed in zip((KEY_SACCADE, KEY_BLINK), self._stream_seeds, strict=True):
-            # The same per-agent keys counter_rng.hash3 derives for (stream seed, stream = agent index).
-            rows[:, column] = splitmix64(splitmix64(np.uint64(seed)) ^ new.astype(np.uint64)).view(np.int64)
+            rows[:, column] = stream_keys(seed, new)
         rows[:, ROLE], rows[:, MODE], rows[:, KIND] = ROLES.index(role), mode_code, MUTUAL
-        rows[:, INTERVAL_SCALE] = _float_bits(1.0)
-        grown = _aligned_rows(self._n + count)
+        rows[:, INTERVAL_SCALE] = float_bits(1.0)
+        grown = aligned_rows(self._n + count, _N_COLUMNS)
         grown[: self._n] = self._rows
         grown[self._n :] = rows
         self._rows = grown
@@ -218,12 +216,14 @@ class GazeEngine:
         self._eyes = np.concatenate([self._eyes[: self._n], np.zeros((count + 1, 3))])
         self._n += count
         self._live_blinks.grow(self._n)
+        self._fixations.grow(count)
+        if mode_code == FIXATIONAL:
+            self._fixating += count
         self._members_cache.clear()
         self._derive(new)
         fresh = self._rows[new]
         self._schedule_blinks(fresh, t)
         self._store(new, fresh)
-        self._advance(new, t)
         return new
 
     @property
@@ -243,7 +243,9 @@ class GazeEngine:
     # ------------------------------------------------------------------ the Attention Monitor's inputs
 
     def set_role(self, i: int | Sequence[int] | np.ndarray, role: str, t_ns: int) -> None:
-        """Switch the conversational role; agents whose role changes decide a new saccade at once."""
+        """Switch the conversational role; agents whose role changes decide a new saccade at `t`, once
+        every other cue of that instant is in (the decision runs at the next tick or later event). In mode
+        saccade+noise+blink the turn boundary may bring a blink ([blink] turn_probability)."""
         check_name(role, ROLES, "role")
         idx, t = self._prepare(i, t_ns)
         code = ROLES.index(role)
@@ -256,13 +258,49 @@ class GazeEngine:
         rows[rows[:, MODE] >= SACCADE, NEXT_SACCADE] = t
         self._schedule_blinks(rows, t)
         self._store(idx, rows)
-        self._advance(idx, t)
+        self._cue(idx[rows[:, MODE] == FIXATIONAL], TURN_BLINK, 0)
+
+    def shift_gaze(self, i: int | Sequence[int] | np.ndarray, toward: str, t_ns: int) -> None:
+        """Make the next decision now, with its outcome fixed: "mutual" (at the gaze target) or "away"
+        (magnitude, direction and hold drawn as usual). For turn-taking gaze: a speaker looks away as a
+        long turn starts and back at the listener as it ends (Kendon 1967)."""
+        check_name(toward, tuple(TOWARD), "gaze shift")
+        idx, t = self._prepare(i, t_ns)
+        idx = idx[self._mode[idx] >= SACCADE]
+        if idx.size:
+            self._rows[idx, NEXT_SACCADE] = t
+            self._next_event[idx] = np.minimum(self._next_event[idx], t)
+            self._cue(idx, TOWARD[toward], FORCE_MUTUAL | FORCE_AWAY)
+
+    def blink_at(self, i: int | Sequence[int] | np.ndarray, t_ns: int) -> np.ndarray:
+        """Blink now if a blink is due within the pull window (statistical blink modes only): the due blink
+        is pulled forward, as a gaze shift pulls it, so the configured rates still hold. For listener
+        feedback at a partner's pause. Returns the agents that blinked."""
+        idx, t = self._prepare(i, t_ns)
+        rows = self._rows[idx]
+        pull = (rows[:, MODE] >= SACCADE_BLINK) & (rows[:, NEXT_BLINK] - t <= self._pull_window_ns)
+        j = np.flatnonzero(pull)
+        if j.size:
+            sub = rows[j]
+            u = self._uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[0]
+            sub[:, NEXT_BLINK] += self._blink_interval_ns(sub.view(np.float64)[:, BLINK_SPREAD_NS], u)
+            sub[:, BLINK_ONSET] = t
+            rows[j] = sub
+            self._store(idx, rows)
+            self._blink_chunks.append((idx[j], np.full(j.size, t, np.int64)))
+        return idx[j]
+
+    def _cue(self, idx: np.ndarray, set_bits: int, clear_bits: int) -> None:
+        if idx.size:
+            before = np.count_nonzero(self._cues[idx])
+            self._cues[idx] = (self._cues[idx] & ~np.int8(clear_bits)) | np.int8(set_bits)
+            self._cued += int(np.count_nonzero(self._cues[idx])) - int(before)
 
     def set_emotion(self, i: int | Sequence[int] | np.ndarray, name: str, intensity: float, t_ns: int) -> None:
         """Modulate the statistics of every later saccade decision (configs/gaze_emotions.toml)."""
         emotion = self.params.emotion(name, float(intensity))
         idx, _ = self._prepare(i, t_ns)
-        self._rows[idx, INTERVAL_SCALE] = _float_bits(emotion.interval_scale)
+        self._rows[idx, INTERVAL_SCALE] = float_bits(emotion.interval_scale)
         self._magnitude_scale[idx] = emotion.magnitude_scale
         self._mutual_shift[idx] = emotion.mutual_shift
         self._bias_direction[idx] = emotion.bias_direction_deg
@@ -272,7 +310,8 @@ class GazeEngine:
         self._derive(idx)
 
     def set_mode(self, i: int | Sequence[int] | np.ndarray, mode: str, t_ns: int) -> None:
-        """Switch the eye mode: static, noise, saccade or saccade+blink."""
+        """Switch the eye mode (MODES). Agents that start saccading decide their first saccade at `t`, once
+        every other cue of that instant is in."""
         check_name(mode, MODES, "eye mode")
         idx, t = self._prepare(i, t_ns)
         code = MODES.index(mode)
@@ -280,7 +319,8 @@ class GazeEngine:
         if not idx.size:
             return
         yaw, pitch = self._shown_position(idx, t)
-        was_saccading = self._mode[idx] >= SACCADE
+        old = self._mode[idx].copy()
+        was_saccading = old >= SACCADE
         self._mode[idx] = code
         self._members_cache.clear()
         self._flight_stale = True  # eyes stopped mid-flight fixate where they are
@@ -288,19 +328,28 @@ class GazeEngine:
         rows = self._rows[idx]
         rows[:, MODE] = code
         fixate = ~was_saccading if code >= SACCADE else np.ones(idx.size, dtype=bool)
+        # Eyes that leave the fixational movements keep the point they hold (the offset becomes the rest).
+        fixate |= (old == FIXATIONAL) & (rows[:, END] <= t)
         rows[fixate, ONSET] = rows[fixate, END] = t
         floats = rows.view(np.float64)
         floats[fixate, FROM_YAW] = floats[fixate, TO_YAW] = yaw[fixate]
         floats[fixate, FROM_PITCH] = floats[fixate, TO_PITCH] = pitch[fixate]
-        rows[fixate, NEXT_SACCADE] = t if code >= SACCADE else NEVER_NS
-        if code == SACCADE_BLINK:
+        rows[fixate & ~was_saccading, NEXT_SACCADE] = t if code >= SACCADE else NEVER_NS
+        if code < SACCADE:
+            rows[:, NEXT_SACCADE] = NEVER_NS
+        if code >= SACCADE_BLINK:
             self._schedule_blinks(rows, t)
         else:
             rows[:, NEXT_BLINK] = NEVER_NS
             rows[:, BLINK_ONSET] = -NEVER_NS
             self._live_blinks.cancel(idx)
         self._store(idx, rows)
-        self._advance(idx, t)
+        leaving = idx[old == FIXATIONAL]
+        self._fixations.stop(leaving)
+        self._fixating -= leaving.size
+        if code == FIXATIONAL:
+            self._fixating += idx.size
+            self._start_fixations(idx, rows, np.maximum(rows[:, END], t))
 
     def set_head(
         self,
@@ -351,6 +400,41 @@ class GazeEngine:
         """
         yaw, pitch = _finite_pair(yaw_deg, pitch_deg, "target")
         idx, t = self._prepare(i, t_ns)
+        for agent in idx.tolist():
+            self._target_sets.pop(agent, None)
+        self._point_at(idx, yaw, pitch, t)
+
+    def set_targets(
+        self, i: int, yaw_deg: Sequence[float], pitch_deg: Sequence[float], weights: Sequence[float], t_ns: int
+    ) -> None:
+        """Let mutual gaze choose among several points (head frame, degrees): each decision draws one, with
+        the given weights (for the people of a multi-party conversation). The choice is drawn at once too:
+        an agent holding mutual gaze moves to it when it differs, keeping its hold timer."""
+        yaws, pitches = _finite_pair(yaw_deg, pitch_deg, "target")
+        w = np.asarray(weights, dtype=np.float64)
+        if yaws.ndim != 1 or not (yaws.size == pitches.size == w.size) or yaws.size == 0:
+            raise ValueError(f"targets need matching non-empty lists of yaw, pitch and weight, got "
+                             f"{yaws.size}, {pitches.size}, {w.size}")
+        if not (np.all(np.isfinite(w)) and np.all(w >= 0) and w.sum() > 0):
+            raise ValueError(f"target weights must be non-negative with a positive sum, got {list(w)}")
+        idx, t = self._prepare(i, t_ns)
+        if idx.size != 1:
+            raise ValueError(f"set_targets takes one agent index, got {i!r}")
+        agent = int(idx[0])
+        self._target_sets[agent] = (self._clip_yaw(yaws), self._clip_pitch(pitches), np.cumsum(w / w.sum())[:-1])
+        self._target_draws.setdefault(agent, 0)
+        chosen_yaw, chosen_pitch = self._choose_target(agent)
+        self._point_at(idx, np.array([chosen_yaw]), np.array([chosen_pitch]), t)
+
+    def _choose_target(self, agent: int) -> tuple[float, float]:
+        yaws, pitches, cumulative = self._target_sets[agent]
+        draw = self._target_draws[agent]
+        self._target_draws[agent] = draw + 1
+        u = float(uniform01(self._seed_target_choice, agent, draw))
+        k = int(np.searchsorted(cumulative, u, side="right"))
+        return float(yaws[k]), float(pitches[k])
+
+    def _point_at(self, idx: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, t: int) -> None:
         rows = self._rows[idx]
         floats = rows.view(np.float64)
         floats[:, TARGET_YAW] = self._clip_yaw(np.broadcast_to(yaw, idx.shape))
@@ -381,6 +465,7 @@ class GazeEngine:
         self._now_ns = t
         yaw, pitch, lid = self._eyes[:, 0], self._eyes[:, 1], self._eyes[:, 2]
         n = self._n
+        self._fixations.write_pending(self._eyes)
         if self._dirty:
             changed = np.concatenate(self._dirty)
             self._dirty.clear()
@@ -390,6 +475,8 @@ class GazeEngine:
             self._flight_stale = False
             self._flights.keep_current(lambda agents: self._rows.take(agents, axis=0)[:, [ONSET, END]])
         self._flights.write_positions(t, yaw, pitch, self._resting)
+        if self._fixating:  # after the flights: a small saccade moves an eye that has landed
+            self._fixations.advance(self._fixations.due(t), t + 1, self._eyes)
         blinks = self._take_blinks()
         self._blink_lids(t, lid, blinks)
         self._apply_non_saccade_modes(t, yaw, pitch, lid)
@@ -410,14 +497,18 @@ class GazeEngine:
     def _resting(self, agents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the agents' eyes rest once their current saccade has landed (both in one cache line; a
         whole-row gather would read three)."""
-        return _column_pair(self._rows.view(np.float64), agents, TO_YAW, TO_PITCH)
+        return column_pair(self._rows.view(np.float64), agents, TO_YAW, TO_PITCH)
 
     # ------------------------------------------------------------------ events
 
     def _prepare(self, i: int | Sequence[int] | np.ndarray, t_ns: int) -> tuple[np.ndarray, int]:
+        """The agents' indices and the event's time, with their events before that time run: those at the
+        time itself wait, so every cue of one instant is in before any decision of that instant."""
         idx = self._indices(i)
         t = max(int(t_ns), self._now_ns)
-        self._advance(idx, t)
+        self._advance(idx, t - 1)
+        if self._fixating:
+            self._fixations.advance(idx, t)
         return idx, t
 
     def _indices(self, i: int | Sequence[int] | np.ndarray) -> np.ndarray:
@@ -433,7 +524,7 @@ class GazeEngine:
 
     def _store(self, idx: np.ndarray, rows: np.ndarray) -> None:
         """Scatter gathered rows back and refresh the agents' next event times."""
-        _as_rows(self._rows)[idx] = _as_rows(rows)
+        as_rows(self._rows)[idx] = as_rows(rows)
         next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]
         self._next_event[idx] = np.minimum(next_saccade, next_blink)
 
@@ -447,11 +538,11 @@ class GazeEngine:
         # emotion scales above 1 the unscaled draw is truncated at limit / scale so the limit still holds
         # (generator.magnitude_from_uniform). Then A = -a scale ln(p_max / p_ref - u (p_max - P_min) / p_ref).
         p_min = p.p_ref * np.exp(-self._max_magnitude[role] / np.maximum(scale, 1.0) / p.a_scale_deg)
-        rows[idx, MAG_SPAN] = _float_bits((p.p_max - p_min) / p.p_ref)
-        rows[idx, MAG_SCALE] = _float_bits(-p.a_scale_deg * scale)
-        rows[idx, P_MUTUAL] = _float_bits(np.clip(self._p_mutual[role] + self._mutual_shift[idx], 0.0, 1.0))
+        rows[idx, MAG_SPAN] = float_bits((p.p_max - p_min) / p.p_ref)
+        rows[idx, MAG_SCALE] = float_bits(-p.a_scale_deg * scale)
+        rows[idx, P_MUTUAL] = float_bits(np.clip(self._p_mutual[role] + self._mutual_shift[idx], 0.0, 1.0))
         rows[idx, HOLD_BASE] = role * (2 * _HOLD_ROW)
-        rows[idx, BLINK_SPREAD_NS] = _float_bits(self._blink_spread_ns[role])
+        rows[idx, BLINK_SPREAD_NS] = float_bits(self._blink_spread_ns[role])
 
     def _uniforms(self, rows: np.ndarray, key: int, counter: int, count: int) -> np.ndarray:
         """`count` uniforms in [0, 1) per row from the agent's own stream: shape (count, len(rows)), so
@@ -460,13 +551,13 @@ class GazeEngine:
         Bit for bit counter_rng.uniform01(stream seed, agent index, counter), with the per-agent key in
         the row; the row's counter advances by `count`.
         """
-        u = _uniform_draws(rows[:, counter].view(np.uint64), rows[:, key].view(np.uint64), count)
+        u = uniform_draws(rows[:, counter].view(np.uint64), rows[:, key].view(np.uint64), count)
         rows[:, counter] += count
         return u
 
     def _schedule_blinks(self, rows: np.ndarray, t: int) -> None:
         """Draw a fresh next blink from `t` for the rows with the statistical blink model."""
-        with_model = np.flatnonzero(rows[:, MODE] == SACCADE_BLINK)
+        with_model = np.flatnonzero(rows[:, MODE] >= SACCADE_BLINK)
         if with_model.size:
             sub = rows[with_model]
             u = self._uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[0]
@@ -490,7 +581,7 @@ class GazeEngine:
         them back costs more. Decisions read and write most of a row, so they gather their rows as one
         batch. Which is which is read from the rows' timers, lines both then find in cache."""
         while idx.size:
-            next_saccade, next_blink = _column_pair(self._rows, idx, NEXT_SACCADE, NEXT_BLINK)
+            next_saccade, next_blink = column_pair(self._rows, idx, NEXT_SACCADE, NEXT_BLINK)
             blink_first = next_blink < next_saccade
             deciding = idx
             due: list[np.ndarray] = []
@@ -518,13 +609,13 @@ class GazeEngine:
         times = flat.take(cells)
         next_blink = times + self._blink_interval_ns(
             flat.take(cells + (BLINK_SPREAD_NS - NEXT_BLINK)).view(np.float64),
-            _uniform_draws(
+            uniform_draws(
                 flat.take(cells + (COUNTER_BLINK - NEXT_BLINK)).view(np.uint64),
                 flat.take(cells + (KEY_BLINK - NEXT_BLINK)).view(np.uint64),
                 1,
             )[0],
         )
-        flat[cells] = next_blink  # flat is a view: the matrix is C-contiguous (_aligned_rows)
+        flat[cells] = next_blink  # flat is a view: the matrix is C-contiguous (aligned_rows)
         cells += COUNTER_BLINK - NEXT_BLINK
         flat[cells] += 1
         cells += BLINK_ONSET - COUNTER_BLINK
@@ -541,7 +632,12 @@ class GazeEngine:
         times = rows[:, NEXT_SACCADE].copy()
         floats = rows.view(np.float64)
         u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 6)
+        if self._target_sets:
+            self._choose_targets(agents, floats)
         away = u[0] >= floats[:, P_MUTUAL]
+        least_pull = None
+        if self._cued:
+            away, least_pull = self._apply_cues(agents, away)
         magnitude = u[1] * floats[:, MAG_SPAN]
         np.subtract(self._magnitude_top, magnitude, out=magnitude)
         np.log(magnitude, out=magnitude)
@@ -559,7 +655,32 @@ class GazeEngine:
             to.append(np.where(away, step, target))
         hold = self._hold_s(rows, u[3], away)
         kind = away.view(np.int8)
-        self._launch(agents, rows, times, to[0], to[1], kind, hold, u[4], u[5], magnitude, away)
+        self._launch(agents, rows, times, to[0], to[1], kind, hold, u[4], u[5], magnitude, away, least_pull=least_pull)
+
+    def _choose_targets(self, agents: np.ndarray, floats: np.ndarray) -> None:
+        """Agents with several mutual-gaze points draw the one this decision aims at (and centres on)."""
+        for j in np.flatnonzero(np.isin(agents, np.fromiter(self._target_sets, np.int64))).tolist():
+            floats[j, TARGET_YAW], floats[j, TARGET_PITCH] = self._choose_target(int(agents[j]))
+
+    def _apply_cues(self, agents: np.ndarray, away: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Forced outcomes (shift_gaze) and turn-boundary blinks for the deciding agents that have cues; the
+        cues are spent. Returns the outcomes and, where a turn boundary asks for it, the least chance of a
+        coupled blink."""
+        cues = self._cues.take(agents)
+        j = np.flatnonzero(cues)
+        if not j.size:
+            return away, None
+        c = cues[j]
+        away = away.copy()
+        away[j] = ((c & FORCE_AWAY) != 0) | (away[j] & ((c & FORCE_MUTUAL) == 0))
+        self._cues[agents[j]] = 0
+        self._cued -= j.size
+        turn = j[(c & TURN_BLINK) != 0]
+        if not turn.size:
+            return away, None
+        least = np.zeros(agents.size)
+        least[turn] = self.params.blink.turn_probability
+        return away, least
 
     def _direction(self, agents: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The unit step (yaw, pitch) of the drawn direction bin, tilted by the agents' emotions where they
@@ -605,14 +726,25 @@ class GazeEngine:
         magnitude: np.ndarray | None = None,
         drawn: np.ndarray | None = None,
         head: bool = False,
+        least_pull: np.ndarray | None = None,
     ) -> None:
         """Start saccades at `times` from where each eye is then to (`to_yaw`, `to_pitch`). Without
-        `hold_s` the hold timer is kept.
+        `hold_s` the hold timer is kept; a new hold supersedes the cues for the next decision.
 
         `magnitude` is the drawn Eyes Alive magnitude to report, where `drawn` (default: everywhere); the
-        others report the amplitude moved."""
+        others report the amplitude moved. `least_pull`: the least chance of a coupled blink, per agent."""
         floats = rows.view(np.float64)
+        if self._cued and hold_s is not None:
+            self._clear_cues(agents)
+        fixating = np.flatnonzero(rows[:, MODE] == FIXATIONAL) if self._fixating else agents[:0]
+        if fixating.size:  # the small saccades before the launch run first: the eye starts where they left it
+            self._fixations.advance(agents.take(fixating), times.take(fixating))
         start_yaw, start_pitch = self._position(rows, times)
+        if fixating.size:
+            landed = fixating[times.take(fixating) >= rows[fixating, END]]
+            off_yaw, off_pitch = self._fixations.offsets(agents.take(landed))
+            start_yaw[landed] = self._clip_yaw(start_yaw[landed] + off_yaw)
+            start_pitch[landed] = self._clip_pitch(start_pitch[landed] + off_pitch)
         delta_yaw, delta_pitch = to_yaw - start_yaw, to_pitch - start_pitch
         amplitude = np.hypot(delta_yaw, delta_pitch)
         duration = amplitude * self._d_ns_per_deg
@@ -629,8 +761,10 @@ class GazeEngine:
         floats[:, FROM_YAW], floats[:, FROM_PITCH] = start_yaw, start_pitch
         floats[:, TO_YAW], floats[:, TO_PITCH] = to_yaw, to_pitch
         rows[:, KIND] = kind
-        self._couple_blinks(agents, rows, times, amplitude, u_pull, u_follow, head)
+        self._couple_blinks(agents, rows, times, amplitude, u_pull, u_follow, head, least_pull)
         self._flights.add(agents, rows[:, _FLIGHT])
+        if fixating.size:
+            self._start_fixations(agents.take(fixating), rows[fixating], end.take(fixating))
         if magnitude is None:
             magnitude = amplitude
         elif drawn is not None:
@@ -655,19 +789,23 @@ class GazeEngine:
         u_pull: np.ndarray,
         u_follow: np.ndarray,
         head: bool,
+        least_pull: np.ndarray | None = None,
     ) -> None:
         """Large saccades and head-led saccades pull the next due blink forward to their onset (blink model
-        agents only), when that blink is due within the pull window."""
+        agents only), when that blink is due within the pull window; so do turn boundaries (`least_pull`)."""
         blink = self.params.blink
         if head:
             pull = u_pull < blink.head_turn_probability
         else:
             chance = amplitude - blink.evoked_min_deg
             chance *= self._evoked_slope
-            pull = u_pull < np.minimum(np.maximum(chance, 0.0, out=chance), blink.evoked_max_probability, out=chance)
+            np.minimum(np.maximum(chance, 0.0, out=chance), blink.evoked_max_probability, out=chance)
+            if least_pull is not None:
+                np.maximum(chance, least_pull, out=chance)
+            pull = u_pull < chance
         next_blink = rows[:, NEXT_BLINK]
         pull &= next_blink - times <= self._pull_window_ns
-        pull &= rows[:, MODE] == SACCADE_BLINK
+        pull &= rows[:, MODE] >= SACCADE_BLINK
         j = np.flatnonzero(pull)
         if j.size:  # through 1-D column views: a (rows, column) fancy index takes the slow general path
             interval = self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS][j], u_follow[j])
@@ -675,6 +813,16 @@ class GazeEngine:
             pulled, onset = agents[j], times[j]
             rows[:, BLINK_ONSET][j] = onset
             self._blink_chunks.append((pulled, onset))
+
+    def _start_fixations(self, agents: np.ndarray, rows: np.ndarray, landing_ns: np.ndarray) -> None:
+        floats = rows.view(np.float64)
+        self._fixations.start(agents, landing_ns, floats[:, TO_YAW], floats[:, TO_PITCH],
+                              (rows[:, KIND] == MUTUAL).astype(np.int64), rows[:, ROLE], floats[:, INTERVAL_SCALE])
+
+    def _clear_cues(self, agents: np.ndarray) -> None:
+        cued = agents[self._cues.take(agents) != 0]
+        self._cues[cued] = 0
+        self._cued -= cued.size
 
     def _blink_interval_ns(self, spread_ns: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Refractory gap plus an exponential, with the role's mean interval 60 / rate (spread = mean - gap)."""
@@ -727,6 +875,11 @@ class GazeEngine:
         noisy = mode == NOISE
         if noisy.any():
             yaw[noisy], pitch[noisy] = self._noise_position(idx[noisy], t)
+        held = np.flatnonzero((mode == FIXATIONAL) & (rows[:, END] <= t))
+        if held.size:
+            off_yaw, off_pitch = self._fixations.offsets(idx[held])
+            yaw[held] = self._clip_yaw(yaw[held] + off_yaw)
+            pitch[held] = self._clip_pitch(pitch[held] + off_pitch)
         return yaw, pitch
 
     def _members(self, mode: int) -> np.ndarray:
@@ -751,6 +904,8 @@ class GazeEngine:
 
     def _take_saccades(self) -> SaccadeOnsets:
         chunks = self._saccade_chunks
+        if self._fixating or chunks:
+            chunks.extend(self._fixations.take_onsets())
         if not chunks:
             return SaccadeOnsets.empty()
         if len(chunks) == 1:
@@ -809,41 +964,6 @@ def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndar
     key.sort()
     key &= (1 << position_bits) - 1
     return key
-
-
-def _uniform_draws(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
-    """`count` uniforms in [0, 1) per agent from its stream's counters c .. c + count - 1 (uint64 counters and
-    keys): shape (count, agents). Bit for bit counter_rng.uniform01."""
-    z = counters + _COUNTER_STEPS[:count, None]
-    z ^= keys
-    _splitmix64_inplace(z, scratch := np.empty_like(z))
-    np.right_shift(z, np.uint64(11), out=scratch)
-    return np.multiply(scratch, _TWO_POW_MINUS_53)  # converts the 53-bit integers exactly
-
-
-def _column_pair(matrix: np.ndarray, rows: np.ndarray, first: int, second: int) -> tuple[np.ndarray, np.ndarray]:
-    """Two columns of the given rows of a C-contiguous (n, _N_COLUMNS) matrix: np.take on flat offsets,
-    cheaper per element than 2-D fancy indexing, and reading only the lines that hold them."""
-    flat = matrix.reshape(-1)
-    offsets = rows * _N_COLUMNS
-    offsets += first
-    a = flat.take(offsets)
-    offsets += second - first
-    return a, flat.take(offsets)
-
-
-def _aligned_rows(count: int) -> np.ndarray:
-    """An uninitialised (count, _N_COLUMNS) int64 matrix that starts on a cache line boundary."""
-    words = _CACHE_LINE // 8
-    buffer = np.empty(count * _N_COLUMNS + words, np.int64)
-    start = (-buffer.ctypes.data % _CACHE_LINE) // 8
-    return buffer[start : start + count * _N_COLUMNS].reshape(count, _N_COLUMNS)
-
-
-def _as_rows(matrix: np.ndarray) -> np.ndarray:
-    """A C-contiguous row matrix as a 1-D array of whole rows: indexing it copies rows by memcpy, several
-    times faster than numpy's general fancy indexing of 2-D arrays (np.take is the fast gather)."""
-    return matrix.view(_ROW).reshape(-1)
 
 
 def _read_only(values: np.ndarray) -> np.ndarray:

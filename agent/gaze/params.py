@@ -8,17 +8,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
 
 from agent.config import ConfigError, load_toml, require
 from agent.gaze.intervals import GaussianInterval, IntervalDistribution, PolynomialInterval
+from agent.vocabulary import EYE_MODES, SACCADE_KINDS
+from agent.vocabulary import ROLES as VOCABULARY_ROLES
 
-ROLES: tuple[str, ...] = ("talking", "listening", "silence")
+ROLES: tuple[str, ...] = VOCABULARY_ROLES
 MEASURED_ROLES: tuple[str, ...] = ("talking", "listening")
-MODES: tuple[str, ...] = ("static", "noise", "saccade", "saccade+blink")
-KINDS: tuple[str, ...] = ("mutual", "away", "head")
+MODES: tuple[str, ...] = EYE_MODES
+KINDS: tuple[str, ...] = SACCADE_KINDS
+# What the eyes scan on a partner's face in mutual gaze (the gaze target is between the eyes).
+FACE_FEATURES: tuple[str, ...] = ("right eye", "left eye", "mouth")
 
 
 @dataclass(frozen=True)
@@ -62,12 +67,41 @@ class BlinkParams:
     evoked_full_deg: float
     evoked_max_probability: float
     head_turn_probability: float
+    turn_probability: float
     lid_curve_s: np.ndarray
     lid_curve_closure: np.ndarray
 
     @property
     def duration_s(self) -> float:
         return float(self.lid_curve_s[-1])
+
+
+@dataclass(frozen=True)
+class FixationParams:
+    """The fixational eye movements and face scanning of mode saccade+noise+blink (configs/gaze.toml)."""
+
+    microsaccade_rate_hz: float
+    microsaccade_median_deg: float
+    microsaccade_log_sd: float
+    microsaccade_max_deg: float
+    refractory_s: float
+    drift_diffusion_deg2_per_s: float
+    correction_spread_deg: float
+    scan_rate_hz: dict[str, float]
+    mouth_share: dict[str, float]
+    preferred_eye_share: float
+    features_deg: np.ndarray  # (3, 2): yaw, pitch of FACE_FEATURES from the gaze target
+
+    def event_rate_hz(self, role: str, mutual: bool) -> float:
+        """Small saccades per second in a fixation: microsaccades, plus scans on a partner's face."""
+        return self.microsaccade_rate_hz + (self.scan_rate_hz[role] if mutual else 0.0)
+
+    def feature_weights(self, role: str, preferred_eye: int) -> np.ndarray:
+        """The chance of each face feature as a scan's target, before excluding the one fixated."""
+        mouth = self.mouth_share[role]
+        eyes = np.full(2, (1.0 - mouth) * (1.0 - self.preferred_eye_share))
+        eyes[preferred_eye] = (1.0 - mouth) * self.preferred_eye_share
+        return np.array([eyes[0], eyes[1], mouth])
 
 
 @dataclass(frozen=True)
@@ -91,6 +125,7 @@ class GazeParams:
     noise_pitch_amplitude_deg: float
     noise_frequency_hz: float
     blink: BlinkParams
+    fixation: FixationParams
     emotions: dict[str, Emotion]
     eye_yaw_limit_deg: float
     eye_pitch_limit_deg: float
@@ -111,6 +146,12 @@ class GazeParams:
         if not (math.isfinite(intensity) and 0.0 <= intensity <= 1.0):
             raise ValueError(f"emotion intensity must be in [0, 1], got {intensity!r}")
         return self.emotions[name].at_intensity(intensity)
+
+
+@cache
+def default_eye_mode() -> str:
+    """The eye mode agents start in (configs/gaze.toml [modes] default)."""
+    return GazeParams.load().default_mode
 
 
 def check_name(name: str, valid: tuple[str, ...], what: str) -> None:
@@ -214,6 +255,7 @@ def _parse(
         evoked_full_deg=_positive(blink_table, "evoked_full_deg", wb),
         evoked_max_probability=_probability(blink_table, "evoked_max_probability", wb),
         head_turn_probability=_probability(blink_table, "head_turn_probability", wb),
+        turn_probability=_probability(blink_table, "turn_probability", wb),
         lid_curve_s=curve_s,
         lid_curve_closure=np.clip(curve_c, 0.0, 1.0),
     )
@@ -227,6 +269,8 @@ def _parse(
     default_mode = require(_table(doc, "modes", w), "default", str, f"{w} [modes]")
     if default_mode not in MODES:
         raise ConfigError(f"{w} [modes]: 'default' must be one of {', '.join(MODES)}")
+    d0_s = _positive(dur, "d0_s", f"{w} [duration]")
+    d_s_per_deg = _positive(dur, "d_s_per_deg", f"{w} [duration]", allow_zero=True)
     p_max = _positive(mag, "p_max", f"{w} [magnitude]")
     p_ref = _positive(mag, "p_ref", f"{w} [magnitude]")
     if p_ref < p_max:
@@ -236,8 +280,8 @@ def _parse(
         p_max=p_max,
         p_ref=p_ref,
         a_scale_deg=_positive(mag, "a_scale_deg", f"{w} [magnitude]"),
-        d0_s=_positive(dur, "d0_s", f"{w} [duration]"),
-        d_s_per_deg=_positive(dur, "d_s_per_deg", f"{w} [duration]", allow_zero=True),
+        d0_s=d0_s,
+        d_s_per_deg=d_s_per_deg,
         velocity_centre=_positive(vel, "centre", f"{w} [velocity]"),
         velocity_span=_positive(vel, "span", f"{w} [velocity]"),
         direction_bins_deg=bins,
@@ -251,11 +295,48 @@ def _parse(
         noise_pitch_amplitude_deg=_positive(noise, "pitch_amplitude_deg", wn, allow_zero=True),
         noise_frequency_hz=_positive(noise, "frequency_hz", wn),
         blink=blink,
+        fixation=_parse_fixation(doc, w, d0_s, d_s_per_deg),
         emotions=_parse_emotions(emo_doc, _where(emotions)),
         eye_yaw_limit_deg=_positive(units_eyes, "look_x_deg", "configs/flexor_units.toml [eyes]"),
         eye_pitch_limit_deg=_positive(units_eyes, "look_y_deg", "configs/flexor_units.toml [eyes]"),
         default_mode=default_mode,
     )
+
+
+def _parse_fixation(doc: dict[str, Any], w: str, d0_s: float, d_s_per_deg: float) -> FixationParams:
+    wf, ws = f"{w} [fixation]", f"{w} [face_scan]"
+    fix, scan = _table(doc, "fixation", w), _table(doc, "face_scan", w)
+    median = _positive(fix, "microsaccade_median_deg", wf)
+    largest = _positive(fix, "microsaccade_max_deg", wf)
+    if largest <= median:
+        raise ConfigError(f"{wf}: 'microsaccade_max_deg' must be above 'microsaccade_median_deg'")
+    distance = _positive(scan, "partner_distance_m", ws)
+    half_eyes = math.degrees(math.atan(0.5 * _positive(scan, "interocular_m", ws) / distance))
+    mouth = math.degrees(math.atan(_positive(scan, "eyes_to_mouth_m", ws) / distance))
+    features = np.array([[-half_eyes, 0.0], [half_eyes, 0.0], [0.0, -mouth]])
+    params = FixationParams(
+        microsaccade_rate_hz=_positive(fix, "microsaccade_rate_hz", wf),
+        microsaccade_median_deg=median,
+        microsaccade_log_sd=_positive(fix, "microsaccade_log_sd", wf),
+        microsaccade_max_deg=largest,
+        refractory_s=_positive(fix, "refractory_s", wf),
+        drift_diffusion_deg2_per_s=_positive(fix, "drift_diffusion_arcmin2_per_s", wf, allow_zero=True) / 3600.0,
+        correction_spread_deg=_positive(fix, "correction_spread_deg", wf, allow_zero=True),
+        scan_rate_hz={role: _positive(scan, f"scan_rate_{role}_hz", ws, allow_zero=True) for role in ROLES},
+        mouth_share={role: _probability(scan, f"mouth_share_{role}", ws) for role in ROLES},
+        preferred_eye_share=_probability(scan, "preferred_eye_share", ws),
+        features_deg=features,
+    )
+    # The gap must outlast the longest small saccade (main sequence), so intervals count onset to onset.
+    span = float(np.max(np.hypot(*(features[:, None, :] - features[None, :, :]).transpose(2, 0, 1))))
+    longest = d0_s + d_s_per_deg * (span + 2.0 * largest)
+    if params.refractory_s <= longest:
+        raise ConfigError(f"{wf}: 'refractory_s' must exceed the longest small saccade, {longest:.3f} s")
+    for role in ROLES:
+        if params.refractory_s >= 1.0 / params.event_rate_hz(role, True):
+            raise ConfigError(f"{wf}: 'refractory_s' must be shorter than the mean interval of small saccades "
+                              f"while {role} (1 / {params.event_rate_hz(role, True):g} Hz)")
+    return params
 
 
 def _where(name: str) -> str:

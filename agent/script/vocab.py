@@ -5,19 +5,17 @@ from __future__ import annotations
 from typing import Literal, cast
 
 from agent.script.poses import emotion_table
+from agent.vocabulary import EYE_MODES, ROLES, EyeMode, Role
 
 # The agent scripts animate when neither a dialogue nor the caller names one: the default agent of
 # configs/default.toml (`[agents] ids`), so a parameter file played on its own moves the face `eca up`
 # starts. Every command's default comes from here.
 DEFAULT_AGENT = "ada"
 
-Role = Literal["talking", "listening", "silence"]
-ROLES: tuple[Role, ...] = ("talking", "listening", "silence")
+__all__ = ["DEFAULT_AGENT", "EYE_MODES", "ROLES", "EyeMode", "Role", "ROLE_ALIASES", "ELEMENT_KINDS", "ElementKind"]
+
 # The paper's Table 1 says "Speaking" where the rest of the paper says talking.
 ROLE_ALIASES: dict[str, Role] = {"speaking": "talking"}
-
-EyeMode = Literal["static", "noise", "saccade", "saccade+blink"]
-EYE_MODES: tuple[EyeMode, ...] = ("static", "noise", "saccade", "saccade+blink")
 
 ElementKind = Literal["emotion", "gaze", "head", "status"]
 ELEMENT_KINDS: tuple[ElementKind, ...] = ("emotion", "gaze", "head", "status")

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from agent.gaze.params import default_eye_mode
 from agent.script import ScriptError
 from services.commands.experiment import DEMO_DIALOGUE
 from services.commands.render import RENDER_ERRORS, load_inputs, print_render_failure, render_video, settings_from
@@ -49,7 +50,7 @@ def run_headless(args: argparse.Namespace) -> int:
     from services.experiment import plot_trajectory
 
     # agent=None: the demo dialogue animates its own agent
-    render_args = argparse.Namespace(scripts=[str(DEMO_DIALOGUE)], agent=None, eyes="saccade+blink", view="full",
+    render_args = argparse.Namespace(scripts=[str(DEMO_DIALOGUE)], agent=None, eyes=default_eye_mode(), view="full",
                                      seed=args.seed, fps=30.0, size="640x480", no_voice=False)
     try:
         settings = settings_from(render_args)

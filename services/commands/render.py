@@ -8,7 +8,9 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from agent.gaze.params import default_eye_mode
 from agent.script import ScriptError, ScriptSet
+from agent.vocabulary import EYE_MODES
 from services.playback import VoiceCache
 from services.script_input import AGENT_HELP, load_run, open_voices, print_failure
 from services.tts import SpeechSynthesisError
@@ -16,7 +18,7 @@ from services.tts import SpeechSynthesisError
 if TYPE_CHECKING:  # the offline pipeline pulls in GL and FFmpeg: imported only when rendering
     from services.offline import RenderSettings
 
-EYE_CHOICES = ["static", "noise", "saccade", "saccade+blink", "script"]
+EYE_CHOICES = [*EYE_MODES, "script"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,8 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scripts", nargs="+", help="dialogue XML and/or parameter files")
     p.add_argument("--agent", default=None, help=AGENT_HELP)
-    p.add_argument("--eyes", choices=EYE_CHOICES, default="saccade+blink",
-                   help="eye condition; 'script' follows the scripts' own eye-mode cues")
+    p.add_argument("--eyes", choices=EYE_CHOICES, default=default_eye_mode(),
+                   help="eye condition (default: %(default)s, the paper's recommendation); 'script' follows the "
+                        "scripts' own eye-mode cues")
     p.add_argument("--view", choices=["full", "upper"], default="full")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes and blinks")
     p.add_argument("--fps", type=float, default=30.0)

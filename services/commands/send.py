@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from agent.script import DEFAULT_AGENT
+from agent.vocabulary import EYE_MODES
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient, CommandRejected
 from protocol.codec import ProtocolError
@@ -42,8 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     k.add_argument("--nod", type=float, default=0.0)
     k.add_argument("--tilt", type=float, default=0.0)
     k.add_argument("--duration", type=float, default=0.5, help="seconds")
-    k = kinds.add_parser("eyes", help="eye mode: static, noise, saccade, saccade+blink")
-    k.add_argument("mode", choices=["static", "noise", "saccade", "saccade+blink"])
+    k = kinds.add_parser("eyes", help=f"eye mode: {', '.join(EYE_MODES)}")
+    k.add_argument("mode", choices=EYE_MODES)
     k = kinds.add_parser("gaze", help="where mutual gaze looks (degrees)")
     k.add_argument("--yaw", type=float, default=0.0)
     k.add_argument("--pitch", type=float, default=0.0)

@@ -6,7 +6,7 @@ service's new state comes back. Keys that change only how the face is drawn (vie
 
     1-9      emotion: natural, happy, surprised, arrogant, angry, half-angry, disappointed, annoyed,
              frightened                    +/-  intensity of the current emotion
-    t        talking <-> listening         e    eye mode: static, noise, saccade, saccade+blink
+    t        talking <-> listening         e    eye mode: the next of agent.vocabulary.EYE_MODES
     arrows   head turn / nod               0    head back to centre
     v        full face / upper face        b    eyebrows       c  eye cover (lids)
     w        wireframe                     s    3D surface     x  eye centre    r  saccade trajectory
@@ -15,6 +15,7 @@ service's new state comes back. Keys that change only how the face is drawn (vie
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,10 +25,12 @@ import moderngl
 import numpy as np
 
 from agent.face.emotions import PAPER_EMOTIONS
+from agent.gaze.params import default_eye_mode
+from agent.vocabulary import EYE_MODES
 from protocol.messages import Message, MoveHead, SetEmotion, SetEyes, SetRole
 
 EMOTION_KEYS: tuple[str, ...] = PAPER_EMOTIONS  # keys 1-9, in the paper's order
-EYE_MODE_CYCLE: tuple[str, ...] = ("static", "noise", "saccade", "saccade+blink")
+EYE_MODE_CYCLE: tuple[str, ...] = EYE_MODES
 TOGGLE_KEYS: dict[str, str] = {
     "b": "eyebrows",
     "c": "eye_cover",
@@ -54,7 +57,7 @@ class AgentStatus:
     emotion: str = "natural"
     intensity: float = 1.0
     role: str = "listening"
-    eye_mode: str = "saccade+blink"
+    eye_mode: str = dataclasses.field(default_factory=default_eye_mode)
     head: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 

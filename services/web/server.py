@@ -20,6 +20,7 @@ from typing import Any
 import msgpack
 from aiohttp import web
 
+from agent.vocabulary import EYE_MODES
 from protocol.codec import ProtocolError, decode, describe, is_agent_id
 from protocol.messages import MESSAGE_TYPES, PROTOCOL_VERSION
 from services.web.options import WebOptions
@@ -53,7 +54,8 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
 
     async def config(request: web.Request) -> web.Response:
         _check_token(options, request.query.get("token"))
-        return web.json_response({"agents": list(agents), "width": options.width, "height": options.height,
+        return web.json_response({"agents": list(agents), "eye_modes": list(EYE_MODES),
+                                  "width": options.width, "height": options.height,
                                   "fps": options.fps, "max_width": options.max_width,
                                   "max_height": options.max_height, "max_fps": options.max_fps})
 

@@ -151,7 +151,7 @@ function button(parent, label, command) {
   $(parent).append(b);
 }
 
-function buildPanel(agents) {
+function buildPanel(agents, eyeModes) {
   for (const agent of agents) $("agent").append(new Option(agent, agent));
   for (const name of ["natural", "happy", "surprised", "arrogant", "angry", "half-angry", "disappointed",
                       "annoyed", "frightened"]) {
@@ -162,7 +162,7 @@ function buildPanel(agents) {
                                     ["down", 0, -0.4]]) {
     button("heads", label, { type: "move_head", turn, nod, tilt: 0, duration_s: 0.6 });
   }
-  for (const mode of ["static", "noise", "saccade", "saccade+blink"]) button("eyes", mode, { type: "set_eyes", mode });
+  for (const mode of eyeModes) button("eyes", mode, { type: "set_eyes", mode });
 }
 
 $("connect").onclick = async () => {
@@ -198,6 +198,6 @@ $("mute").onclick = () => {
 };
 
 if (params.get("mic") === "0") $("mic").checked = false;
-fetch(withToken("/config")).then((r) => r.json()).then((config) => buildPanel(config.agents)).catch(() => {});
+fetch(withToken("/config")).then((r) => r.json()).then((config) => buildPanel(config.agents, config.eye_modes)).catch(() => {});
 setInterval(pollStats, 1000);
 showStats();
