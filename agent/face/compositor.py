@@ -42,12 +42,15 @@ class LayerSpec:
     settles: bool = False
 
 
-# Bottom to top. The emotion sits on the natural face; head moves add to the emotion's head posture;
+# Bottom to top. The emotion sits on the natural face; head moves add to the emotion's head posture, the
+# turn toward the person attended (situated gaze) and head gestures (a listener's nods) add to those;
 # gaze, lip-sync and blinks override what the emotion says about eyes, mouth and lids while they care.
 DEFAULT_LAYERS: tuple[LayerSpec, ...] = (
     LayerSpec("base", Blend.REPLACE, settles=True),
     LayerSpec("emotion", Blend.REPLACE, settles=True),
     LayerSpec("head", Blend.ADD),
+    LayerSpec("attention", Blend.ADD),
+    LayerSpec("gesture", Blend.ADD),
     LayerSpec("gaze", Blend.REPLACE),
     LayerSpec("mouth", Blend.REPLACE),
     LayerSpec("blink", Blend.REPLACE),

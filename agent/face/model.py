@@ -22,7 +22,7 @@ from agent.face.emotions import (
 )
 from agent.face.flexors import FLEXOR_INDEX
 from agent.face.frame import FlexorFrame, check_flexor_value, dont_care_vector
-from agent.face.head import HeadMotion
+from agent.face.head import HeadMotion, Nods
 from agent.face.idle import IdleNoise
 from agent.face.settings import FaceSettings, FlexorUnits, load_face_settings, load_flexor_units
 
@@ -60,6 +60,10 @@ class FaceModel:
         self.compositor.set_pose("base", self.emotions.pose(NATURAL), t_ns, settle_s=0.0)
         self.head = HeadMotion(t_ns=t_ns)
         self.compositor.set_action("head", self.head)
+        self.attention = HeadMotion(t_ns=t_ns)
+        self.compositor.set_action("attention", self.attention)
+        self.nods = Nods()
+        self.compositor.set_action("gesture", self.nods)
         self._gaze, self._mouth, self._blink = _Held(), _Held(), _Held()
         self.compositor.set_action("gaze", self._gaze)
         self.compositor.set_action("mouth", self._mouth)
@@ -95,6 +99,16 @@ class FaceModel:
         """Move the head to angles in degrees (yaw to the agent's right, pitch chin-up, roll to the right)."""
         u = self.units
         self.move_head(yaw_deg / u.turn_deg, pitch_deg / u.nod_deg, roll_deg / u.tilt_deg, duration_s, t_ns)
+
+    def attend(self, yaw_deg: float, pitch_deg: float, duration_s: float, t_ns: int) -> None:
+        """Turn the head toward the person attended (situated gaze, agent/gaze/situated.py): an offset in
+        degrees added to the scripted head moves, reached at rest after duration_s."""
+        u = self.units
+        self.attention.move_to((yaw_deg / u.turn_deg, pitch_deg / u.nod_deg, 0.0), duration_s, t_ns)
+
+    def nod(self, amplitude_deg: float, duration_s: float, t_ns: int) -> None:
+        """A nod from t_ns: the chin dips by amplitude_deg and comes back within duration_s."""
+        self.nods.add(t_ns, amplitude_deg / self.units.nod_deg, duration_s)
 
     def set_eyes(self, yaw_deg: float | None, pitch_deg: float | None, lid: float | None = None) -> None:
         """Gaze in degrees (yaw to the agent's right, pitch up; None = leave to the layers below) and lid
