@@ -1,7 +1,8 @@
 """The paper's experiment: one dialogue rendered under each eye condition, side by side.
 
 Rodrigues et al. compared (a) no eye movement, (b) eyes driven by Perlin noise only and (c) saccadic
-eyes with Perlin-noise blinks, in the upper-face view; we add (d) our blink model coupled to gaze.
+eyes with Perlin-noise blinks, in the upper-face view; we add (d) our blink model coupled to gaze and
+(e) what the paper recommends: saccades with context-aware fixational noise and the blink model.
 
 Each condition gives a video, a poster for it (a frame of that video with the eyes open, so the page
 shows the face before anything plays) and a trajectory plot; `write_index` lays them out for any number
@@ -32,6 +33,8 @@ CONDITIONS = (
     Condition("noise", "(b) Perlin-noise eyes and blinks"),
     Condition("saccade", "(c) saccadic eyes, Perlin-noise blinks"),
     Condition("saccade+blink", "(d) saccadic eyes, blink model coupled to gaze"),
+    Condition("saccade+noise+blink",
+              "(e) saccades, context-aware fixational noise, blink model — the paper's recommendation"),
 )
 
 
