@@ -20,7 +20,7 @@ from __future__ import annotations
 import secrets
 import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TypeVar
 
 import zmq
@@ -112,10 +112,11 @@ class AgentClient:
                                        request_id=self._rid(request_id)))
 
     def say(self, audio_path: str | None = None, pcm: bytes | None = None, sample_rate: int = 0,
-            text: str | None = None, request_id: str | None = None) -> str:
+            text: str | None = None, request_id: str | None = None, to: Sequence[str] = ()) -> str:
+        """`to`: who it is said to (other agents of the instance, `user`); empty: everyone."""
         rid = request_id or f"say-{secrets.token_hex(6)}"
         self.send(Say(agent=self.agent, request_id=rid, audio_path=audio_path, pcm=pcm, sample_rate=sample_rate,
-                      text=text))
+                      text=text, to=list(to)))
         return rid
 
     def say_stream(self, chunks: Iterable[bytes], sample_rate: int, text: str | None = None,

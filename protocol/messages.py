@@ -21,6 +21,7 @@ SaccadeKind = Literal["mutual", "away", "head", "scan", "micro"]
 
 # Pseudo agent id of messages that concern no single agent (heartbeats, broker replies).
 ALL_AGENTS = "*"
+MAX_ADDRESSEES = 16  # the people one say can be addressed to
 
 
 def bounded(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
@@ -116,6 +117,8 @@ class Say(Message):
     streamed: bool = bounded(False, doc="true: the audio follows as speech_chunk messages")
     text: str | None = bounded(None, max_len=10_000,
                                doc="what is said; with no audio, the audio service speaks it (text-to-speech)")
+    to: list[str] = bounded([], max_len=MAX_ADDRESSEES, item_max_len=32,
+                            doc="who it is said to: agent ids of this instance and/or `user` (default everyone)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -154,6 +157,8 @@ class RoleState(Message):
     role: Role = bounded(doc="talking, listening or silence")
     speaker: str = bounded("", max_len=32, doc="who holds the floor")
     set_by: Literal["command", "speech"] = bounded("command", doc="a command, or the agent's own speech")
+    addressees: list[str] = bounded([], max_len=MAX_ADDRESSEES, item_max_len=32,
+                                    doc="while it talks: who it speaks to (the say's `to`; empty: everyone)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -173,6 +178,17 @@ class HeadState(Message):
     nod: float = bounded(0.0, lo=-1.0, hi=1.0, doc="pitch target")
     tilt: float = bounded(0.0, lo=-1.0, hi=1.0, doc="roll target")
     duration_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="time to reach the targets, from t_ns")
+
+
+@dataclass(frozen=True, kw_only=True)
+class AttentionState(Message):
+    TYPE = "attention"
+    CATEGORY = "state"
+    person: str = bounded("user", max_len=32, doc="who the agent attends: an agent id or `user`")
+    yaw_deg: float = bounded(0.0, lo=-90.0, hi=90.0, doc="head turn toward that person, + = agent's right, "
+                                                         "added to the scripted head")
+    pitch_deg: float = bounded(0.0, lo=-90.0, hi=90.0, doc="+ = up")
+    duration_s: float = bounded(0.6, lo=0.0, hi=30.0, doc="time the turn takes, from t_ns")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -350,6 +366,16 @@ class Saccade(Message):
     hold_s: float = bounded(0.0, lo=0.0, hi=600.0, doc="planned fixation after landing")
 
 
+@dataclass(frozen=True, kw_only=True)
+class Nod(Message):
+    TYPE = "nod"
+    CATEGORY = "event"
+    onset_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when the chin starts to dip")
+    amplitude_deg: float = bounded(lo=0.0, hi=30.0, doc="how far it dips")
+    duration_s: float = bounded(lo=0.05, hi=5.0, doc="down and back up")
+    reason: Literal["backchannel"] = bounded("backchannel", doc="why: a listener's response at a partner's pause")
+
+
 # --- streams: continuous data -------------------------------------------------------------------
 
 
@@ -473,8 +499,8 @@ class Error(Message):
 
 ALL_MESSAGES: tuple[type[Message], ...] = (
     SetRole, SetEmotion, MoveHead, SetEyes, SetGazeTarget, Say, SpeechChunk, Interrupt, UserSpeech,
-    RoleState, EmotionState, HeadState, EyesState, GazeTargetState, SpeechState, PlaybackState,
-    SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Ack, Saccade,
+    RoleState, EmotionState, HeadState, EyesState, GazeTargetState, AttentionState, SpeechState, PlaybackState,
+    SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Ack, Saccade, Nod,
     ClockAnchor, MouthKeys, EyeState, FaceFrame, VoiceBlock, UserAudio,
     Heartbeat, Hello, Error,
 )

@@ -80,6 +80,7 @@ class PendingSay:
     started: bool = False
     next_chunk: int = 0
     chunks_done: bool = False
+    to: tuple[str, ...] = ()  # the say's addressees, for the talking role while it plays
 
 
 @dataclass
@@ -404,11 +405,17 @@ class DialogueService(Service):
             raise Rejected(f"sample_rate {cmd.sample_rate} is too low for PCM (8000 or more)", cmd.request_id)
         if cmd.pcm is not None and len(cmd.pcm) % 2:
             raise Rejected("pcm must hold whole 16-bit samples (an even number of bytes)", cmd.request_id)
+        wrong = [p for p in cmd.to if p == cmd.agent or (p != "user" and p not in self.agent_ids)]
+        if wrong:
+            raise Rejected(f"'to' names {', '.join(map(repr, wrong))}: a say is addressed to other agents of this "
+                           f"instance ({', '.join(a for a in self.agent_ids if a != cmd.agent) or 'none'}) "
+                           "or 'user'", cmd.request_id)
         if len(state.pending) >= MAX_PENDING_SAYS:
             raise Rejected(f"agent '{cmd.agent}' already has {MAX_PENDING_SAYS} say requests pending; "
                            "send this one when one of them has ended", cmd.request_id)
         state.pending[cmd.request_id] = PendingSay(cmd.request_id, cmd.agent, cmd.streamed,
-                                                   self.clock.now_ns(), self.audio_started_ns)
+                                                   self.clock.now_ns(), self.audio_started_ns,
+                                                   to=tuple(dict.fromkeys(cmd.to)))
         self.publish_later(dataclasses.replace(cmd, t_ns=0), category="play")
         self._publish_speech(state)
         self._ack(cmd)
@@ -448,6 +455,8 @@ class DialogueService(Service):
             state.role_before_speech = None
             self._set_state(cmd.agent, RoleState(agent=cmd.agent, role="listening", speaker="user",
                                                  set_by="command"))
+        # Re-published as an event, so the listeners' backchannels (gaze service) can answer the user's pauses.
+        self.publish_later(dataclasses.replace(cmd, t_ns=0, seq=0, source="", request_id=""), category="event")
         self._ack(cmd)
 
     # --- the audio service's lifecycle, re-published once per request ------------------------------
@@ -462,8 +471,10 @@ class DialogueService(Service):
         self._publish_speech(state)
         if state.role.role != "talking" or state.role.set_by != "speech":
             state.role_before_speech = state.role
+        if state.role.role != "talking" or state.role.set_by != "speech" or \
+                state.role.addressees != list(pending.to):
             self._set_state(ev.agent, RoleState(agent=ev.agent, role="talking", speaker=ev.agent,
-                                                set_by="speech"))
+                                                set_by="speech", addressees=list(pending.to)))
 
     def on_audio_terminal(self, ev: SpeechFinished | SpeechInterrupted | SpeechFailed) -> None:
         self._end(self._agent(ev), ev.request_id, ev)

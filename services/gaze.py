@@ -7,6 +7,14 @@ own frame times. A message that can start a saccade at once (role, head, gaze ta
 the service tick right after the batch it came in, so the saccade event and that agent's eye state go
 out then rather than at the next scheduled tick: a renderer learns of it within one bus hop. The other
 agents' eye states keep the scheduled rate.
+
+It also hosts the conversation around the agents. From the agents' roles (who talks, to whom; who
+listens to whom) it follows whose turn it is, and a `Conversation` (agent/gaze/situated.py) turns the
+listeners' eyes to the speaker and the speaker's to its addressees, with a head turn toward the person
+attended published as `state.<agent>.attention`; a speaker looks away as its turn starts and back as it
+ends (Kendon). A `Backchannel` (agent/gaze/backchannel.py) answers the pauses of whoever speaks (an
+agent's speech, the user's voice activity re-published by the dialogue service) with listeners' blinks
+and nods (`event.<agent>.nod`).
 """
 
 from __future__ import annotations
@@ -20,10 +28,24 @@ from typing import Any
 import numpy as np
 
 from agent.config import load_toml
+from agent.gaze.backchannel import Backchannel, ListenerBlink
+from agent.gaze.backchannel import Nod as NodAction
 from agent.gaze.engine import GazeEngine
 from agent.gaze.params import KINDS
+from agent.gaze.situated import USER, Action, Conversation, HeadTurn, apply
 from protocol.endpoints import BusConfig
-from protocol.messages import EmotionState, EyesState, EyeState, GazeTargetState, HeadState, RoleState, Saccade
+from protocol.messages import (
+    AttentionState,
+    EmotionState,
+    EyesState,
+    EyeState,
+    GazeTargetState,
+    HeadState,
+    Nod,
+    RoleState,
+    Saccade,
+    UserSpeech,
+)
 from services.runtime import Rejected, Service
 
 
@@ -38,14 +60,20 @@ class GazeService(Service):
         self.index = {a: i for i, a in enumerate(self.agent_ids)}
         units = load_toml("flexor_units")["head"]
         self.head_deg = (float(units["turn_deg"]), float(units["nod_deg"]))
-        self.engine = GazeEngine(len(self.agent_ids), int(table.get("seed", 0) if seed is None else seed),
-                                 start_ns=self.clock.now_ns())
+        seed = int(table.get("seed", 0) if seed is None else seed)
+        self.engine = GazeEngine(len(self.agent_ids), seed, start_ns=self.clock.now_ns())
+        self.conversation = Conversation(self.agent_ids, seed)
+        self.backchannel = Backchannel(self.agent_ids, seed)
+        self.roles: dict[str, RoleState] = {}
+        self.talk_order: list[str] = []  # agents talking now, the latest to start last
+        self.floor: tuple[str | None, tuple[str, ...]] | None = None  # (speaker, addressees) of the turn
         self.modes = [self.engine.mode_of(i) for i in range(len(self.agent_ids))]
         # Agents whose message in this batch may have started a saccade: the service ticks right after the
         # batch and sends their eye states then; the others' keep the rate_hz schedule.
         self.touched: set[int] = set()
         for cls, handler in ((RoleState, self.on_role), (EmotionState, self.on_emotion), (HeadState, self.on_head),
-                             (EyesState, self.on_eyes), (GazeTargetState, self.on_target)):
+                             (EyesState, self.on_eyes), (GazeTargetState, self.on_target),
+                             (UserSpeech, self.on_user_speech)):
             self.handle(cls, handler)
 
     @classmethod
@@ -63,7 +91,7 @@ class GazeService(Service):
         return cls(config, seed=args.seed, **kwargs)
 
     def subscriptions(self) -> list[str]:
-        return [f"state.{a}." for a in self.agent_ids]
+        return [f"state.{a}." for a in self.agent_ids] + [f"event.{a}.user_speech" for a in self.agent_ids]
 
     def _i(self, agent: str) -> int:
         try:
@@ -76,8 +104,54 @@ class GazeService(Service):
 
     def on_role(self, msg: RoleState) -> None:
         i = self._i(msg.agent)
-        self.engine.set_role(i, msg.role, self._now())
+        now = self._now()
+        self.engine.set_role(i, msg.role, now)
         self.touched.add(i)
+        was_talking = msg.agent in self.talk_order
+        self.roles[msg.agent] = msg
+        if msg.role == "talking" and not was_talking:
+            self.talk_order.append(msg.agent)
+            self.backchannel.speaking(now, msg.agent, True)
+        elif msg.role != "talking" and was_talking:
+            self.talk_order.remove(msg.agent)
+            self.backchannel.speaking(now, msg.agent, False)
+        self._follow_floor(now)
+
+    def on_user_speech(self, msg: UserSpeech) -> None:
+        self._i(msg.agent)
+        self.backchannel.speaking(self._now(), USER, msg.speaking)
+
+    def _follow_floor(self, now: int) -> None:
+        """Who speaks to whom, from the roles: the agent that began talking last; else the person the
+        listeners say holds the floor (the user, or an agent a dialogue manager named); else silence."""
+        known = (*self.agent_ids, USER)
+        if self.talk_order:
+            speaker: str | None = self.talk_order[-1]
+            addressees = tuple(p for p in self.roles[self.talk_order[-1]].addressees if p in known and p != speaker)
+        else:
+            named = [r.speaker for r in self.roles.values() if r.role == "listening" and r.speaker]
+            # someone a dialogue manager names who is not on screen sits with the user, in front
+            speaker = (named[-1] if named[-1] in known else USER) if named else None
+            addressees = ()
+        floor = (speaker, addressees)
+        if floor == self.floor:
+            return
+        previous, self.floor = self.floor, floor
+        actions: list[Action] = []
+        if previous is not None and previous[0] in self.agent_ids:
+            actions += self.conversation.end_turn(now)
+        actions += self.conversation.start_turn(now, speaker, addressees)
+        self._act(actions)
+        self.touched.update(self.index[a.agent] for a in actions)
+
+    def _act(self, actions: list[Action]) -> None:
+        for turn in apply(self.engine, actions, self.index):
+            self._publish_attention(turn)
+
+    def _publish_attention(self, turn: HeadTurn) -> None:
+        self.publish(AttentionState(agent=turn.agent, t_ns=max(turn.t_ns, 1),
+                                    person=self.conversation.attending[turn.agent],
+                                    yaw_deg=turn.yaw_deg, pitch_deg=turn.pitch_deg, duration_s=turn.duration_s))
 
     def on_emotion(self, msg: EmotionState) -> None:
         try:
@@ -114,7 +188,16 @@ class GazeService(Service):
     def _tick(self, now_ns: int, eye_states_for: Iterable[int]) -> None:
         """Advance every agent and publish every saccade begun since the last tick, and the eye states of
         `eye_states_for`."""
-        tick = self.engine.tick(max(now_ns, self.engine.now_ns))
+        now_ns = max(now_ns, self.engine.now_ns)
+        self._act(self.conversation.due(now_ns))
+        for action in self.backchannel.due(now_ns):
+            i = self.index[action.agent]
+            if isinstance(action, ListenerBlink):
+                self.engine.blink_at(i, max(action.t_ns, self.engine.now_ns))
+            elif isinstance(action, NodAction):
+                self.publish(Nod(agent=action.agent, onset_ns=action.t_ns, amplitude_deg=action.amplitude_deg,
+                                 duration_s=action.duration_s))
+        tick = self.engine.tick(now_ns)
         s = tick.saccades
         for k in range(len(s)):
             agent = self.agent_ids[int(s.agent[k])]

@@ -236,6 +236,26 @@ def test_bad_say_requests_are_rejected(client: AgentClient) -> None:
     assert "no pending say request" in client.wait_for(lambda m: isinstance(m, Error), 5.0).reason
 
 
+def test_a_say_is_addressed_to_other_agents_or_the_user_and_the_talking_role_says_to_whom() -> None:
+    with private_bus_config(agents=["ada", "bob", "cy"]) as config, BrokerThread(config), \
+            ServiceThread(DialogueService(config)), AgentClient(config, agent="ada") as client:
+        audio = FakeAudio(config)
+        try:
+            for to, wrong in ((["ada"], "'ada'"), (["bob", "zed"], "'zed'")):
+                rid = f"to-{wrong}"
+                client.send(Say(agent="ada", request_id=rid, text="hello", to=to))
+                err = client.wait_for(lambda m, rid=rid: isinstance(m, Error) and m.request_id == rid, 5.0)
+                assert wrong in err.reason and "'bob', 'cy'" not in err.reason and "bob, cy" in err.reason
+            audio.beat()
+            rid = client.say(audio_path="/a.wav", to=["bob", "user"])
+            audio.next_request()
+            audio.report(SpeechStarted(agent="ada", request_id=rid))
+            role = client.expect_state(RoleState, lambda m: m.role == "talking")
+            assert role.addressees == ["bob", "user"] and role.set_by == "speech"
+        finally:
+            audio.close()
+
+
 def test_barge_in_interrupts_and_makes_the_agent_listen(bus, client: AgentClient) -> None:
     audio = FakeAudio(bus)
     try:

@@ -11,7 +11,7 @@ import zmq
 
 from agent.gaze.synth import eye_position_at
 from protocol.bus import Publisher, Subscriber
-from protocol.messages import EyeState, RoleState, Saccade
+from protocol.messages import EyeState, HeadState, RoleState, Saccade
 from services.gaze import GazeService
 from services.testing import BrokerThread, ServiceThread, private_bus_config
 
@@ -72,9 +72,10 @@ def test_a_role_change_is_published_before_the_next_scheduled_tick() -> None:
 
 def test_a_reaction_sends_the_eye_state_of_the_agent_it_concerns_only() -> None:
     # bob comes first in the agent list, so a reaction tick that sent his eye state would send it before ada's
+    # (a head move concerns its agent only; a role change is a turn, which also turns the other's eyes)
     with gaze_service(["stream.ada.eye_state", "stream.bob.eye_state"], agents=["bob", "ada"]) as (sub, dialogue):
-        for role in ("talking", "listening", "talking"):
-            role_state = dialogue.publish(RoleState(agent="ada", role=role))
+        for turn in (0.3, -0.3, 0.2):
+            role_state = dialogue.publish(HeadState(agent="ada", turn=turn))
             deadline = time.monotonic() + 5.0
             after: list[EyeState] = []
             while not any(m.agent == "ada" for m in after) and (left := deadline - time.monotonic()) > 0:
@@ -82,4 +83,4 @@ def test_a_reaction_sends_the_eye_state_of_the_agent_it_concerns_only() -> None:
                 if received is not None and isinstance(received.message, EyeState):
                     if received.message.t_ns >= role_state.t_ns:
                         after.append(received.message)
-            assert [m.agent for m in after] == ["ada"], f"eye states after the change to {role}: {after}"
+            assert [m.agent for m in after] == ["ada"], f"eye states after the head move {turn}: {after}"

@@ -145,3 +145,23 @@ def test_a_long_turn_starts_looking_away_and_ends_looking_back(params: SituatedP
     interrupted.start_turn(0, "ada", duration_s=5.0)
     interrupted.start_turn(S, "bob", duration_s=1.0)  # a new turn cancels ada's look back
     assert not [a for a in interrupted.due(10 * S) if a.agent == "ada"]
+
+
+def test_a_live_turn_of_unknown_length_looks_back_when_it_ends(params: SituatedParams) -> None:
+    backs, n = 0, 2_000
+    for k in range(n):
+        talk = Conversation(AGENTS, seed=k, params=params)
+        talk.start_turn(0, "ada")  # live: its length is not known
+        assert talk.due(60 * S) == []  # nothing is scheduled ahead
+        ended = talk.end_turn(7 * S)
+        assert talk.end_turn(8 * S) == []  # once
+        backs += any(isinstance(a, GazeShift) and a.toward == "mutual" and a.t_ns == 7 * S and a.agent == "ada"
+                     for a in ended)
+    p = params.look_back_at_end
+    assert abs(backs / n - p) < 4 * math.sqrt(p * (1 - p) / n)
+    talk = Conversation(AGENTS, seed=0, params=params)
+    for k in range(50):  # a new turn drops what the last one would have done at its end
+        talk = Conversation(AGENTS, seed=k, params=params)
+        talk.start_turn(0, "ada")
+        talk.start_turn(S, "bob", duration_s=1.0)
+        assert not [a for a in talk.end_turn(2 * S) if a.agent == "ada"]

@@ -182,3 +182,25 @@ def test_prune_keeps_what_later_frames_need() -> None:
     sc.prune(6 * S)
     assert len(sc._samples) < 150
     assert look(sc.frame_at(6 * S)) == pytest.approx((7.0, 1.0))
+
+
+def test_attention_turns_the_head_on_top_of_the_scripted_head_and_nods_dip_the_chin() -> None:
+    sc = scene()
+    sc.move_head(0.25, 0.0, 0.0, 0.0, 0)
+    sc.attend(-12.0, 0.0, 0.5, S)
+    assert sc.frame_at(S).get("turn") == pytest.approx(0.25)  # the turn starts at its own time
+    settled = sc.frame_at(2 * S).get("turn")
+    assert settled == pytest.approx(0.25 - 12.0 / UNITS.turn_deg, abs=1e-6)
+    sc.attend(0.0, 0.0, 0.5, S // 2)  # an older message never moves time back: runs from 1 s
+    assert sc.frame_at(3 * S).get("turn") == pytest.approx(0.25, abs=1e-6)
+    sc.nod(4 * S, 5.0, 0.5)
+    middle = sc.frame_at(4 * S + S // 4).get("nod")
+    assert middle == pytest.approx(-5.0 / UNITS.nod_deg, abs=1e-6)
+    assert sc.frame_at(5 * S).get("nod") == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="finite"):
+        sc.attend(float("nan"), 0.0, 0.5, 6 * S)
+    with pytest.raises(ValueError, match="depth"):
+        sc.nod(6 * S, 90.0, 0.5)  # beyond the head's range
+    for k in range(1000):  # a flood of nods keeps a bounded list
+        sc.nod(7 * S + k, 1.0, 0.2)
+    assert len(sc.model.nods._nods) <= 32

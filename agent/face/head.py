@@ -99,6 +99,9 @@ class HeadMotion:
 _NOD = FLEXOR_INDEX["nod"]
 
 
+MAX_NODS = 32  # nods kept at once: far more than overlap in any real exchange
+
+
 class Nods:
     """Head nods, each a smooth dip of the chin and back (a raised-cosine bump of the nod flexor), added on
     top of the head's moves; nods that overlap add up. Caring about nothing between nods."""
@@ -112,6 +115,9 @@ class Nods:
         if not (math.isfinite(duration_s) and duration_s > 0):
             raise ValueError(f"a nod lasts a finite number of seconds > 0, got {duration_s!r}")
         self._nods.append((int(t_ns), float(depth), round(duration_s * 1e9)))
+        if len(self._nods) > MAX_NODS:  # a flood of nods from outside never grows the face without bound
+            self._nods.sort()
+            del self._nods[: len(self._nods) - MAX_NODS]
 
     def values_at(self, t_ns: int) -> np.ndarray:
         vector = dont_care_vector()

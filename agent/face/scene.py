@@ -130,6 +130,8 @@ class LiveScene:
         self.head: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._settled_change_ns = 0
         self._head_change_ns = 0
+        self.attention: tuple[float, float] = (0.0, 0.0)
+        self._attention_change_ns = 0
         self._saccades: list[SaccadeEvent] = []  # sorted by onset
         self._onsets: list[int] = []  # their onset times
         self._samples: list[EyeSample] = []  # sorted by time
@@ -158,6 +160,21 @@ class LiveScene:
         self.model.move_head(turn, nod, tilt, duration_s, t)
         self._head_change_ns = t
         self.head = (float(turn), float(nod), float(tilt))
+
+    def attend(self, yaw_deg: float, pitch_deg: float, duration_s: float, t_ns: int) -> None:
+        """Turn the head toward the person attended (the gaze service's attention state), on top of the
+        scripted head; from t_ns or the previous change, if that was later."""
+        for name, value in (("yaw", yaw_deg), ("pitch", pitch_deg), ("duration", duration_s)):
+            if not math.isfinite(value):
+                raise ValueError(f"attention {name} must be a finite number, got {value!r}")
+        t = max(int(t_ns), self._attention_change_ns)
+        self.model.attend(yaw_deg, pitch_deg, duration_s, t)
+        self._attention_change_ns = t
+        self.attention = (float(yaw_deg), float(pitch_deg))
+
+    def nod(self, onset_ns: int, amplitude_deg: float, duration_s: float) -> None:
+        """A listener's nod from onset_ns (a backchannel)."""
+        self.model.nod(amplitude_deg, duration_s, int(onset_ns))
 
     def set_eye_mode(self, mode: str) -> None:
         """The commanded eye mode; the eye samples' own mode takes precedence once they arrive."""

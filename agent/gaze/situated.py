@@ -136,6 +136,7 @@ class Conversation:
         self.seed = int(seed)
         self._draws = [0] * len(self.agents)
         self._pending: list[Action] = []  # actions later than the turn's start (the look back)
+        self._at_end: list[GazeShift] = []  # the look back of a turn of unknown length: when it ends
         self.speaker: str | None = None
         self.head: dict[str, tuple[float, float]] = {a: (0.0, 0.0) for a in self.agents}
         self.attending: dict[str, str] = {a: USER for a in self.agents}
@@ -162,6 +163,7 @@ class Conversation:
         if unknown:
             raise ValueError(f"addressees must be other participants, got {', '.join(map(repr, unknown))}")
         self._pending.clear()
+        self._at_end.clear()
         self.speaker = speaker
         actions: list[Action] = []
         if speaker is None:  # a silence: everyone keeps looking where the last turn left them
@@ -183,6 +185,15 @@ class Conversation:
             if look_back and duration_s is not None:
                 back_ns = t_ns + round(max(duration_s - self.params.look_back_lead_s, 0.0) * _NS)
                 self._pending.append(GazeShift(back_ns, speaker, "mutual"))
+            elif look_back:  # live speech: its length is known only when it ends
+                self._at_end.append(GazeShift(t_ns, speaker, "mutual"))
+        return actions
+
+    def end_turn(self, t_ns: int) -> list[Action]:
+        """The speaker of a turn whose length was not known stops at `t_ns`: its look back at the listener
+        (drawn when the turn began) happens now, as the speech ends."""
+        actions: list[Action] = [GazeShift(t_ns, a.agent, a.toward) for a in self._at_end]
+        self._at_end.clear()
         return actions
 
     def due(self, until_ns: int) -> list[Action]:

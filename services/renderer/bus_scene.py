@@ -20,6 +20,7 @@ from typing import Any
 from agent.face.frame import FlexorFrame
 from agent.face.scene import LiveScene
 from protocol.messages import (
+    AttentionState,
     ClockAnchor,
     EmotionState,
     EyesState,
@@ -28,6 +29,7 @@ from protocol.messages import (
     HeadState,
     Message,
     MouthKeys,
+    Nod,
     RoleState,
     Saccade,
     SpeechFailed,
@@ -66,6 +68,8 @@ class BusScenes:
             (HeadState, self.on_head),
             (EyesState, self.on_eyes),
             (GazeTargetState, lambda m: None),
+            (AttentionState, self.on_attention),
+            (Nod, self.on_nod),
             (Saccade, self.on_saccade),
             (EyeState, self.on_eye_state),
             (ClockAnchor, self.on_anchor),
@@ -146,6 +150,12 @@ class BusScenes:
 
     def on_head(self, m: HeadState) -> None:
         self._guard(self._scene(m).move_head, m.turn, m.nod, m.tilt, m.duration_s, m.t_ns)
+
+    def on_attention(self, m: AttentionState) -> None:
+        self._guard(self._scene(m).attend, m.yaw_deg, m.pitch_deg, m.duration_s, m.t_ns)
+
+    def on_nod(self, m: Nod) -> None:
+        self._guard(self._scene(m).nod, m.onset_ns, m.amplitude_deg, m.duration_s)
 
     def on_eyes(self, m: EyesState) -> None:
         self._guard(self._scene(m).set_eye_mode, m.mode)

@@ -56,7 +56,9 @@ async function gatheringDone(pc) {
 
 async function connect() {
   const config = await (await fetch(withToken("/config"))).json();
-  const agents = (params.get("agents") || config.agents[0]).split(",").filter(Boolean);
+  // drawn left to right in the instance's order, the seats its agents look at each other by
+  const seat = (a) => (config.agents.indexOf(a) < 0 ? config.agents.length : config.agents.indexOf(a));
+  const agents = (params.get("agents") || config.agents[0]).split(",").filter(Boolean).sort((a, b) => seat(a) - seat(b));
   const video = {
     width: Number(params.get("width") || config.width),
     height: Number(params.get("height") || config.height),
