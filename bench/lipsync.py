@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from agent.clock import VirtualClock  # noqa: E402
 from agent.lipsync import LipSyncEstimator, MouthTrack  # noqa: E402
-from services.audio import ClockAnchor, FakeSink, MouthKeys, Player, SpeechFinished  # noqa: E402
+from services.audio import FakeSink, Player, PlayerAnchor, PlayerFinished, PlayerMouthKeys  # noqa: E402
 
 BLOCK_S = 0.010
 FRAME_S = 1.0 / 60.0
@@ -85,11 +85,11 @@ def onset_offset_ms(onset_s: float, sr_in: int, vowel: np.ndarray) -> float:
     player = Player(sink, events.append, clock=clock).start()
     x = np.concatenate([np.zeros(round(onset_s * sr_in), np.float32), vowel, np.zeros(sr_in // 5, np.float32)])
     player.say_pcm("u", x, sr_in)
-    while not any(isinstance(e, SpeechFinished) for e in events):
+    while not any(isinstance(e, PlayerFinished) for e in events):
         sink.advance(1)
-    keys = tuple(k for e in events if isinstance(e, MouthKeys) for k in e.keys)
+    keys = tuple(k for e in events if isinstance(e, PlayerMouthKeys) for k in e.keys)
     track = MouthTrack(48_000, keys)
-    anchor = next(e for e in events if isinstance(e, ClockAnchor))
+    anchor = next(e for e in events if isinstance(e, PlayerAnchor))
     out = sink.output
     t_audio = sink.block_time_ns(0) + sink.latency_ns + np.flatnonzero(np.abs(out) > ONSET_LEVEL)[0] * 1e9 / 48_000
     steady = max(k.weights["say_ah"] for k in keys)
@@ -138,9 +138,14 @@ def bus_offsets_ms(utterances: int, fps: float = 60.0, timeout_s: float = 20.0) 
 
     Needs headless OpenGL for the renderer (raises its error otherwise)."""
     from protocol.client import AgentClient
-    from protocol.messages import ClockAnchor as ClockAnchorMsg
-    from protocol.messages import FaceFrame, SpeechFailed, SpeechInterrupted, SpeechStarted
-    from protocol.messages import SpeechFinished as SpeechFinishedMsg
+    from protocol.messages import (
+        ClockAnchor,
+        FaceFrame,
+        SpeechFailed,
+        SpeechFinished,
+        SpeechInterrupted,
+        SpeechStarted,
+    )
     from services.audio.service import AudioService
     from services.audio.sinks import NullSink
     from services.dialogue import DialogueService
@@ -179,13 +184,13 @@ def bus_offsets_ms(utterances: int, fps: float = 60.0, timeout_s: float = 20.0) 
                         frames.append((msg.frame_ns, float(msg.flexors.get("say_ah", 0.0))))
                     elif getattr(msg, "request_id", None) != rid:
                         continue
-                    elif isinstance(msg, ClockAnchorMsg):
+                    elif isinstance(msg, ClockAnchor):
                         anchors.append((msg.sample_index, msg.dac_time_ns))
                     elif isinstance(msg, SpeechStarted):
                         started = msg
                     elif isinstance(msg, SpeechFailed):
                         raise RuntimeError(f"utterance {i} failed: {msg.reason}")
-                    elif isinstance(msg, SpeechFinishedMsg | SpeechInterrupted):
+                    elif isinstance(msg, SpeechFinished | SpeechInterrupted):
                         break
                 if not anchors or started is None:
                     raise RuntimeError(f"utterance {i}: no clock anchors or no speech-started event recorded")

@@ -89,27 +89,27 @@ class AgentClient:
     def _rid(self, request_id: str | None) -> str:
         return self.new_request_id() if request_id is None else request_id
 
+    def command(self, cls: type[M], request_id: str | None = None, **fields: Any) -> Message:
+        """Send a command of type `cls` with `fields` and a request id (a new one unless given)."""
+        return self.send(cls(agent=self.agent, request_id=self._rid(request_id), **fields))  # type: ignore[call-arg]
+
     def set_role(self, role: str, speaker: str = "", request_id: str | None = None) -> Message:
-        return self.send(SetRole(agent=self.agent, role=role, speaker=speaker,  # type: ignore[arg-type]
-                                 request_id=self._rid(request_id)))
+        return self.command(SetRole, request_id, role=role, speaker=speaker)
 
     def set_emotion(self, name: str, intensity: float = 1.0, transition_s: float = 0.5,
                     request_id: str | None = None) -> Message:
-        return self.send(SetEmotion(agent=self.agent, name=name, intensity=intensity, transition_s=transition_s,
-                                    request_id=self._rid(request_id)))
+        return self.command(SetEmotion, request_id, name=name, intensity=intensity, transition_s=transition_s)
 
     def move_head(self, turn: float = 0.0, nod: float = 0.0, tilt: float = 0.0, duration_s: float = 0.5,
                   request_id: str | None = None) -> Message:
-        return self.send(MoveHead(agent=self.agent, turn=turn, nod=nod, tilt=tilt, duration_s=duration_s,
-                                  request_id=self._rid(request_id)))
+        return self.command(MoveHead, request_id, turn=turn, nod=nod, tilt=tilt, duration_s=duration_s)
 
     def set_eyes(self, mode: str, request_id: str | None = None) -> Message:
-        return self.send(SetEyes(agent=self.agent, mode=mode, request_id=self._rid(request_id)))  # type: ignore[arg-type]
+        return self.command(SetEyes, request_id, mode=mode)
 
     def set_gaze_target(self, yaw_deg: float, pitch_deg: float = 0.0, target: str = "",
                         request_id: str | None = None) -> Message:
-        return self.send(SetGazeTarget(agent=self.agent, yaw_deg=yaw_deg, pitch_deg=pitch_deg, target=target,
-                                       request_id=self._rid(request_id)))
+        return self.command(SetGazeTarget, request_id, yaw_deg=yaw_deg, pitch_deg=pitch_deg, target=target)
 
     def say(self, audio_path: str | None = None, pcm: bytes | None = None, sample_rate: int = 0,
             text: str | None = None, request_id: str | None = None, to: Sequence[str] = ()) -> str:

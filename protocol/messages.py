@@ -37,6 +37,9 @@ def bounded(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: 
     return dataclasses.field(default=default, metadata=meta)
 
 
+_REGISTRY: dict[str, type[Message]] = {}  # TYPE -> class, in the order the types are defined
+
+
 @dataclass(frozen=True, kw_only=True)
 class Message:
     """The envelope every message carries."""
@@ -49,6 +52,16 @@ class Message:
     t_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="monotonic clock of the publishing host, ns")
     source: str = bounded("", max_len=64, doc="the publishing service or client")
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # A class with a TYPE of its own is a message type: it registers itself, so defining it is all it
+        # takes to put it on the wire. A class without one is a shared base of fields (SpeechEndings).
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("TYPE")
+        if own:
+            if own in _REGISTRY:
+                raise TypeError(f"message type {own!r} is defined twice: {_REGISTRY[own].__name__}, {cls.__name__}")
+            _REGISTRY[own] = cls
+
     def consistency_problem(self) -> tuple[str, str] | None:
         """(field, problem) when fields disagree with each other; checked by the codec both ways."""
         return None
@@ -57,53 +70,92 @@ class Message:
 # --- commands: from dialogue managers, the CLI, script replay and key presses --------------------
 
 
+# A command that sets a state shares that state's fields: a base without a TYPE holds them, and the
+# command adds its request id. `as_state` turns the command into the state it produces.
+
+REQUEST_ID_DOC = "optional; acknowledged, or echoed in an error"
+
+
 @dataclass(frozen=True, kw_only=True)
-class SetRole(Message):
-    TYPE = "set_role"
-    CATEGORY = "cmd"
+class RoleFields(Message):
     role: Role = bounded(doc="talking, listening or silence")
     speaker: str = bounded("", max_len=32, doc="who holds the floor (an agent id, 'user', or empty)")
-    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 @dataclass(frozen=True, kw_only=True)
-class SetEmotion(Message):
-    TYPE = "set_emotion"
-    CATEGORY = "cmd"
+class EmotionFields(Message):
     name: str = bounded(max_len=32, doc="one of the emotions in configs/emotions.toml")
     intensity: float = bounded(1.0, lo=0.0, hi=1.0, doc="0 = natural, 1 = the full expression")
-    transition_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="blend time from the current expression")
-    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
+    transition_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="blend time from the current expression, from t_ns")
 
 
 @dataclass(frozen=True, kw_only=True)
-class MoveHead(Message):
-    TYPE = "move_head"
-    CATEGORY = "cmd"
+class HeadFields(Message):
     turn: float = bounded(0.0, lo=-1.0, hi=1.0, doc="yaw target, +1 = the agent's right")
     nod: float = bounded(0.0, lo=-1.0, hi=1.0, doc="pitch target, +1 = chin up")
     tilt: float = bounded(0.0, lo=-1.0, hi=1.0, doc="roll target, +1 = toward the right shoulder")
-    duration_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="time to reach the targets")
-    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
+    duration_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="time to reach the targets, from t_ns")
 
 
 @dataclass(frozen=True, kw_only=True)
-class SetEyes(Message):
-    TYPE = "set_eyes"
-    CATEGORY = "cmd"
+class EyesFields(Message):
     mode: EyeMode = bounded(doc="static, noise, saccade, saccade+blink (the paper's conditions and its "
                                 "future work) or saccade+noise+blink (its recommendation)")
-    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
 @dataclass(frozen=True, kw_only=True)
-class SetGazeTarget(Message):
-    TYPE = "set_gaze_target"
-    CATEGORY = "cmd"
+class GazeTargetFields(Message):
     yaw_deg: float = bounded(0.0, lo=-60.0, hi=60.0, doc="where mutual gaze looks, + = agent's right")
     pitch_deg: float = bounded(0.0, lo=-45.0, hi=45.0, doc="+ = up")
     target: str = bounded("", max_len=32, doc="what is there (e.g. 'user' or an agent id)")
-    request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
+
+
+@dataclass(frozen=True, kw_only=True)
+class StateCommand(Message):
+    """A command whose effect is a state: its fields are that state's (STATE), plus a request id."""
+
+    STATE: ClassVar[type[Message]]
+
+    def as_state(self, **changes: Any) -> Message:
+        """The state this command sets (the envelope left to the publisher), with `changes` applied."""
+        shared = {f.name for f in dataclasses.fields(self.STATE)} - ENVELOPE_FIELDS
+        values = {name: getattr(self, name) for name in shared if hasattr(self, name)}
+        return self.STATE(agent=self.agent, **{**values, **changes})
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetRole(StateCommand, RoleFields):
+    TYPE = "set_role"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetEmotion(StateCommand, EmotionFields):
+    TYPE = "set_emotion"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+
+
+@dataclass(frozen=True, kw_only=True)
+class MoveHead(StateCommand, HeadFields):
+    TYPE = "move_head"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetEyes(StateCommand, EyesFields):
+    TYPE = "set_eyes"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SetGazeTarget(StateCommand, GazeTargetFields):
+    TYPE = "set_gaze_target"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -151,33 +203,24 @@ class UserSpeech(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
-class RoleState(Message):
+class RoleState(RoleFields):
     TYPE = "role"
     CATEGORY = "state"
-    role: Role = bounded(doc="talking, listening or silence")
-    speaker: str = bounded("", max_len=32, doc="who holds the floor")
     set_by: Literal["command", "speech"] = bounded("command", doc="a command, or the agent's own speech")
     addressees: list[str] = bounded([], max_len=MAX_ADDRESSEES, item_max_len=32,
                                     doc="while it talks: who it speaks to (the say's `to`; empty: everyone)")
 
 
 @dataclass(frozen=True, kw_only=True)
-class EmotionState(Message):
+class EmotionState(EmotionFields):
     TYPE = "emotion"
     CATEGORY = "state"
-    name: str = bounded(max_len=32, doc="the emotion")
-    intensity: float = bounded(1.0, lo=0.0, hi=1.0, doc="0..1")
-    transition_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="blend time, from t_ns")
 
 
 @dataclass(frozen=True, kw_only=True)
-class HeadState(Message):
+class HeadState(HeadFields):
     TYPE = "head"
     CATEGORY = "state"
-    turn: float = bounded(0.0, lo=-1.0, hi=1.0, doc="yaw target")
-    nod: float = bounded(0.0, lo=-1.0, hi=1.0, doc="pitch target")
-    tilt: float = bounded(0.0, lo=-1.0, hi=1.0, doc="roll target")
-    duration_s: float = bounded(0.5, lo=0.0, hi=30.0, doc="time to reach the targets, from t_ns")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -192,19 +235,19 @@ class AttentionState(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
-class EyesState(Message):
+class EyesState(EyesFields):
     TYPE = "eyes"
     CATEGORY = "state"
-    mode: EyeMode = bounded(doc="the eye condition in force")
 
 
 @dataclass(frozen=True, kw_only=True)
-class GazeTargetState(Message):
+class GazeTargetState(GazeTargetFields):
     TYPE = "gaze_target"
     CATEGORY = "state"
-    yaw_deg: float = bounded(0.0, lo=-60.0, hi=60.0, doc="where mutual gaze looks")
-    pitch_deg: float = bounded(0.0, lo=-45.0, hi=45.0, doc="+ = up")
-    target: str = bounded("", max_len=32, doc="what is there")
+
+
+SetRole.STATE, SetEmotion.STATE, MoveHead.STATE = RoleState, EmotionState, HeadState
+SetEyes.STATE, SetGazeTarget.STATE = EyesState, GazeTargetState
 
 
 MAX_PENDING_SAYS = 64  # per agent: what one speech state can list
@@ -497,12 +540,7 @@ class Error(Message):
     service: str = bounded("", max_len=64, doc="the service that rejected it")
 
 
-ALL_MESSAGES: tuple[type[Message], ...] = (
-    SetRole, SetEmotion, MoveHead, SetEyes, SetGazeTarget, Say, SpeechChunk, Interrupt, UserSpeech,
-    RoleState, EmotionState, HeadState, EyesState, GazeTargetState, AttentionState, SpeechState, PlaybackState,
-    SpeechStarted, SpeechFinished, SpeechInterrupted, SpeechFailed, Ack, Saccade, Nod,
-    ClockAnchor, MouthKeys, EyeState, FaceFrame, VoiceBlock, UserAudio,
-    Heartbeat, Hello, Error,
-)
-MESSAGE_TYPES: dict[str, type[Message]] = {cls.TYPE: cls for cls in ALL_MESSAGES}
+ENVELOPE_FIELDS = frozenset(f.name for f in dataclasses.fields(Message))
+ALL_MESSAGES: tuple[type[Message], ...] = tuple(_REGISTRY.values())
+MESSAGE_TYPES: dict[str, type[Message]] = dict(_REGISTRY)
 TERMINAL_SPEECH_EVENTS: tuple[type[Message], ...] = (SpeechFinished, SpeechInterrupted, SpeechFailed)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 
 MAX_SECONDS = 86_400.0  # a day: beyond that a duration is a typo
 
@@ -42,3 +43,20 @@ def pace(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text} is not a pace: give 0 (as fast as possible) or a positive "
                                          "number")
     return value
+
+
+def bounded_float(lo: float | None, hi: float | None) -> Callable[[str], float]:
+    """A finite number within [lo, hi] (either bound may be absent), as a message field allows it."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not math.isfinite(value) or (lo is not None and value < lo) or (hi is not None and value > hi):
+            span = f"{'-inf' if lo is None else f'{lo:g}'} .. {'inf' if hi is None else f'{hi:g}'}"
+            raise argparse.ArgumentTypeError(f"{text} is out of range: give a number in {span}")
+        return value
+
+    parse.__name__ = "number"  # argparse names the type in its messages
+    return parse

@@ -353,8 +353,7 @@ class DialogueService(Service):
 
     def on_set_role(self, cmd: SetRole) -> None:
         self._agent(cmd)
-        self._set_state(cmd.agent, RoleState(agent=cmd.agent, role=cmd.role, speaker=cmd.speaker,
-                                             set_by="command"))
+        self._set_state(cmd.agent, cmd.as_state(set_by="command"))
         self.agents[cmd.agent].role_before_speech = None  # the manager's word stands after the speech
         self._ack(cmd)
 
@@ -364,25 +363,22 @@ class DialogueService(Service):
         if name not in self.emotions.names:
             raise Rejected(f"unknown emotion '{cmd.name}'; known: {', '.join(self.emotions.names)}",
                            cmd.request_id)
-        self._set_state(cmd.agent, EmotionState(agent=cmd.agent, name=name, intensity=cmd.intensity,
-                                                transition_s=cmd.transition_s))
+        self._set_state(cmd.agent, cmd.as_state(name=name))
         self._ack(cmd)
 
     def on_move_head(self, cmd: MoveHead) -> None:
         self._agent(cmd)
-        self._set_state(cmd.agent, HeadState(agent=cmd.agent, turn=cmd.turn, nod=cmd.nod, tilt=cmd.tilt,
-                                             duration_s=cmd.duration_s))
+        self._set_state(cmd.agent, cmd.as_state())
         self._ack(cmd)
 
     def on_set_eyes(self, cmd: SetEyes) -> None:
         self._agent(cmd)
-        self._set_state(cmd.agent, EyesState(agent=cmd.agent, mode=cmd.mode))
+        self._set_state(cmd.agent, cmd.as_state())
         self._ack(cmd)
 
     def on_set_gaze_target(self, cmd: SetGazeTarget) -> None:
         self._agent(cmd)
-        self._set_state(cmd.agent, GazeTargetState(agent=cmd.agent, yaw_deg=cmd.yaw_deg,
-                                                   pitch_deg=cmd.pitch_deg, target=cmd.target))
+        self._set_state(cmd.agent, cmd.as_state())
         self._ack(cmd)
 
     def on_say(self, cmd: Say) -> None:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from agent.clock import VirtualClock
-from services.audio import ClockAnchor, FakeSink, NullSink, Player, SpeechFinished, SpeechStarted, output
+from services.audio import FakeSink, NullSink, Player, PlayerAnchor, PlayerFinished, PlayerStarted, output
 from services.audio.clockmap import CallbackStamp, ClockMap
 from services.audio.resample import Resampler, resample
 
@@ -79,16 +79,16 @@ def test_null_sink_plays_in_real_time_and_reports_from_one_thread() -> None:
     def on_event(e: object) -> None:
         threads.add(threading.current_thread().name)
         events.append(e)
-        if isinstance(e, SpeechFinished):
+        if isinstance(e, PlayerFinished):
             done.set()
 
     with Player(NullSink(SR, 480), on_event) as player:
         player.say_pcm("u", np.full(round(0.2 * SR), 0.1, np.float32), SR)
         assert done.wait(5.0)
-    start = next(e for e in events if isinstance(e, SpeechStarted))
-    finish = next(e for e in events if isinstance(e, SpeechFinished))
+    start = next(e for e in events if isinstance(e, PlayerStarted))
+    finish = next(e for e in events if isinstance(e, PlayerFinished))
     assert finish.dac_time_ns - start.dac_time_ns == pytest.approx(0.2e9, abs=1e5)
-    anchors = [e for e in events if isinstance(e, ClockAnchor)]
+    anchors = [e for e in events if isinstance(e, PlayerAnchor)]
     assert len(anchors) >= 5
     assert len(threads) == 1
 

@@ -13,7 +13,7 @@ import soundfile as sf
 
 from agent.clock import VirtualClock
 from agent.script import audiofile
-from services.audio import FakeSink, Player, SpeechFailed
+from services.audio import FakeSink, Player, PlayerFailed
 from services.audio.files import AudioFileError, MonoReader, open_sound_file, read_sound_file
 from services.offline import AUDIO_RATE, load_audio
 
@@ -159,7 +159,7 @@ def test_the_player_fails_each_bad_file_with_its_message(bad_files: dict[str, Pa
         for _ in range(20):
             sink.advance(1)
         assert player.idle
-    failed = {e.utterance_id: e.reason for e in events if isinstance(e, SpeechFailed)}
+    failed = {e.request_id: e.reason for e in events if isinstance(e, PlayerFailed)}
     assert set(failed) == set(bad_files) - {"long"}
     for name, reason in failed.items():
         assert reason == problem_of(bad_files[name])  # the opener's sentence, as it is

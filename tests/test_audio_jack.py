@@ -25,18 +25,18 @@ PLAY_S = 1.5
 CHILD = r"""
 import json, sys, threading, time
 import numpy as np
-from services.audio import ClockAnchor, Player, SpeechFinished, open_sink
+from services.audio import PlayerAnchor, Player, PlayerFinished, open_sink
 
 sink = open_sink(48_000, 480)
 done = threading.Event()
 anchors, lifecycle = [], []
 
 def on_event(e):
-    if isinstance(e, ClockAnchor):
+    if isinstance(e, PlayerAnchor):
         anchors.append((e.sample_index, e.dac_time_ns, time.monotonic_ns()))
     else:
         lifecycle.append(type(e).__name__)
-    if isinstance(e, SpeechFinished):
+    if isinstance(e, PlayerFinished):
         done.set()
 
 player = Player(sink, on_event).start()
@@ -56,7 +56,7 @@ print(json.dumps({"sink": type(sink).__name__, "finished": finished, "lifecycle"
 VOICE_CHILD = r"""
 import json, sys, threading
 import numpy as np
-from services.audio import Player, VoiceBlock, open_sink
+from services.audio import Player, PlayerVoiceBlock, open_sink
 from services.audio.player import pcm16_bytes
 
 sink = open_sink(48_000, 480)
@@ -64,8 +64,8 @@ done = threading.Event()  # the voice is back to silence after the utterance
 voice = []
 
 def on_event(e):
-    if isinstance(e, VoiceBlock):
-        if e.utterance_id == "" and voice and voice[-1].utterance_id == "u":
+    if isinstance(e, PlayerVoiceBlock):
+        if e.request_id == "" and voice and voice[-1].request_id == "u":
             done.set()
         voice.append(e)
 
@@ -76,7 +76,7 @@ x = (0.2 * np.sin(2 * np.pi * 220 * t)).astype(np.float32)
 player.say_pcm("u", x, 48_000)
 finished = done.wait(seconds + 5.0)
 player.close()
-ids = [v.utterance_id for v in voice]
+ids = [v.request_id for v in voice]
 start = ids.index("u") if "u" in ids else len(voice)
 track = b"".join(v.pcm for v in voice[start:])
 print(json.dumps({"sink": type(sink).__name__, "finished": finished, "said": track[: 2 * len(x)] == pcm16_bytes(x),
@@ -130,8 +130,8 @@ def test_clock_anchors_advance_at_the_wall_clock_rate(jack_server: str) -> None:
     assert result["sink"] == "SoundDeviceSink", result
     assert result["finished"], (result["lifecycle"], result["diag"], stderr[-1000:])
     # mouth keys go out in pieces as the preparer computes them, the first before any sound
-    assert result["lifecycle"][0] == "MouthKeys"
-    assert [k for k in result["lifecycle"] if k != "MouthKeys"] == ["SpeechStarted", "SpeechFinished"]
+    assert result["lifecycle"][0] == "PlayerMouthKeys"
+    assert [k for k in result["lifecycle"] if k != "PlayerMouthKeys"] == ["PlayerStarted", "PlayerFinished"]
     a = np.array(result["anchors"], dtype=np.float64)
     sample, dac_ns, wall_ns = a[:, 0], a[:, 1], a[:, 2]
     span_s = (wall_ns[-1] - wall_ns[0]) / 1e9

@@ -31,11 +31,7 @@ from protocol.messages import (
     SpeechInterrupted,
     SpeechStarted,
 )
-from services.audio import ClockAnchor as PlayerAnchor
-from services.audio import MouthKeys as PlayerMouthKeys
-from services.audio import Player
-from services.audio import SpeechInterrupted as PlayerInterrupted
-from services.audio import SpeechStarted as PlayerStarted
+from services.audio import Player, PlayerAnchor, PlayerInterrupted, PlayerMouthKeys, PlayerStarted
 from services.audio.config import AudioConfig
 from services.audio.events import TERMINAL_EVENTS as TERMINAL_PLAYER
 from services.audio.service import AudioService
@@ -282,15 +278,15 @@ def test_random_requests_on_the_real_threads_end_once_each_in_queue_order(tmp_pa
     per: dict[str, list[str]] = {}
     for e in events:
         if isinstance(e, kinds):
-            per.setdefault(e.utterance_id, []).append(type(e).__name__)
+            per.setdefault(e.request_id, []).append(type(e).__name__)
     assert set(per) == set(requested)
     for uid, seq in per.items():
-        assert seq in (["SpeechFailed"], ["SpeechInterrupted"], ["SpeechStarted", "SpeechFinished"],
-                       ["SpeechStarted", "SpeechInterrupted"], ["SpeechStarted", "SpeechFailed"]), (uid, seq)
-    assert [e.utterance_id for e in events if isinstance(e, TERMINAL_PLAYER)] == requested
+        assert seq in (["PlayerFailed"], ["PlayerInterrupted"], ["PlayerStarted", "PlayerFinished"],
+                       ["PlayerStarted", "PlayerInterrupted"], ["PlayerStarted", "PlayerFailed"]), (uid, seq)
+    assert [e.request_id for e in events if isinstance(e, TERMINAL_PLAYER)] == requested
     keyed_to: dict[str, int] = {}
     for e in events:  # no DAC time for a sample whose mouth key is not out yet
         if isinstance(e, PlayerMouthKeys):
-            keyed_to[e.utterance_id] = e.keys[-1].sample_index + 480
+            keyed_to[e.request_id] = e.keys[-1].sample_index + 480
         elif isinstance(e, PlayerAnchor):
-            assert e.sample_index < keyed_to.get(e.utterance_id, 0), e
+            assert e.sample_index < keyed_to.get(e.request_id, 0), e

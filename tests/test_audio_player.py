@@ -18,15 +18,15 @@ from scipy.signal import lfilter
 from agent.clock import VirtualClock
 from agent.lipsync import MouthKey, MouthTrack, mouth_track
 from services.audio import (
-    ClockAnchor,
     FakeSink,
-    MouthKeys,
-    MouthReset,
     Player,
-    SpeechFailed,
-    SpeechFinished,
-    SpeechInterrupted,
-    SpeechStarted,
+    PlayerAnchor,
+    PlayerFailed,
+    PlayerFinished,
+    PlayerInterrupted,
+    PlayerMouthKeys,
+    PlayerMouthReset,
+    PlayerStarted,
 )
 from services.audio.config import AudioConfig
 from services.audio.events import TERMINAL_EVENTS
@@ -46,11 +46,11 @@ class Rig:
                              config=config).start()
 
     def of(self, kind: type, uid: str | None = None) -> list:
-        return [e for e in self.events if isinstance(e, kind) and (uid is None or e.utterance_id == uid)]
+        return [e for e in self.events if isinstance(e, kind) and (uid is None or e.request_id == uid)]
 
     def lifecycle(self, uid: str) -> list[str]:
-        kinds = (SpeechStarted, *TERMINAL_EVENTS)
-        return [type(e).__name__ for e in self.events if isinstance(e, kinds) and e.utterance_id == uid]
+        kinds = (PlayerStarted, *TERMINAL_EVENTS)
+        return [type(e).__name__ for e in self.events if isinstance(e, kinds) and e.request_id == uid]
 
     def run_until_idle(self, max_blocks: int = 100_000) -> None:
         for _ in range(max_blocks):
@@ -60,19 +60,19 @@ class Rig:
         raise AssertionError("player never became idle")
 
     def keys(self, uid: str) -> tuple[MouthKey, ...]:
-        return tuple(k for e in self.of(MouthKeys, uid) for k in e.keys)
+        return tuple(k for e in self.of(PlayerMouthKeys, uid) for k in e.keys)
 
     def check_keys_precede_their_sound(self) -> None:
         """No event that places a sample at the DAC (speech_started: sample 0; an anchor: its sample)
         comes before the key of the 10 ms block holding that sample."""
         keyed_to: dict[str, int] = defaultdict(lambda: -1)  # per utterance: first sample with no key out
         for e in self.events:
-            if isinstance(e, MouthKeys):
-                keyed_to[e.utterance_id] = e.keys[-1].sample_index + BLOCK
-            elif isinstance(e, SpeechStarted):
-                assert keyed_to[e.utterance_id] > 0, e
-            elif isinstance(e, ClockAnchor):
-                assert e.sample_index < keyed_to[e.utterance_id], e
+            if isinstance(e, PlayerMouthKeys):
+                keyed_to[e.request_id] = e.keys[-1].sample_index + BLOCK
+            elif isinstance(e, PlayerStarted):
+                assert keyed_to[e.request_id] > 0, e
+            elif isinstance(e, PlayerAnchor):
+                assert e.sample_index < keyed_to[e.request_id], e
 
 
 def noise(seconds: float, sr: int = SR, seed: int = 0, amp: float = 0.3) -> np.ndarray:
@@ -95,18 +95,18 @@ def test_queue_plays_in_order_with_one_terminal_event_each() -> None:
     rig.player.say_pcm("u1", noise(0.25), SR)
     rig.player.say_pcm("u2", noise(0.15, seed=1), SR)
     rig.run_until_idle()
-    names = [(type(e).__name__, e.utterance_id) for e in rig.events if not isinstance(e, ClockAnchor | MouthKeys)]
+    names = [(type(e).__name__, e.request_id) for e in rig.events if not isinstance(e, PlayerAnchor | PlayerMouthKeys)]
     assert names == [
-        ("SpeechStarted", "u1"), ("SpeechFinished", "u1"),
-        ("SpeechStarted", "u2"), ("SpeechFinished", "u2"),
+        ("PlayerStarted", "u1"), ("PlayerFinished", "u1"),
+        ("PlayerStarted", "u2"), ("PlayerFinished", "u2"),
     ]
     rig.check_keys_precede_their_sound()
-    f1, f2 = rig.of(SpeechFinished)
+    f1, f2 = rig.of(PlayerFinished)
     assert f1.played_s == pytest.approx(0.25) and f2.played_s == pytest.approx(0.15)
-    s1, s2 = rig.of(SpeechStarted)
+    s1, s2 = rig.of(PlayerStarted)
     assert s1.dac_time_ns == 1_000_000_000
     assert s2.dac_time_ns == f1.dac_time_ns == s1.dac_time_ns + 250_000_000  # back to back, gap-free
-    assert all(e.agent_id == "ada" for e in rig.events)
+    assert all(e.agent == "ada" for e in rig.events)
 
 
 def test_output_is_exactly_the_utterances_back_to_back() -> None:
@@ -128,7 +128,7 @@ def test_clock_anchors_match_the_samples_at_the_dac() -> None:
     rig.sink.advance(3)  # the utterance starts mid-stream, not at the sink's first block
     rig.run_until_idle()
     rig.sink.advance(5)
-    anchors = rig.of(ClockAnchor, "u")
+    anchors = rig.of(PlayerAnchor, "u")
     t0 = rig.sink.block_time_ns(0) + rig.sink.latency_ns  # DAC time of the sink's first output sample
     out = rig.sink.output
     for a in anchors:
@@ -136,7 +136,7 @@ def test_clock_anchors_match_the_samples_at_the_dac() -> None:
         position = round((a.dac_time_ns - t0) * SR / 1e9)  # output sample at the DAC at that time
         assert out[position] == x[a.sample_index]
     # >= 60 Hz over the whole time the utterance is at the DAC, and none once it has ended.
-    start = rig.of(SpeechStarted, "u")[0].dac_time_ns
+    start = rig.of(PlayerStarted, "u")[0].dac_time_ns
     times = np.array([a.dac_time_ns for a in anchors])
     assert np.diff(times).max() <= FRAME_NS
     assert times[0] - start <= FRAME_NS
@@ -150,9 +150,9 @@ def test_mouth_follows_the_sound_at_the_dac_within_one_video_frame() -> None:
                         np.zeros(round(0.3 * sr_in), np.float32)])
     rig.player.say_pcm("u", x, sr_in)
     rig.run_until_idle()
-    keys = [k for e in rig.of(MouthKeys, "u") for k in e.keys]
+    keys = [k for e in rig.of(PlayerMouthKeys, "u") for k in e.keys]
     track = MouthTrack(SR, tuple(keys))
-    anchor = rig.of(ClockAnchor, "u")[5]
+    anchor = rig.of(PlayerAnchor, "u")[5]
 
     def mouth_at(t_ns: int) -> dict[str, float]:  # what the renderer does at a frame's display time
         return track.weights_at(anchor.sample_index + (t_ns - anchor.dac_time_ns) * SR / 1e9)
@@ -164,7 +164,7 @@ def test_mouth_follows_the_sound_at_the_dac_within_one_video_frame() -> None:
     loud = np.flatnonzero(np.abs(played) > 0.05)
     t_on = rig.sink.block_time_ns(0) + rig.sink.latency_ns + round(loud[0] * 1e9 / SR)
     t_off = rig.sink.block_time_ns(0) + rig.sink.latency_ns + round((loud[-1] + 1) * 1e9 / SR)
-    assert dac_ns(0) == rig.of(SpeechStarted, "u")[0].dac_time_ns
+    assert dac_ns(0) == rig.of(PlayerStarted, "u")[0].dac_time_ns
     steady = mouth_at((t_on + t_off) // 2)["say_ah"]
     assert steady > 0.5
     assert mouth_at(t_on - 2 * FRAME_NS)["say_ah"] == 0.0
@@ -180,23 +180,23 @@ def test_interrupt_stops_within_one_block_and_reports_played_time() -> None:
     assert rig.player.interrupt() == ["long", "queued"]
     after = rig.sink.advance(1)
     assert not after.any()  # the very next block is silent
-    (cut,) = rig.of(SpeechInterrupted, "long")
+    (cut,) = rig.of(PlayerInterrupted, "long")
     assert cut.played_s == pytest.approx(37 * BLOCK / SR)
     assert cut.dac_time_ns == rig.sink.block_time_ns(37)
-    assert rig.of(SpeechInterrupted, "queued")[0].played_s == 0.0
-    assert rig.lifecycle("long") == ["SpeechStarted", "SpeechInterrupted"]
-    assert rig.lifecycle("queued") == ["SpeechInterrupted"]
-    resets = rig.of(MouthReset)
-    assert [r.utterance_id for r in resets] == ["long"]
+    assert rig.of(PlayerInterrupted, "queued")[0].played_s == 0.0
+    assert rig.lifecycle("long") == ["PlayerStarted", "PlayerInterrupted"]
+    assert rig.lifecycle("queued") == ["PlayerInterrupted"]
+    resets = rig.of(PlayerMouthReset)
+    assert [r.request_id for r in resets] == ["long"]
     assert rig.events.index(resets[0]) < rig.events.index(cut)
     rig.sink.advance(3)
-    assert not rig.of(ClockAnchor, "long") or rig.of(ClockAnchor, "long")[-1].dac_time_ns < cut.dac_time_ns
+    assert not rig.of(PlayerAnchor, "long") or rig.of(PlayerAnchor, "long")[-1].dac_time_ns < cut.dac_time_ns
     # A new request after that plays normally.
     fresh = noise(0.1, seed=9)
     rig.player.say_pcm("next", fresh, SR)
     start = len(rig.sink.output)
     rig.run_until_idle()
-    assert rig.lifecycle("next") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.lifecycle("next") == ["PlayerStarted", "PlayerFinished"]
     assert np.array_equal(rig.sink.output[start : start + len(fresh)], fresh)
 
 
@@ -208,9 +208,9 @@ def test_interrupt_one_utterance_leaves_the_rest_of_the_queue() -> None:
     rig.sink.advance(2)
     assert rig.player.interrupt("b") == ["b"]
     rig.run_until_idle()
-    assert rig.lifecycle("a") == ["SpeechStarted", "SpeechFinished"]
-    assert rig.lifecycle("b") == ["SpeechInterrupted"]
-    assert rig.lifecycle("c") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.lifecycle("a") == ["PlayerStarted", "PlayerFinished"]
+    assert rig.lifecycle("b") == ["PlayerInterrupted"]
+    assert rig.lifecycle("c") == ["PlayerStarted", "PlayerFinished"]
 
 
 def test_missing_or_unreadable_file_fails_that_request_only(tmp_path: Path) -> None:
@@ -223,16 +223,16 @@ def test_missing_or_unreadable_file_fails_that_request_only(tmp_path: Path) -> N
     rig.player.say_pcm("nan", np.array([0.0, np.nan], np.float32), SR)
     rig.player.say_pcm("after", noise(0.1), SR)
     rig.run_until_idle()
-    assert rig.lifecycle("missing") == ["SpeechFailed"]
-    missing = rig.of(SpeechFailed, "missing")[0].reason
+    assert rig.lifecycle("missing") == ["PlayerFailed"]
+    missing = rig.of(PlayerFailed, "missing")[0].reason
     assert str(tmp_path / "nope.wav") in missing and "not found" in missing
-    assert rig.lifecycle("garbage") == ["SpeechFailed"]
-    assert "garbage.wav" in rig.of(SpeechFailed, "garbage")[0].reason
-    assert rig.lifecycle("nan") == ["SpeechFailed"]
-    assert rig.lifecycle("before") == ["SpeechStarted", "SpeechFinished"]
-    assert rig.lifecycle("after") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.lifecycle("garbage") == ["PlayerFailed"]
+    assert "garbage.wav" in rig.of(PlayerFailed, "garbage")[0].reason
+    assert rig.lifecycle("nan") == ["PlayerFailed"]
+    assert rig.lifecycle("before") == ["PlayerStarted", "PlayerFinished"]
+    assert rig.lifecycle("after") == ["PlayerStarted", "PlayerFinished"]
     # Terminal events in queue order, the failures included.
-    terminal = [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)]
+    terminal = [e.request_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)]
     assert terminal == ["before", "missing", "garbage", "nan", "after"]
 
 
@@ -248,10 +248,10 @@ def test_wav_file_is_converted_to_the_device_rate_and_keys_come_first(tmp_path: 
     expected = resample(x, sr_in, SR)
     assert np.array_equal(rig.sink.output[: len(expected)], expected)
     assert not rig.sink.output[len(expected):].any()
-    assert len(rig.of(MouthKeys, "f")) > 1  # keys go out slice by slice, as they are computed
+    assert len(rig.of(PlayerMouthKeys, "f")) > 1  # keys go out slice by slice, as they are computed
     assert rig.keys("f") == mouth_track(expected, SR).keys
     rig.check_keys_precede_their_sound()
-    assert rig.of(SpeechFinished, "f")[0].played_s == pytest.approx(len(expected) / SR)
+    assert rig.of(PlayerFinished, "f")[0].played_s == pytest.approx(len(expected) / SR)
 
 
 def test_streamed_chunks_play_gap_free_with_keys_as_they_arrive() -> None:
@@ -274,9 +274,9 @@ def test_streamed_chunks_play_gap_free_with_keys_as_they_arrive() -> None:
     out = rig.sink.output
     first = int(np.flatnonzero(out)[0])
     assert np.array_equal(out[first : first + len(expected)], expected)
-    assert rig.lifecycle("s") == ["SpeechStarted", "SpeechFinished"]
-    keys = tuple(k for e in rig.of(MouthKeys, "s") for k in e.keys)
-    assert len(rig.of(MouthKeys, "s")) > 5  # many events: keys follow the chunks
+    assert rig.lifecycle("s") == ["PlayerStarted", "PlayerFinished"]
+    keys = tuple(k for e in rig.of(PlayerMouthKeys, "s") for k in e.keys)
+    assert len(rig.of(PlayerMouthKeys, "s")) > 5  # many events: keys follow the chunks
     assert keys == mouth_track(expected, SR).keys
     rig.check_keys_precede_their_sound()
 
@@ -290,15 +290,15 @@ def test_late_chunks_wait_in_silence_and_feed_after_interrupt_is_ignored() -> No
     assert not rig.sink.output.any()
     rig.player.feed("s", noise(0.05, seed=2))
     rig.sink.advance(10)
-    assert rig.lifecycle("s") == ["SpeechStarted"]
+    assert rig.lifecycle("s") == ["PlayerStarted"]
     assert rig.lifecycle("after") == []
     rig.player.interrupt("s")
     rig.sink.advance(1)
     assert not rig.player.feed("s", noise(0.05))
     rig.run_until_idle()
-    assert rig.lifecycle("s") == ["SpeechStarted", "SpeechInterrupted"]
-    assert rig.of(SpeechInterrupted, "s")[0].played_s == pytest.approx(0.05)
-    assert rig.lifecycle("after") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.lifecycle("s") == ["PlayerStarted", "PlayerInterrupted"]
+    assert rig.of(PlayerInterrupted, "s")[0].played_s == pytest.approx(0.05)
+    assert rig.lifecycle("after") == ["PlayerStarted", "PlayerFinished"]
 
 
 def test_bad_requests() -> None:
@@ -312,10 +312,10 @@ def test_bad_requests() -> None:
     rig.player.feed("st", np.zeros((2, 2, 2), np.float32))
     assert not rig.player.feed("st", noise(0.1))  # a failed stream takes no more chunks
     rig.run_until_idle()
-    assert rig.lifecycle("rate") == ["SpeechFailed"]
-    assert rig.lifecycle("ints") == ["SpeechFailed"]
-    assert rig.lifecycle("st") == ["SpeechFailed"]
-    assert rig.lifecycle("dup") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.lifecycle("rate") == ["PlayerFailed"]
+    assert rig.lifecycle("ints") == ["PlayerFailed"]
+    assert rig.lifecycle("st") == ["PlayerFailed"]
+    assert rig.lifecycle("dup") == ["PlayerStarted", "PlayerFinished"]
 
 
 def test_int16_pcm_is_scaled() -> None:
@@ -328,13 +328,13 @@ def test_int16_pcm_is_scaled() -> None:
 def check_lifecycles(events: list[object], requested: list[str]) -> None:
     per: dict[str, list[str]] = defaultdict(list)
     for e in events:
-        if isinstance(e, SpeechStarted | SpeechFinished | SpeechInterrupted | SpeechFailed):
-            per[e.utterance_id].append(type(e).__name__)
+        if isinstance(e, PlayerStarted | PlayerFinished | PlayerInterrupted | PlayerFailed):
+            per[e.request_id].append(type(e).__name__)
     assert set(per) == set(requested)
     for uid in requested:
         seq = per[uid]
-        assert seq in (["SpeechFailed"], ["SpeechInterrupted"], ["SpeechStarted", "SpeechFinished"],
-                       ["SpeechStarted", "SpeechInterrupted"]), (uid, seq)
+        assert seq in (["PlayerFailed"], ["PlayerInterrupted"], ["PlayerStarted", "PlayerFinished"],
+                       ["PlayerStarted", "PlayerInterrupted"]), (uid, seq)
 
 
 ops = st.lists(
@@ -385,15 +385,15 @@ def test_random_requests_each_end_in_exactly_one_terminal_event(sequence: list[t
     rig.run_until_idle()
     rig.sink.advance(2)
     check_lifecycles(rig.events, requested)
-    assert [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)] == requested  # queue order
+    assert [e.request_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)] == requested  # queue order
     rig.check_keys_precede_their_sound()
     # Anchors and mouth events only for utterances that started, and none after their terminal event.
     ended: set[str] = set()
     for e in rig.events:
         if isinstance(e, TERMINAL_EVENTS):
-            ended.add(e.utterance_id)
-        elif isinstance(e, SpeechStarted):
-            assert e.utterance_id not in ended
+            ended.add(e.request_id)
+        elif isinstance(e, PlayerStarted):
+            assert e.request_id not in ended
 
 
 # --- long files: streamed from the preparer, a bounded read-ahead ahead of playback ---------------------
@@ -437,7 +437,7 @@ def test_a_long_file_starts_at_once_keeps_a_bounded_read_ahead_and_plays_sample_
     rig.player.say_file("long", path)
     assert rig.player.prepared_ahead_s == 0.0  # the request itself did no audio work
     rig.sink.advance(1)
-    assert rig.lifecycle("long") == ["SpeechStarted"]
+    assert rig.lifecycle("long") == ["PlayerStarted"]
     assert config.read_ahead_s <= rig.player.prepared_ahead_s + BLOCK / SR <= bound_s
     peak = 0.0
     while not rig.player.idle:
@@ -448,9 +448,9 @@ def test_a_long_file_starts_at_once_keeps_a_bounded_read_ahead_and_plays_sample_
     out = rig.sink.output
     assert np.array_equal(out[: len(expected)], expected)
     assert not out[len(expected):].any()
-    assert rig.lifecycle("long") == ["SpeechStarted", "SpeechFinished"]
-    assert rig.of(SpeechFinished, "long")[0].played_s == len(expected) / SR
-    assert len(rig.of(MouthKeys, "long")) >= 12.0 / config.prepare_slice_s  # keys in pieces, as computed
+    assert rig.lifecycle("long") == ["PlayerStarted", "PlayerFinished"]
+    assert rig.of(PlayerFinished, "long")[0].played_s == len(expected) / SR
+    assert len(rig.of(PlayerMouthKeys, "long")) >= 12.0 / config.prepare_slice_s  # keys in pieces, as computed
     assert rig.keys("long") == mouth_track(expected, SR).keys
     rig.check_keys_precede_their_sound()
 
@@ -472,12 +472,12 @@ def test_a_600_s_file_is_cut_mid_way_once_and_let_go_of(tmp_path: Path) -> None:
     assert str(path) in open_files()
     assert rig.player.interrupt("long") == ["long"]
     assert np.array_equal(rig.sink.advance(1), after[:BLOCK])  # the very next block is the next request
-    (cut,) = rig.of(SpeechInterrupted, "long")
+    (cut,) = rig.of(PlayerInterrupted, "long")
     assert cut.played_s == 3.0
-    assert rig.lifecycle("long") == ["SpeechStarted", "SpeechInterrupted"]
+    assert rig.lifecycle("long") == ["PlayerStarted", "PlayerInterrupted"]
     rig.run_until_idle()
-    assert rig.lifecycle("long") == ["SpeechStarted", "SpeechInterrupted"]  # once
-    assert rig.lifecycle("next") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.lifecycle("long") == ["PlayerStarted", "PlayerInterrupted"]  # once
+    assert rig.lifecycle("next") == ["PlayerStarted", "PlayerFinished"]
     assert str(path) not in open_files()  # the preparer dropped the file at its next step
 
 
@@ -494,19 +494,19 @@ def test_a_file_cut_short_while_it_plays_fails_once_after_its_good_audio(tmp_pat
     with open(path, "r+b") as fh:  # a writer cuts it to 2 s while it plays
         fh.truncate(44 + 2 * sr_in * 2)
     rig.run_until_idle()
-    assert rig.lifecycle("f") == ["SpeechStarted", "SpeechFailed"]
-    reason = rig.of(SpeechFailed, "f")[0].reason
+    assert rig.lifecycle("f") == ["PlayerStarted", "PlayerFailed"]
+    reason = rig.of(PlayerFailed, "f")[0].reason
     assert str(path) in reason and "ended after 2.0 s of the 5.0 s" in reason
     # What was decoded plays to the point of failure, then the mouth closes and the next request plays.
-    (reset,) = rig.of(MouthReset, "f")
-    start = rig.of(SpeechStarted, "f")[0]
+    (reset,) = rig.of(PlayerMouthReset, "f")
+    start = rig.of(PlayerStarted, "f")[0]
     played = (reset.dac_time_ns - start.dac_time_ns) * SR // 1_000_000_000
     assert 2.0 - 0.02 <= played / SR <= 2.0
     out = rig.sink.output
     first = int(np.flatnonzero(out)[0])
     assert np.array_equal(out[first : first + played], full[:played])
-    assert rig.lifecycle("after") == ["SpeechStarted", "SpeechFinished"]
-    terminal = [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)]
+    assert rig.lifecycle("after") == ["PlayerStarted", "PlayerFinished"]
+    terminal = [e.request_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)]
     assert terminal == ["f", "after"]
 
 
@@ -521,13 +521,13 @@ def test_a_preparer_that_falls_behind_leaves_silence_not_a_failure(tmp_path: Pat
     rig.sink.advance(1)
     rig.player.driven_slices_per_block = 0  # an overloaded machine: no preparation at all for a while
     stalled = rig.sink.advance(150)
-    assert rig.lifecycle("f") == ["SpeechStarted"]  # still playing: waiting, not failed
+    assert rig.lifecycle("f") == ["PlayerStarted"]  # still playing: waiting, not failed
     assert not stalled[-50 * BLOCK:].any()  # the read-ahead ran dry: silence
     rig.player.driven_slices_per_block = 1  # slower than real time: 0.1 s per 10 ms block is plenty
     rig.run_until_idle()
-    assert rig.lifecycle("f") == ["SpeechStarted", "SpeechFinished"]
+    assert rig.lifecycle("f") == ["PlayerStarted", "PlayerFinished"]
     expected = resample(x, sr_in, SR)
-    assert rig.of(SpeechFinished, "f")[0].played_s == len(expected) / SR
+    assert rig.of(PlayerFinished, "f")[0].played_s == len(expected) / SR
     out = rig.sink.output
     assert np.array_equal(out[np.abs(out) > 0], expected[np.abs(expected) > 0])  # everything, in order
     rig.check_keys_precede_their_sound()
@@ -549,7 +549,7 @@ def test_the_read_ahead_is_shared_by_the_whole_queue(tmp_path: Path) -> None:
     assert peak <= config.read_ahead_s + config.prepare_slice_s + BLOCK / SR
     expected = np.concatenate([sf.read(p, dtype="float32", always_2d=True)[0].mean(axis=1) for p in paths])
     assert np.array_equal(rig.sink.output[: len(expected)], expected)  # back to back, gap-free
-    assert [e.utterance_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)] == ["p0", "p1", "p2"]
+    assert [e.request_id for e in rig.events if isinstance(e, TERMINAL_EVENTS)] == ["p0", "p1", "p2"]
 
 
 def test_inline_pcm_is_left_to_the_preparer() -> None:
@@ -562,5 +562,5 @@ def test_inline_pcm_is_left_to_the_preparer() -> None:
     rig.sink.advance(20)
     assert rig.player.interrupt() == ["big"]
     rig.sink.advance(1)
-    assert rig.lifecycle("big") == ["SpeechStarted", "SpeechInterrupted"]
-    assert rig.of(SpeechInterrupted, "big")[0].played_s == pytest.approx(21 * BLOCK / SR)
+    assert rig.lifecycle("big") == ["PlayerStarted", "PlayerInterrupted"]
+    assert rig.of(PlayerInterrupted, "big")[0].played_s == pytest.approx(21 * BLOCK / SR)

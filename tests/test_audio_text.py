@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from agent.clock import VirtualClock
-from services.audio import FakeSink, Player, SpeechFailed, SpeechFinished, SpeechStarted
+from services.audio import FakeSink, Player, PlayerFailed, PlayerFinished, PlayerStarted
 from services.tts import EngineSettings, SpeechSynthesisError, engine
 
 SR = 48_000
@@ -50,15 +50,15 @@ def play(tts: object, text: str = "Hello there.") -> tuple[list[object], np.ndar
 
 
 def lifecycle(events: list[object]) -> list[str]:
-    return [type(e).__name__ for e in events if isinstance(e, SpeechStarted | SpeechFinished | SpeechFailed)]
+    return [type(e).__name__ for e in events if isinstance(e, PlayerStarted | PlayerFinished | PlayerFailed)]
 
 
 def test_the_text_is_spoken_through_the_engine_and_ends_once() -> None:
     tts = ToneSpeech()
     events, played = play(tts, "Hello there.")
     assert tts.texts == ["Hello there."]
-    assert lifecycle(events) == ["SpeechStarted", "SpeechFinished"]
-    finished = [e for e in events if isinstance(e, SpeechFinished)][0]
+    assert lifecycle(events) == ["PlayerStarted", "PlayerFinished"]
+    finished = [e for e in events if isinstance(e, PlayerFinished)][0]
     assert finished.played_s == pytest.approx(0.3, abs=0.002)
     assert np.sqrt(np.mean(played ** 2)) > 0.05
 
@@ -73,8 +73,8 @@ def test_the_text_is_spoken_through_the_engine_and_ends_once() -> None:
 ])
 def test_an_engine_that_cannot_speak_fails_the_request_with_its_reason(tts: object, words: str) -> None:
     events, _ = play(tts)
-    assert lifecycle(events) == ["SpeechFailed"]
-    assert words in [e for e in events if isinstance(e, SpeechFailed)][0].reason
+    assert lifecycle(events) == ["PlayerFailed"]
+    assert words in [e for e in events if isinstance(e, PlayerFailed)][0].reason
 
 
 def test_espeak_through_the_command_engine_speaks_too() -> None:

@@ -18,10 +18,7 @@ from agent.config import ConfigError, load_toml
 from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.messages import ClockAnchor, Message, SpeechFinished, SpeechInterrupted, VoiceBlock
-from services.audio import FakeSink, Player, SpeechStarted
-from services.audio import SpeechFinished as PlayerFinished
-from services.audio import SpeechInterrupted as PlayerInterrupted
-from services.audio import VoiceBlock as PlayerVoiceBlock
+from services.audio import FakeSink, Player, PlayerFinished, PlayerInterrupted, PlayerStarted, PlayerVoiceBlock
 from services.audio.config import AudioConfig
 from services.audio.player import pcm16_bytes
 from services.audio.resample import resample
@@ -88,21 +85,21 @@ def test_voice_blocks_are_the_sink_output_in_order_on_its_dac_times(sr: int, blo
     assert len(voice) == rig.sink.blocks_played
     assert b"".join(v.pcm for v in voice) == pcm16_bytes(out)  # what the sink played: no gap, no repeat
     for k, v in enumerate(voice):
-        assert v.agent_id == "ada" and v.sample_rate == sr
+        assert v.agent == "ada" and v.sample_rate == sr
         assert v.first_sample == k * block
         assert v.dac_time_ns == rig.sink.block_time_ns(k) + rig.sink.latency_ns
         start = v.first_sample
         expected_uid = next((uid for uid, (lo, hi) in spans.items() if lo <= start < hi), "")
-        assert v.utterance_id == expected_uid, k
+        assert v.request_id == expected_uid, k
         if expected_uid == "":
             assert v.pcm == silent(block)
     steps = np.diff([v.dac_time_ns for v in voice])
     exact = block * 1e9 / sr
     assert np.all(np.abs(steps - exact) < 1.0)  # the block length, to the ns rounding of the stamps
-    assert voice[len(a) // block].utterance_id == "a"  # the block where b begins, inside it, is a's
+    assert voice[len(a) // block].request_id == "a"  # the block where b begins, inside it, is a's
     for uid in ("a", "c"):  # those that start on a block boundary: their first block is their start
-        started = next(e for e in rig.events if isinstance(e, SpeechStarted) and e.utterance_id == uid)
-        first = next(v for v in voice if v.utterance_id == uid)
+        started = next(e for e in rig.events if isinstance(e, PlayerStarted) and e.request_id == uid)
+        first = next(v for v in voice if v.request_id == uid)
         assert rig.events.index(started) < rig.events.index(first)
         assert started.dac_time_ns == first.dac_time_ns
 
@@ -126,10 +123,10 @@ def test_after_a_barge_in_the_blocks_are_silence_from_the_block_where_the_voice_
     assert rig.player.interrupt() == ["long", "queued"]
     rig.sink.advance(5)
     voice = rig.voice()
-    assert [v.utterance_id for v in voice] == ["long"] * 37 + [""] * 5
+    assert [v.request_id for v in voice] == ["long"] * 37 + [""] * 5
     assert b"".join(v.pcm for v in voice[:37]) == pcm16_bytes(x[: 37 * BLOCK])
     assert all(v.pcm == silent(BLOCK) for v in voice[37:])
-    (cut,) = [e for e in rig.events if isinstance(e, PlayerInterrupted) and e.utterance_id == "long"]
+    (cut,) = [e for e in rig.events if isinstance(e, PlayerInterrupted) and e.request_id == "long"]
     assert cut.dac_time_ns == voice[37].dac_time_ns  # the voice stops where the silent blocks begin
 
 
@@ -142,7 +139,7 @@ def test_interrupting_one_utterance_goes_straight_to_the_next_in_the_blocks() ->
     assert rig.player.interrupt("a") == ["a"]
     rig.sink.advance(3)
     voice = rig.voice()
-    assert [v.utterance_id for v in voice] == ["a"] * 10 + ["b"] * 3
+    assert [v.request_id for v in voice] == ["a"] * 10 + ["b"] * 3
     assert b"".join(v.pcm for v in voice[10:]) == pcm16_bytes(y[: 3 * BLOCK])
 
 
@@ -152,8 +149,8 @@ def test_without_publish_voice_no_block_is_reported() -> None:
     rig.run_until_idle()
     rig.sink.advance(5)
     assert rig.voice() == []
-    assert [type(e).__name__ for e in rig.events if isinstance(e, SpeechStarted | PlayerFinished)] == \
-        ["SpeechStarted", "SpeechFinished"]
+    assert [type(e).__name__ for e in rig.events if isinstance(e, PlayerStarted | PlayerFinished)] == \
+        ["PlayerStarted", "PlayerFinished"]
 
 
 def test_publish_voice_is_configured_in_the_output_table() -> None:

@@ -23,3 +23,23 @@ def test_a_client_that_finds_no_broker_closes_its_sockets() -> None:
         threading.Thread(target=lambda: (ctx.term(), done.set()), daemon=True).start()
         assert done.wait(5.0), "the client left sockets open on its context"
         assert "broker" in str(caught.value)
+
+
+def test_the_client_s_command_methods_take_the_command_s_fields() -> None:
+    """Each command has a client method named after its type whose parameters are its fields: adding a field
+    to a command and not to the client (or the other way round) fails here."""
+    import dataclasses
+    import inspect
+
+    from protocol.messages import ALL_MESSAGES, ENVELOPE_FIELDS
+
+    methods = {"user_speech": "user_speaking", "speech_chunk": "say_stream"}
+    # what a method deliberately leaves to another: a streamed say is say_stream's; a chunk's index, pcm and
+    # last come from the chunks it is given
+    left_to_others = {"say": {"streamed"}, "speech_chunk": {"index", "pcm", "last", "request_id"}}
+    for cls in (c for c in ALL_MESSAGES if c.CATEGORY == "cmd"):
+        method = getattr(AgentClient, methods.get(cls.TYPE, cls.TYPE), None)
+        assert method is not None, f"AgentClient has no method for {cls.TYPE}"
+        params = set(inspect.signature(method).parameters) - {"self"}
+        fields = {f.name for f in dataclasses.fields(cls)} - ENVELOPE_FIELDS - left_to_others.get(cls.TYPE, set())
+        assert fields <= params, (cls.TYPE, fields - params)

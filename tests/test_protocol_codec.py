@@ -673,3 +673,21 @@ def test_the_subscriber_skips_only_exact_repeats_of_a_cached_state() -> None:
         finally:
             pub.close()
             first.close()
+
+
+def test_a_command_that_sets_a_state_has_that_state_s_fields_and_produces_it() -> None:
+    from protocol.messages import StateCommand
+
+    commands = [c for c in ALL_MESSAGES if issubclass(c, StateCommand)]
+    assert {c.TYPE for c in commands} == {"set_role", "set_emotion", "move_head", "set_eyes", "set_gaze_target"}
+    for cls in commands:
+        state_fields = {s.name: s for s in field_specs(cls.STATE)}
+        own = {s.name: s for s in field_specs(cls)}
+        shared = set(own) - {"request_id"}
+        assert shared <= set(state_fields), cls.TYPE
+        for name in shared - set(ENVELOPE):  # one definition: same type, limits and default
+            assert own[name] == state_fields[name], (cls.TYPE, name)
+        msg = minimal(cls)
+        state = msg.as_state()
+        assert type(state) is cls.STATE and state.agent == msg.agent
+        assert all(getattr(state, n) == getattr(msg, n) for n in shared - set(ENVELOPE))

@@ -92,3 +92,26 @@ def test_a_command_sent_again_is_acknowledged_again_but_applied_once(bus: BusCon
         client.wait_applied(again)
         client.wait_applied(client.set_eyes("noise"))
         assert service.agents["ada"].emotion.name == "annoyed"  # the repeat did not undo the later command
+
+
+def test_every_state_verb_takes_every_field_of_its_command_within_its_limits(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from protocol.codec import field_specs
+    from protocol.messages import ENVELOPE_FIELDS
+    from services.cli import build_parser
+    from services.commands.send import STATE_VERBS, option_name
+
+    parser = build_parser()
+    for verb, (cls, _) in STATE_VERBS.items():
+        specs = [s for s in field_specs(cls) if s.name not in ENVELOPE_FIELDS and s.name != "request_id"]
+        positional = [("talking" if s.name == "role" else "saccade" if s.name == "mode" else "happy")
+                      for s in specs if s.required]
+        args = parser.parse_args(["send", verb, *positional])
+        for s in specs:
+            assert getattr(args, s.name) == (cls.__dataclass_fields__[s.name].default if not s.required
+                                             else getattr(args, s.name)), (verb, s.name)
+        for s in (s for s in specs if s.kind is float and s.hi is not None):
+            with pytest.raises(SystemExit) as done:
+                parser.parse_args(["send", verb, *positional, f"--{option_name(s.name)}", str(s.hi + 1)])
+            assert done.value.code == 2
+            assert f"--{option_name(s.name)}" in capsys.readouterr().err

@@ -6,14 +6,14 @@ The service process is a thin wrapper: it maps the plain events of `Player` onto
 
 from services.audio.events import (
     AudioEvent,
-    ClockAnchor,
-    MouthKeys,
-    MouthReset,
-    SpeechFailed,
-    SpeechFinished,
-    SpeechInterrupted,
-    SpeechStarted,
-    VoiceBlock,
+    PlayerAnchor,
+    PlayerFailed,
+    PlayerFinished,
+    PlayerInterrupted,
+    PlayerMouthKeys,
+    PlayerMouthReset,
+    PlayerStarted,
+    PlayerVoiceBlock,
 )
 from services.audio.output import open_sink
 from services.audio.player import Player
@@ -21,17 +21,17 @@ from services.audio.sinks import FakeSink, NullSink, Sink
 
 __all__ = [
     "AudioEvent",
-    "ClockAnchor",
+    "PlayerAnchor",
     "FakeSink",
-    "MouthKeys",
-    "MouthReset",
+    "PlayerMouthKeys",
+    "PlayerMouthReset",
     "NullSink",
     "Player",
     "Sink",
-    "SpeechFailed",
-    "SpeechFinished",
-    "SpeechInterrupted",
-    "SpeechStarted",
-    "VoiceBlock",
+    "PlayerFailed",
+    "PlayerFinished",
+    "PlayerInterrupted",
+    "PlayerStarted",
+    "PlayerVoiceBlock",
     "open_sink",
 ]

@@ -39,14 +39,14 @@ from agent.lipsync import LipSyncConfig, LipSyncEstimator
 from services.audio.config import AudioConfig
 from services.audio.events import (
     AudioEvent,
-    ClockAnchor,
-    MouthKeys,
-    MouthReset,
-    SpeechFailed,
-    SpeechFinished,
-    SpeechInterrupted,
-    SpeechStarted,
-    VoiceBlock,
+    PlayerAnchor,
+    PlayerFailed,
+    PlayerFinished,
+    PlayerInterrupted,
+    PlayerMouthKeys,
+    PlayerMouthReset,
+    PlayerStarted,
+    PlayerVoiceBlock,
 )
 from services.audio.files import AudioFileError, MonoReader, open_sound_file
 from services.audio.resample import Resampler
@@ -227,7 +227,7 @@ class _Track:
         self.held = np.zeros(0, np.float32)  # preparer only: converted samples whose key is not out yet
         self.started = False  # publisher only
         self.closed = False  # a terminal outcome is decided (under the lock): feeds are ignored
-        self.failure: str | None = None  # set under the lock, before `complete`: it ends as SpeechFailed
+        self.failure: str | None = None  # set under the lock, before `complete`: it ends as PlayerFailed
         self.ended = False  # publisher only: its terminal event is out
 
     def append(self, samples: np.ndarray) -> None:
@@ -241,10 +241,10 @@ class Player:
 
     Requests: `say_file`, `say_pcm`, `say_text`, `say_stream` + `feed`; each returns at once, the audio is prepared
     by the preparer. `interrupt` stops the voice within one block. Every request ends in exactly one of
-    SpeechFinished, SpeechInterrupted, SpeechFailed, in queue order. Utterance ids must be unique among
+    PlayerFinished, PlayerInterrupted, PlayerFailed, in queue order. Utterance ids must be unique among
     the requests still in flight (a repeat raises ValueError).
 
-    With `publish_voice`, every block the sink takes, silence included, is also reported as a VoiceBlock,
+    With `publish_voice`, every block the sink takes, silence included, is also reported as a PlayerVoiceBlock,
     in order, after the lifecycle events of that block: one continuous track for outputs in other
     processes.
     """
@@ -332,53 +332,53 @@ class Player:
 
     # ------------------------------------------------------------------ requests (caller thread)
 
-    def say_file(self, utterance_id: str, path: str | Path) -> None:
+    def say_file(self, request_id: str, path: str | Path) -> None:
         """Play an audio file (WAV, FLAC, OGG... through soundfile). It is opened, decoded and analysed
         by the preparer, slice by slice ahead of playback; a file that cannot be read fails the request
         with a reason naming the file."""
-        self._check_new(utterance_id)
-        self._enqueue(_Track(utterance_id, _FileSource(path, self.config.max_utterance_s)))
+        self._check_new(request_id)
+        self._enqueue(_Track(request_id, _FileSource(path, self.config.max_utterance_s)))
 
-    def say_pcm(self, utterance_id: str, samples: np.ndarray, sample_rate: int) -> None:
+    def say_pcm(self, request_id: str, samples: np.ndarray, sample_rate: int) -> None:
         """Play PCM held in memory: float in [-1, 1] or int16, mono or frames x channels. The player reads
         `samples` later, on the preparer: the array must not change until the request has ended."""
-        self._check_new(utterance_id)
+        self._check_new(request_id)
         try:
             _check_rate(sample_rate)
             pcm = _check_pcm(samples)
             if len(pcm) / sample_rate > self.config.max_utterance_s:
                 raise ValueError(f"longer than {self.config.max_utterance_s:g} s")
         except ValueError as exc:
-            self._enqueue_failed(utterance_id, f"bad PCM: {exc}")
+            self._enqueue_failed(request_id, f"bad PCM: {exc}")
             return
-        self._enqueue(_Track(utterance_id, _PcmSource(pcm, int(sample_rate))))
+        self._enqueue(_Track(request_id, _PcmSource(pcm, int(sample_rate))))
 
-    def say_text(self, utterance_id: str, text: str) -> None:
+    def say_text(self, request_id: str, text: str) -> None:
         """Speak `text` through the player's text-to-speech engine; the engine runs on the preparer, and a
         missing or failing engine fails the request with its reason."""
-        self._check_new(utterance_id)
+        self._check_new(request_id)
         if self.tts is None:
-            self._enqueue_failed(utterance_id, "the text could not be spoken: no text-to-speech engine is set up")
+            self._enqueue_failed(request_id, "the text could not be spoken: no text-to-speech engine is set up")
             return
-        self._enqueue(_Track(utterance_id, _TextSource(text, self.tts, self.config.max_utterance_s)))
+        self._enqueue(_Track(request_id, _TextSource(text, self.tts, self.config.max_utterance_s)))
 
-    def say_stream(self, utterance_id: str, sample_rate: int) -> None:
+    def say_stream(self, request_id: str, sample_rate: int) -> None:
         """Open an utterance whose PCM arrives later through `feed` (streaming TTS). It takes its place
         in the queue now; if its chunks arrive late, the output waits in silence for them."""
-        self._check_new(utterance_id)
+        self._check_new(request_id)
         try:
             _check_rate(sample_rate)
         except ValueError as exc:
-            self._enqueue_failed(utterance_id, f"bad stream: {exc}")
+            self._enqueue_failed(request_id, f"bad stream: {exc}")
             return
-        self._enqueue(_Track(utterance_id, _StreamSource(int(sample_rate))))
+        self._enqueue(_Track(request_id, _StreamSource(int(sample_rate))))
 
-    def feed(self, utterance_id: str, chunk: np.ndarray, last: bool = False) -> bool:
+    def feed(self, request_id: str, chunk: np.ndarray, last: bool = False) -> bool:
         """Append a chunk to a streamed utterance (read later, on the preparer: it must not change).
         Returns False (and ignores the chunk) when the utterance is no longer in flight, e.g. after an
         interruption, or takes no more chunks."""
         with self._lock:
-            track = self._active.get(utterance_id)
+            track = self._active.get(request_id)
         source = track.source if track is not None else None
         if track is None or track.closed or not isinstance(source, _StreamSource) or source.last_received:
             return False
@@ -397,7 +397,7 @@ class Player:
         self._wake.set()
         return True
 
-    def interrupt(self, utterance_id: str | None = None) -> list[str]:
+    def interrupt(self, request_id: str | None = None) -> list[str]:
         """Stop the voice within one block. None: the current utterance and every queued one (barge-in);
         an id: only that utterance. Returns the ids that end as interrupted (one whose failure is already
         decided is silenced too, and still ends as failed). The callback reports how much was played."""
@@ -405,7 +405,7 @@ class Player:
             stopped = []
             # list() copies the deque in one C call, so the callback cannot mutate it mid-iteration.
             for track in list(self._tracks):
-                if track.cut or (utterance_id is not None and track.uid != utterance_id):
+                if track.cut or (request_id is not None and track.uid != request_id):
                     continue
                 track.cut = True  # seen by the callback at its next block, by the preparer at its next step
                 if track.failure is None:
@@ -427,12 +427,12 @@ class Player:
 
     # ------------------------------------------------------------------ request helpers
 
-    def _check_new(self, utterance_id: str) -> None:
-        if not isinstance(utterance_id, str) or not utterance_id:
-            raise ValueError("utterance_id must be a non-empty string")
+    def _check_new(self, request_id: str) -> None:
+        if not isinstance(request_id, str) or not request_id:
+            raise ValueError("request_id must be a non-empty string")
         with self._lock:
-            if utterance_id in self._active:
-                raise ValueError(f"utterance {utterance_id!r} is already in flight")
+            if request_id in self._active:
+                raise ValueError(f"utterance {request_id!r} is already in flight")
 
     def _enqueue(self, track: _Track) -> None:
         with self._lock:
@@ -442,9 +442,9 @@ class Player:
                 self._preparing.append(track)
         self._wake.set()
 
-    def _enqueue_failed(self, utterance_id: str, reason: str) -> None:
+    def _enqueue_failed(self, request_id: str, reason: str) -> None:
         # It still takes its place in the queue, so its terminal event keeps the queue's order.
-        track = _Track(utterance_id, None)
+        track = _Track(request_id, None)
         track.failure = reason
         track.closed = True
         self._enqueue(track)
@@ -529,7 +529,7 @@ class Player:
         if last:
             keys.extend(estimator.flush())
         if keys:
-            self._outbox.append((track, MouthKeys(self.agent_id, track.uid, self.sample_rate, tuple(keys))))
+            self._outbox.append((track, PlayerMouthKeys(self.agent_id, track.uid, self.sample_rate, tuple(keys))))
         samples = np.concatenate((track.held, out)) if len(track.held) else out
         covered = len(samples) if last else estimator.position - track.fed
         track.held = samples[covered:]
@@ -619,7 +619,7 @@ class Player:
                 continue
             if kind == _VOICE:  # the block's last record: its _BUFFER set the DAC time above
                 block = rec[1]
-                emit(VoiceBlock(self.agent_id, rec[2], self._voice_sample, sr, self._buffer_dac_ns,
+                emit(PlayerVoiceBlock(self.agent_id, rec[2], self._voice_sample, sr, self._buffer_dac_ns,
                                 pcm16_bytes(block)))
                 self._voice_sample += len(block)
                 continue
@@ -628,7 +628,7 @@ class Player:
             if kind == _PLAY:
                 if not track.started:
                     track.started = True
-                    emit(SpeechStarted(self.agent_id, track.uid, sr, dac_ns))
+                    emit(PlayerStarted(self.agent_id, track.uid, sr, dac_ns))
                 self._latest = (track, rec[2], dac_ns, rec[4])
             elif kind == _END:
                 # Reported when the last sample is handed over (with the time it leaves the DAC), so a
@@ -636,24 +636,24 @@ class Player:
                 self._terminate(track)
                 if track.failure is not None:  # its good audio has played: now it fails
                     if track.started:
-                        emit(MouthReset(self.agent_id, track.uid, dac_ns))
-                    emit(SpeechFailed(self.agent_id, track.uid, track.failure))
+                        emit(PlayerMouthReset(self.agent_id, track.uid, dac_ns))
+                    emit(PlayerFailed(self.agent_id, track.uid, track.failure))
                     continue
                 if not track.started:  # an empty utterance still starts before it finishes
                     track.started = True
-                    emit(SpeechStarted(self.agent_id, track.uid, sr, dac_ns))
-                emit(SpeechFinished(self.agent_id, track.uid, rec[2] / sr, dac_ns))
+                    emit(PlayerStarted(self.agent_id, track.uid, sr, dac_ns))
+                emit(PlayerFinished(self.agent_id, track.uid, rec[2] / sr, dac_ns))
             else:  # _CUT
                 self._terminate(track)
                 if self._latest is not None and self._latest[0] is track:
                     self._latest = None
                 if track.started:
-                    emit(MouthReset(self.agent_id, track.uid, dac_ns))
+                    emit(PlayerMouthReset(self.agent_id, track.uid, dac_ns))
                 if track.failure is not None:
-                    emit(SpeechFailed(self.agent_id, track.uid, track.failure))
+                    emit(PlayerFailed(self.agent_id, track.uid, track.failure))
                 else:
                     played_s = rec[2] / sr if track.started else 0.0
-                    emit(SpeechInterrupted(self.agent_id, track.uid, played_s, dac_ns))
+                    emit(PlayerInterrupted(self.agent_id, track.uid, played_s, dac_ns))
         self._emit_anchor()
 
     def _terminate(self, track: _Track) -> None:
@@ -682,7 +682,7 @@ class Player:
         # The sample at the DAC now, when it lies inside the latest copied block (else the block's start):
         # any point on the same line is an equally valid anchor, and "now" keeps anchors fresh.
         k = min(max(0, ((now - dac_ns) * self.sample_rate) // 1_000_000_000), count - 1)
-        self.on_event(ClockAnchor(self.agent_id, track.uid, sample + k, self.sample_rate,
+        self.on_event(PlayerAnchor(self.agent_id, track.uid, sample + k, self.sample_rate,
                                   dac_ns + (k * 1_000_000_000) // self.sample_rate))
 
 

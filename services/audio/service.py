@@ -181,38 +181,38 @@ class AudioService(Service):
                     self._ended(msg.agent, msg)
 
     def to_messages(self, ev: events.AudioEvent) -> list[tuple[Message, str]]:
-        agent = ev.agent_id
-        if isinstance(ev, events.VoiceBlock):  # first: the most frequent event
+        agent = ev.agent
+        if isinstance(ev, events.PlayerVoiceBlock):  # first: the most frequent event
             return [(VoiceBlockMsg(agent=agent, sample_rate=ev.sample_rate, first_sample=ev.first_sample,
-                                   dac_time_ns=max(0, ev.dac_time_ns), pcm=ev.pcm, request_id=ev.utterance_id),
+                                   dac_time_ns=max(0, ev.dac_time_ns), pcm=ev.pcm, request_id=ev.request_id),
                      "stream")]
-        if isinstance(ev, events.ClockAnchor):
-            return [(ClockAnchorMsg(agent=agent, request_id=ev.utterance_id, sample_index=ev.sample_index,
+        if isinstance(ev, events.PlayerAnchor):
+            return [(ClockAnchorMsg(agent=agent, request_id=ev.request_id, sample_index=ev.sample_index,
                                     sample_rate=ev.sample_rate, dac_time_ns=max(0, ev.dac_time_ns)), "stream")]
-        if isinstance(ev, events.MouthKeys):
+        if isinstance(ev, events.PlayerMouthKeys):
             out: list[tuple[Message, str]] = []
             keys = ev.keys
             for start in range(0, len(keys), MOUTH_KEYS_PER_MESSAGE):
                 part = keys[start:start + MOUTH_KEYS_PER_MESSAGE]
                 names = list(part[0].weights) if part else []
-                out.append((MouthKeys(agent=agent, request_id=ev.utterance_id, sample_rate=ev.sample_rate,
+                out.append((MouthKeys(agent=agent, request_id=ev.request_id, sample_rate=ev.sample_rate,
                                       sample_index=[k.sample_index for k in part],
                                       weights={n: [float(min(1.0, max(0.0, k.weights[n]))) for k in part]
                                                for n in names}), "stream"))
             return out
-        if isinstance(ev, events.MouthReset):
+        if isinstance(ev, events.PlayerMouthReset):
             # stamped with the moment the voice stops at the DAC: the mouth closes from then on
-            return [(MouthKeys(agent=agent, t_ns=max(0, ev.dac_time_ns), request_id=ev.utterance_id, sample_rate=1,
+            return [(MouthKeys(agent=agent, t_ns=max(0, ev.dac_time_ns), request_id=ev.request_id, sample_rate=1,
                                reset=True), "stream")]
-        if isinstance(ev, events.SpeechStarted):
-            return [(SpeechStartedMsg(agent=agent, request_id=ev.utterance_id,
+        if isinstance(ev, events.PlayerStarted):
+            return [(SpeechStartedMsg(agent=agent, request_id=ev.request_id,
                                       dac_time_ns=max(0, ev.dac_time_ns)), "audio")]
-        if isinstance(ev, events.SpeechFinished):
-            return [(SpeechFinishedMsg(agent=agent, request_id=ev.utterance_id, played_s=ev.played_s), "audio")]
-        if isinstance(ev, events.SpeechInterrupted):
-            reason = self.interrupt_reasons.pop(ev.utterance_id, "interrupted")
-            return [(SpeechInterruptedMsg(agent=agent, request_id=ev.utterance_id, played_s=ev.played_s,
+        if isinstance(ev, events.PlayerFinished):
+            return [(SpeechFinishedMsg(agent=agent, request_id=ev.request_id, played_s=ev.played_s), "audio")]
+        if isinstance(ev, events.PlayerInterrupted):
+            reason = self.interrupt_reasons.pop(ev.request_id, "interrupted")
+            return [(SpeechInterruptedMsg(agent=agent, request_id=ev.request_id, played_s=ev.played_s,
                                           reason=reason[:200]), "audio")]
-        if isinstance(ev, events.SpeechFailed):
-            return [(SpeechFailedMsg(agent=agent, request_id=ev.utterance_id, reason=ev.reason[:500]), "audio")]
+        if isinstance(ev, events.PlayerFailed):
+            return [(SpeechFailedMsg(agent=agent, request_id=ev.request_id, reason=ev.reason[:500]), "audio")]
         return []

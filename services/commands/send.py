@@ -10,15 +10,28 @@ from __future__ import annotations
 
 import argparse
 import sys
+import typing
 from pathlib import Path
+from typing import Any, Literal
 
 from agent.script import DEFAULT_AGENT
 from agent.vocabulary import EYE_MODES
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient, CommandRejected
-from protocol.codec import ProtocolError
+from protocol.codec import FieldSpec, ProtocolError, field_specs
 from protocol.endpoints import BusConfigError, load_bus_config
-from protocol.messages import Message, Say, SpeechFinished
+from protocol.messages import (
+    ENVELOPE_FIELDS,
+    Message,
+    MoveHead,
+    Say,
+    SetEmotion,
+    SetEyes,
+    SetGazeTarget,
+    SetRole,
+    SpeechFinished,
+    StateCommand,
+)
 from services import cli_args
 from services.tts import SpeechSynthesisError
 
@@ -31,28 +44,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=cli_args.seconds, default=5.0,
                    help="seconds to wait for the acknowledgement (default 5)")
     kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
-    k = kinds.add_parser("role", help="talking, listening or silence")
-    k.add_argument("role", choices=["talking", "listening", "silence"])
-    k.add_argument("--speaker", default="")
-    k = kinds.add_parser("emotion", help="an emotion with intensity and transition time")
-    k.add_argument("name")
-    k.add_argument("--intensity", type=float, default=1.0)
-    k.add_argument("--transition", type=float, default=0.5, help="seconds")
-    k = kinds.add_parser("head", help="head turn/nod/tilt targets in [-1, 1]")
-    k.add_argument("--turn", type=float, default=0.0)
-    k.add_argument("--nod", type=float, default=0.0)
-    k.add_argument("--tilt", type=float, default=0.0)
-    k.add_argument("--duration", type=float, default=0.5, help="seconds")
-    k = kinds.add_parser("eyes", help=f"eye mode: {', '.join(EYE_MODES)}")
-    k.add_argument("mode", choices=EYE_MODES)
-    k = kinds.add_parser("gaze", help="where mutual gaze looks (degrees)")
-    k.add_argument("--yaw", type=float, default=0.0)
-    k.add_argument("--pitch", type=float, default=0.0)
-    k.add_argument("--target", default="")
+    for verb, (cls, help_text) in STATE_VERBS.items():
+        _add_state_verb(kinds.add_parser(verb, help=help_text), cls)
     k = kinds.add_parser("say", help="speak a sound file, or text (voiced by the instance's text-to-speech)")
     src = k.add_mutually_exclusive_group(required=True)
     src.add_argument("--file", type=Path)
     src.add_argument("--text")
+    k.add_argument("--to", nargs="+", default=[], metavar="WHO",
+                   help="who it is said to: other agents of the instance and/or 'user' (default everyone)")
     k.add_argument("--wait", action="store_true",
                    help="wait for the terminal lifecycle event; exit 1 unless it is speech_finished")
     k = kinds.add_parser("interrupt", help="stop the agent's speech")
@@ -60,6 +59,45 @@ def register(sub: argparse._SubParsersAction) -> None:
     k = kinds.add_parser("user", help="the user starts (or stops) speaking: barge-in")
     k.add_argument("state", choices=["speaking", "quiet"])
     p.set_defaults(func=run)
+
+
+# The verbs that set a state, with their command; each verb's arguments are made from the command's
+# fields (docs/protocol.md): required fields positional, the others `--name` (a unit suffix dropped:
+# `transition_s` is `--transition`), with the field's type, choices, default and limits.
+STATE_VERBS: dict[str, tuple[type[StateCommand], str]] = {
+    "role": (SetRole, "talking, listening or silence"),
+    "emotion": (SetEmotion, "an emotion with intensity and transition time"),
+    "head": (MoveHead, "head turn/nod/tilt targets in [-1, 1]"),
+    "eyes": (SetEyes, f"eye mode: {', '.join(EYE_MODES)}"),
+    "gaze": (SetGazeTarget, "where mutual gaze looks (degrees)"),
+}
+
+
+def option_name(field: str) -> str:
+    for unit in ("_deg", "_s"):
+        if field.endswith(unit):
+            field = field[: -len(unit)]
+    return field.replace("_", "-")
+
+
+def _command_fields(cls: type[StateCommand]) -> list[FieldSpec]:
+    return [s for s in field_specs(cls) if s.name not in ENVELOPE_FIELDS and s.name != "request_id"]
+
+
+def _add_state_verb(parser: argparse.ArgumentParser, cls: type[StateCommand]) -> None:
+    for spec in _command_fields(cls):
+        doc = cls.__dataclass_fields__[spec.name].metadata.get("doc", "")
+        kwargs: dict[str, Any] = {"help": doc, "dest": spec.name}
+        if typing.get_origin(spec.kind) is Literal:
+            kwargs["choices"] = typing.get_args(spec.kind)
+        elif spec.kind is float:
+            kwargs["type"] = cli_args.bounded_float(spec.lo, spec.hi)
+        if spec.required:
+            kwargs.pop("dest")
+            parser.add_argument(spec.name, **kwargs)
+        else:
+            default = cls.__dataclass_fields__[spec.name].default
+            parser.add_argument(f"--{option_name(spec.name)}", default=default, **kwargs)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,30 +127,28 @@ def _send(client: AgentClient, args: argparse.Namespace) -> Message | None:
     if args.kind == "say":
         rid = client.new_request_id()
         if args.text is not None:  # spoken by the instance's own text-to-speech engine: works from anywhere
-            say = Say(agent=client.agent, request_id=rid, text=args.text)
+            say = Say(agent=client.agent, request_id=rid, text=args.text, to=args.to)
         elif args.file.is_dir():
             raise SpeechSynthesisError(f"{args.file}: is a directory, not a sound file")
         elif not args.file.is_file():
             raise SpeechSynthesisError(f"{args.file}: no such file")
         else:
-            say = Say(agent=client.agent, request_id=rid, audio_path=str(args.file.resolve()))
+            say = Say(agent=client.agent, request_id=rid, audio_path=str(args.file.resolve()), to=args.to)
         client.wait_applied(client.send(say), t)
         print(f"request {rid} accepted")
         return client.wait_for_speech(rid, timeout_s=max(t, 120.0)) if args.wait else None
-    sent = {
-        "role": lambda: client.set_role(args.role, args.speaker),
-        "emotion": lambda: client.set_emotion(args.name, args.intensity, args.transition),
-        "head": lambda: client.move_head(args.turn, args.nod, args.tilt, args.duration),
-        "eyes": lambda: client.set_eyes(args.mode),
-        "gaze": lambda: client.set_gaze_target(args.yaw, args.pitch, args.target),
-        "interrupt": lambda: client.interrupt(args.request),
-        "user": lambda: client.user_speaking(args.state == "speaking"),
-    }[args.kind]()
+    if args.kind in STATE_VERBS:
+        cls = STATE_VERBS[args.kind][0]
+        sent = client.command(cls, **{spec.name: getattr(args, spec.name) for spec in _command_fields(cls)})
+        caused: str | None = cls.STATE.TYPE
+    elif args.kind == "interrupt":
+        sent, caused = client.interrupt(args.request), None
+    else:
+        sent = client.user_speaking(args.state == "speaking")
+        caused = "role" if args.state == "speaking" else None
     client.wait_applied(sent, t)
     # the state the command caused came before its acknowledgement (same publisher, in order)
-    caused = {"role": "role", "emotion": "emotion", "head": "head", "eyes": "eyes", "gaze": "gaze_target",
-              "user": "role"}.get(args.kind)
-    return client.state.get(caused) if caused and (args.kind != "user" or args.state == "speaking") else None
+    return client.state.get(caused) if caused else None
 
 
 def describe(msg: Message) -> str:
