@@ -59,7 +59,7 @@ class Publisher:
     `seq` counts per topic: the n-th message this publisher sent on that topic, so a subscriber of any
     prefix can tell a lost message (a gap) from messages on topics it does not receive."""
 
-    def __init__(self, ctx: zmq.Context, config: BusConfig, source: str,
+    def __init__(self, ctx: zmq.Context[zmq.Socket[bytes]], config: BusConfig, source: str,
                  now_ns: Callable[[], int] = _now_ns) -> None:
         self.source = source
         self._now_ns = now_ns
@@ -137,7 +137,7 @@ class Received:
 
 
 class Subscriber:
-    def __init__(self, ctx: zmq.Context, config: BusConfig, prefixes: Iterable[str] = ("",),
+    def __init__(self, ctx: zmq.Context[zmq.Socket[bytes]], config: BusConfig, prefixes: Iterable[str] = ("",),
                  max_message_bytes: int | None = None) -> None:
         self._max_bytes = max_message_bytes or config.max_message_bytes or DEFAULT_MAX_BYTES
         self.socket = ctx.socket(zmq.SUB)

@@ -55,7 +55,7 @@ class CommandRejected(RuntimeError):
 
 class AgentClient:
     def __init__(self, config: BusConfig | None = None, agent: str = "ada", source: str | None = None,
-                 ctx: zmq.Context | None = None, timeout_s: float = 5.0) -> None:
+                 ctx: zmq.Context[zmq.Socket[bytes]] | None = None, timeout_s: float = 5.0) -> None:
         if not timeout_s > 0:
             raise ValueError(f"timeout_s must be positive, got {timeout_s}")
         self.config = config or load_bus_config()

@@ -14,7 +14,6 @@ import sys
 import types
 import typing
 from collections.abc import Callable
-from functools import cache
 from typing import Any, Literal
 
 import msgpack
@@ -59,15 +58,20 @@ class FieldSpec:
     item_max_len: int | None = None  # each string of a list of strings
 
 
-@cache
+_SPECS: dict[type[Message], tuple[FieldSpec, ...]] = {}
+
+
 def field_specs(cls: type[Message]) -> tuple[FieldSpec, ...]:
-    hints = typing.get_type_hints(cls)
-    specs = []
-    for f in dataclasses.fields(cls):
-        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-        specs.append(FieldSpec(f.name, hints[f.name], required, f.metadata.get("lo"), f.metadata.get("hi"),
-                               f.metadata.get("max_len"), f.metadata.get("item_max_len")))
-    return tuple(specs)
+    specs = _SPECS.get(cls)
+    if specs is None:
+        hints = typing.get_type_hints(cls)
+        missing = dataclasses.MISSING
+        specs = _SPECS[cls] = tuple(
+            FieldSpec(f.name, hints[f.name], f.default is missing and f.default_factory is missing,
+                      f.metadata.get("lo"), f.metadata.get("hi"), f.metadata.get("max_len"),
+                      f.metadata.get("item_max_len"))
+            for f in dataclasses.fields(cls))
+    return specs
 
 
 def encode(msg: Message, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
@@ -83,7 +87,7 @@ def encode(msg: Message, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
         raise ProtocolError(bad.kind, bad.problem, name + bad.sub) from None
     if plan.cross_checked:
         _check_consistency(msg)
-    data = msgpack.packb(body, use_bin_type=True)
+    data: bytes = msgpack.packb(body, use_bin_type=True)
     if len(data) > max_bytes:
         raise ProtocolError("oversize", f"message is {len(data)} bytes, over the cap of {max_bytes}")
     return data

@@ -283,12 +283,13 @@ class SpeechEndings(Message):
         for k in range(len(self.ended_ids) - 1, -1, -1):
             if self.ended_ids[k] == request_id:
                 played, reason = self.ended_played_s[k], self.ended_reasons[k]
-                common = {"agent": self.agent, "request_id": request_id, "t_ns": self.t_ns, "source": self.source}
+                agent, t_ns, source = self.agent, self.t_ns, self.source
                 if self.ended_as[k] == "speech_finished":
-                    return SpeechFinished(**common, played_s=played)
+                    return SpeechFinished(agent=agent, request_id=request_id, t_ns=t_ns, source=source, played_s=played)
                 if self.ended_as[k] == "speech_interrupted":
-                    return SpeechInterrupted(**common, played_s=played, reason=reason[:200])
-                return SpeechFailed(**common, reason=reason)
+                    return SpeechInterrupted(agent=agent, request_id=request_id, t_ns=t_ns, source=source,
+                                             played_s=played, reason=reason[:200])
+                return SpeechFailed(agent=agent, request_id=request_id, t_ns=t_ns, source=source, reason=reason)
         return None
 
 
