@@ -34,7 +34,9 @@ class RendererOptions:
     frames: int | None = None  # stop after this many frame slots
     progress: bool = True  # a progress bar when the length is known
     lead_s: float = 0.0  # display time = slot time + lead (a window's presentation delay)
-    facing_turn: float = 0.3  # staging turn of side-by-side agents toward each other (flexor units)
+    # staging turn of side-by-side agents toward each other (flexor units): 0, since the conversation itself
+    # turns each head toward the person it attends (docs/gaze.md, "Who looks at whom")
+    facing_turn: float = 0.0
     trail_s: float = 1.0  # length of the saccade trajectory overlay
     vsync: bool = True
     publish_frames: bool = True

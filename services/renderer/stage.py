@@ -27,7 +27,7 @@ class Stage:
     fps and trail_s size the trajectory overlay (trail_s of frames); facing_turn is the staging turn
     of side-by-side agents (flexor units)."""
 
-    def __init__(self, renderer: Renderer, views: Sequence[AgentView], *, fps: float, facing_turn: float = 0.3,
+    def __init__(self, renderer: Renderer, views: Sequence[AgentView], *, fps: float, facing_turn: float = 0.0,
                  trail_s: float = 1.0) -> None:
         self.renderer = renderer
         self.views = list(views)
