@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ def load_toml(name: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: {exc}") from None
 
 
-def require(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
+def require(table: Mapping[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
     """Fetch `key` from `table`, checking its type; `where` names the file and table for the message."""
     if key not in table:
         raise ConfigError(f"{where}: missing key '{key}'")

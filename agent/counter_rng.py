@@ -14,7 +14,7 @@ _MIX2 = np.uint64(0x94D049BB133111EB)
 _INV_2_53 = 1.0 / float(1 << 53)
 
 
-def splitmix64(x: np.ndarray) -> np.ndarray:
+def splitmix64(x: np.ndarray | np.uint64) -> np.ndarray:
     """The splitmix64 finaliser applied elementwise to uint64 values (wrapping arithmetic)."""
     z = np.asarray(x, dtype=np.uint64)
     with np.errstate(over="ignore"):

@@ -279,10 +279,10 @@ class LiveScene:
             if n:
                 self._utterances.pop(request_id, None)
         if n:
-            utt = self._utterance(request_id, sample_rate)
-            assert utt is not None
-            utt.add_keys(list(sample_index), rows)
-            utt.last_update_ns = max(utt.last_update_ns, int(t_ns))
+            target = self._utterance(request_id, sample_rate)
+            assert target is not None
+            target.add_keys(list(sample_index), rows)
+            target.last_update_ns = max(target.last_update_ns, int(t_ns))
         self._prune_utterances()
 
     # --- outputs ---------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 
 class ScriptError(ValueError):
@@ -30,7 +31,7 @@ class ScriptError(ValueError):
         """Every problem this exception reports: here just itself."""
         return (self,)
 
-    def __reduce__(self) -> tuple[type, tuple]:
+    def __reduce__(self) -> tuple[type, tuple[Any, ...]]:
         # Keeps the error picklable across process pools despite the custom signature.
         return (ScriptError, (self.file, self.line, self.column, self.message))
 
@@ -59,7 +60,7 @@ class ScriptErrors(ScriptError):
     def __str__(self) -> str:
         return "\n".join(str(error.args[0]) for error in self._errors)
 
-    def __reduce__(self) -> tuple[type, tuple]:
+    def __reduce__(self) -> tuple[type, tuple[Any, ...]]:
         return (ScriptErrors, (self._errors,))
 
 

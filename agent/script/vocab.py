@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal, cast
+from typing import Literal
 
 from agent.script.poses import emotion_table
 from agent.vocabulary import EYE_MODES, ROLES, EyeMode, Role
@@ -35,7 +35,7 @@ def parse_role(text: str) -> Role | None:
     """The role `text` names, or None."""
     name = normalise_name(text)
     name = ROLE_ALIASES.get(name, name)
-    return cast(Role, name) if name in ROLES else None
+    return name if name in ROLES else None
 
 
 def parse_emotion(text: str) -> str | None:
@@ -46,4 +46,4 @@ def parse_emotion(text: str) -> str | None:
 
 def parse_eye_mode(text: str) -> EyeMode | None:
     name = text.strip().lower()
-    return cast(EyeMode, name) if name in EYE_MODES else None
+    return name if name in EYE_MODES else None

@@ -7,6 +7,7 @@ entity declaration) closes the entity-expansion and external-entity attacks at t
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NoReturn
 from xml.parsers import expat
 
 from agent.script.errors import ScriptError
@@ -45,7 +46,7 @@ def parse_xml(data: bytes, name: str) -> Node:
     def here() -> tuple[int, int]:
         return parser.CurrentLineNumber, parser.CurrentColumnNumber + 1
 
-    def refuse(message: str) -> None:
+    def refuse(message: str) -> NoReturn:
         raise _Refused(*here(), message)
 
     def start(tag: str, attrs: dict[str, str]) -> None:
