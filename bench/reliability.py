@@ -65,7 +65,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from bench.report import Report, machine, percentile, wait_until_ns  # noqa: E402
+from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
 from services.processes import subprocess_env  # noqa: E402 (after the path is set)
 
 AGENT = "ada"
@@ -1166,10 +1166,6 @@ def run(args: argparse.Namespace, report: Report) -> None:
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def stop_on_signal(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--flood-s", type=float, default=30.0, help="flood duration (s)")
@@ -1193,22 +1189,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.role == "monitor":
         return run_monitor(args.config, args.instance, args.seed)
 
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, stop_on_signal)  # unwinds like Ctrl-C: eca up, helpers and files go
-    host = machine()
-    t0 = time.monotonic()
-    report = Report()
-    try:
-        run(args, report)
-    except KeyboardInterrupt:
-        report.add("run", "interrupted", "complete", False)
-    except Exception as exc:  # the bench reports its own failure as a figure rather than dying
-        report.add("run", "bench failed", "complete", False, "", f"{type(exc).__name__}: {exc}")
-        report.details.setdefault("exceptions", []).append(traceback.format_exc())
-    wall_s = time.monotonic() - t0
-    header = (f"reliability on {host['cores']} cores ({host['cpu'] or 'unknown CPU'}), load average "
-              f"{'/'.join(f'{x:g}' for x in host['load_average'])} at start; {wall_s:.0f} s. Figures come from "
-              f"a shared machine: other work on it moves them.")
+    done = run_guarded(lambda report: run(args, report))  # Ctrl-C or SIGTERM: eca up, helpers and files go
+    report, host, wall_s = done.report, done.host, done.wall_s
+    header = done.header("reliability")
     said = report.details.get("up_events_whole_run", {}).get("notable_lines", [])
     report.print_table(header, sys.stderr if args.json else sys.stdout,
                        [line for line in said if "no audio output" not in line], "eca up said (restarts, errors):")

@@ -8,7 +8,9 @@ one JSON object.
 from __future__ import annotations
 
 import os
+import signal
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -95,3 +97,42 @@ def wait_until_ns(t_ns: int, while_waiting: Callable[[float], None] | None = Non
             while_waiting(min(left / 1e9, 0.5))
         else:
             time.sleep(min(left / 1e9, 0.5))
+
+
+@dataclass
+class Run:
+    """One guarded run of a benchmark: its report, the machine at the start and the wall time."""
+
+    report: Report
+    host: dict[str, Any]
+    wall_s: float
+
+    def header(self, what: str, setting: str = "") -> str:
+        """The table's header: what ran, on what machine, under what load, for how long."""
+        h = self.host
+        return (f"{what} on {h['cores']} cores ({h['cpu'] or 'unknown CPU'}), load average "
+                f"{'/'.join(f'{x:g}' for x in h['load_average'])} at start; {self.wall_s:.0f} s"
+                f"{'; ' + setting if setting else ''}. Figures come from a shared machine: other work on it "
+                "moves them.")
+
+
+def stop_on_signal(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def run_guarded(run: Callable[[Report], None]) -> Run:
+    """Run a benchmark so that Ctrl-C or SIGTERM unwinds it like an exception (its instances and helpers
+    stop) and a failure becomes a figure of the report rather than a traceback."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, stop_on_signal)
+    host = machine()
+    t0 = time.monotonic()
+    report = Report()
+    try:
+        run(report)
+    except KeyboardInterrupt:
+        report.add("run", "interrupted", "complete", False)
+    except Exception as exc:  # the bench reports its own failure as a figure rather than dying
+        report.add("run", "bench failed", "complete", False, "", f"{type(exc).__name__}: {exc}"[:200])
+        report.details.setdefault("exceptions", []).append(traceback.format_exc())
+    return Run(report, host, time.monotonic() - t0)

@@ -88,7 +88,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from bench.report import Report, machine, percentile, wait_until_ns  # noqa: E402
+from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
 from services.processes import subprocess_env  # noqa: E402 (after the path is set)
 
 AGENT = "ada"
@@ -1321,10 +1321,6 @@ def parse_viewers(text: str) -> list[int]:
     return counts
 
 
-def stop_on_signal(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--settle-s", type=float, default=40.0, help="A/V: time the browser gets to settle (s)")
@@ -1346,22 +1342,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.trials < 2:
         parser.error("--trials must be at least 2")
 
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, stop_on_signal)  # unwinds like Ctrl-C: eca up, the browser and helpers go
-    host = machine()
-    t0 = time.monotonic()
-    report = Report()
-    try:
-        run(args, report)
-    except KeyboardInterrupt:
-        report.add("run", "interrupted", "complete", False)
-    except Exception as exc:  # the bench reports its own failure as a figure rather than dying
-        report.add("run", "bench failed", "complete", False, "", f"{type(exc).__name__}: {exc}"[:200])
-        report.details.setdefault("exceptions", []).append(traceback.format_exc())
-    wall_s = time.monotonic() - t0
-    header = (f"web front-end on {host['cores']} cores ({host['cpu'] or 'unknown CPU'}), load average "
-              f"{'/'.join(f'{x:g}' for x in host['load_average'])} at start; {wall_s:.0f} s; headless Chromium, "
-              f"{WIDTH}x{HEIGHT} at {FPS:g} fps. Figures come from a shared machine: other work on it moves them.")
+    done = run_guarded(lambda report: run(args, report))  # Ctrl-C or SIGTERM: eca up, the browser, helpers go
+    report, host, wall_s = done.report, done.host, done.wall_s
+    header = done.header("web front-end", f"headless Chromium, {WIDTH}x{HEIGHT} at {FPS:g} fps")
     report.print_table(header, sys.stderr if args.json else sys.stdout, report.details.get("eca_up_notable_lines", []),
                        "eca up said (warnings, errors, restarts):", value_width=28)
     if args.json:

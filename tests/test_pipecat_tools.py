@@ -1,0 +1,152 @@
+"""The face's LLM tools (services/pipecat/tools.py): their schemas in pipecat's format, and their handlers
+against real eca services (a face in a running pipeline on a private instance): applied commands come back
+as applied, refused ones with eca's own reason. And the package's boundaries: without pipecat, importing it
+says how to install it; nothing outside it imports pipecat.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import subprocess
+import sys
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+pytest.importorskip("pipecat.frames.frames", reason="pipecat is not installed: pip install 'eca[pipecat]'")
+
+from pipecat.adapters.llm.services.open_ai_adapter import OpenAILLMAdapter  # noqa: E402
+from pipecat.frames.frames import EndFrame  # noqa: E402
+from pipecat.pipeline.pipeline import Pipeline  # noqa: E402
+from pipecat.pipeline.worker import PipelineWorker  # noqa: E402
+from pipecat.workers.runner import WorkerRunner  # noqa: E402
+
+from agent.face.emotions import load_emotion_table  # noqa: E402
+from protocol.client import AgentClient  # noqa: E402
+from protocol.messages import EmotionState, HeadState  # noqa: E402
+from services.dialogue import DialogueService  # noqa: E402
+from services.pipecat import EcaFaceParams, EcaTools, EcaVideoService  # noqa: E402
+from services.processes import REPO_ROOT, subprocess_env  # noqa: E402
+from services.testing import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pipecat's own
+
+
+def test_the_schemas_offer_the_known_emotions_and_the_head_axes_in_pipecats_format() -> None:
+    tools = EcaTools(EcaVideoService(EcaFaceParams(video=False)))
+    set_emotion, move_head = tools.schemas
+    assert set_emotion.name == "set_emotion" and set_emotion.required == ["name"]
+    assert set_emotion.properties["name"]["enum"] == list(load_emotion_table().names)
+    assert {"happy", "surprised", "half-angry"} <= set(set_emotion.properties["name"]["enum"])
+    assert set_emotion.properties["intensity"] == {**set_emotion.properties["intensity"], "type": "number",
+                                                   "minimum": 0.0, "maximum": 1.0}
+    assert move_head.name == "move_head" and move_head.required == []
+    for axis in ("turn", "nod", "tilt"):
+        assert move_head.properties[axis]["type"] == "number"
+        assert (move_head.properties[axis]["minimum"], move_head.properties[axis]["maximum"]) == (-1.0, 1.0)
+    # What an OpenAI model is given: standard function tools with JSON-schema parameters.
+    given = OpenAILLMAdapter().to_provider_tools_format(tools.tools_schema())
+    assert [t["function"]["name"] for t in given] == ["set_emotion", "move_head"]
+    assert given[0]["type"] == "function"
+    assert given[0]["function"]["parameters"]["properties"]["name"]["enum"] == list(load_emotion_table().names)
+
+
+@asynccontextmanager
+async def running(face: EcaVideoService) -> AsyncIterator[None]:
+    """The face in a running pipeline until the block ends (then an EndFrame, and the pipeline's end)."""
+    worker = PipelineWorker(Pipeline([face]), cancel_on_idle_timeout=False)
+    started = asyncio.Event()
+
+    @worker.event_handler("on_pipeline_started")
+    async def on_started(worker: PipelineWorker, frame: Any) -> None:
+        started.set()
+
+    runner = WorkerRunner(handle_sigint=False)
+    await runner.add_workers(worker)
+    task = asyncio.create_task(runner.run())
+    try:
+        await asyncio.wait_for(started.wait(), 20.0)
+        yield
+    finally:
+        await worker.queue_frame(EndFrame())
+        await asyncio.wait_for(task, 20.0)
+
+
+def test_the_handlers_apply_commands_and_return_ecas_reason_when_it_refuses() -> None:
+    results: dict[str, dict[str, Any]] = {}
+
+    async def calls(face: EcaVideoService) -> None:
+        tools = EcaTools(face)
+        async with running(face):
+            async def handled(name: str, arguments: dict[str, Any]) -> dict[str, Any]:
+                got: list[dict[str, Any]] = []
+
+                async def result_callback(result: dict[str, Any], **_: Any) -> None:
+                    got.append(result)
+
+                # The handler as pipecat's LLM service calls it (only these fields of FunctionCallParams are read).
+                await tools.handle(SimpleNamespace(function_name=name, arguments=arguments,  # type: ignore[arg-type]
+                                                   result_callback=result_callback))
+                assert len(got) == 1
+                return got[0]
+
+            results["happy"] = await handled("set_emotion", {"name": "happy", "intensity": 0.8})
+            results["gleeful"] = await handled("set_emotion", {"name": "gleeful"})
+            results["too_much"] = await handled("set_emotion", {"name": "happy", "intensity": 3})
+            results["words"] = await handled("set_emotion", {"name": "happy", "intensity": "very"})
+            results["no_name"] = await handled("set_emotion", {"intensity": 0.5})
+            results["extra"] = await handled("set_emotion", {"name": "happy", "colour": "red"})
+            results["head"] = await handled("move_head", {"turn": 0.5, "nod": -0.25})
+            results["dance"] = await handled("dance", {})
+        results["after"] = await tools.set_emotion("happy")
+
+    with private_bus_config(services=["dialogue"]) as config, BrokerThread(config), \
+            ServiceThread(DialogueService(config)), AgentClient(config) as client:
+        face = EcaVideoService(EcaFaceParams(instance=config.instance, config_path=config.config_path, video=False))
+        asyncio.run(calls(face))
+        emotion = client.wait_for(lambda m: isinstance(m, EmotionState) and m.name == "happy", 5.0)
+        head = client.wait_for(lambda m: isinstance(m, HeadState) and m.turn == 0.5, 5.0)
+    assert results["happy"] == {"ok": True, "applied": "set_emotion", "emotion": "happy", "intensity": 0.8}
+    assert isinstance(emotion, EmotionState) and emotion.intensity == 0.8
+    assert results["gleeful"]["ok"] is False
+    assert results["gleeful"]["error"].startswith("unknown emotion 'gleeful'; known: natural, happy")
+    assert results["too_much"] == {"ok": False, "error": "field 'intensity': 3.0 is above the maximum 1.0"}
+    assert results["words"] == {"ok": False, "error": "intensity must be a number, got 'very'"}
+    assert results["no_name"] == {"ok": False, "error": "set_emotion needs a name"}
+    assert "unknown argument(s): colour" in results["extra"]["error"]
+    assert results["head"] == {"ok": True, "applied": "move_head", "turn": 0.5, "nod": -0.25, "tilt": 0.0}
+    assert isinstance(head, HeadState) and (head.nod, head.tilt) == (-0.25, 0.0)
+    assert results["dance"]["ok"] is False and "set_emotion, move_head" in results["dance"]["error"]
+    assert results["after"]["ok"] is False and "not connected" in results["after"]["error"]
+
+
+def test_without_pipecat_the_import_says_how_to_install_it() -> None:
+    blocked = (
+        "import sys\n"
+        "class NoPipecat:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'pipecat' or name.startswith('pipecat.'):\n"
+        "            raise ModuleNotFoundError(f'No module named {name!r}')\n"
+        "sys.meta_path.insert(0, NoPipecat())\n"
+        "import protocol.client, services.web.service  # eca itself needs no pipecat\n"
+        "try:\n"
+        "    import services.pipecat\n"
+        "except ImportError as exc:\n"
+        "    print('ImportError:', exc)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", blocked], capture_output=True, text=True, env=subprocess_env(),
+                          cwd=REPO_ROOT, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "ImportError:" in done.stdout and "pip install 'eca[pipecat]'" in done.stdout
+
+
+def test_nothing_outside_the_package_imports_pipecat() -> None:
+    importing = re.compile(r"^\s*(from|import)\s+pipecat\b", re.MULTILINE)
+    outside = [p for folder in ("agent", "protocol", "services") for p in (REPO_ROOT / folder).rglob("*.py")
+               if Path("services", "pipecat") not in p.relative_to(REPO_ROOT).parents]
+    assert outside and not [str(p) for p in outside if importing.search(p.read_text(encoding="utf-8"))]
