@@ -18,7 +18,7 @@ from agent.config import load_toml
 from agent.face.model import FaceModel
 from agent.gaze.engine import GazeEngine
 from agent.lipsync.estimator import MouthTrack
-from agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, SayCue, Timeline
+from agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, Timeline
 
 FACE_IDLE_SEED = 7  # fixed: the render seed changes eyes and blinks only
 
@@ -47,61 +47,81 @@ class AnimatedFrame:
     emotion_intensity: float
 
 
+AgentCue = RoleCue | EmotionCue | HeadCue | GazeCue
+
+
+def head_degrees() -> tuple[float, float]:
+    """Degrees of head turn and nod per flexor unit (configs/flexor_units.toml [head])."""
+    head = load_toml("flexor_units")["head"]
+    return float(head["turn_deg"]), float(head["nod_deg"])
+
+
+class CueFollower:
+    """One agent's face and its row `index` of a gaze engine, moved by that agent's own cues (role, emotion,
+    head, gaze). `eyes` fixes the eye mode; None lets the eye-mode cues decide."""
+
+    def __init__(self, face: FaceModel, gaze: GazeEngine, index: int, eyes: str | None,
+                 head_deg: tuple[float, float]) -> None:
+        self.face, self.gaze, self.index, self.eyes, self.head_deg = face, gaze, index, eyes, head_deg
+        self.head = (0.0, 0.0, 0.0)
+        self.target = (0.0, 0.0)
+
+    def apply(self, cue: AgentCue, t_ns: int) -> None:
+        i = self.index
+        if isinstance(cue, RoleCue):
+            self.gaze.set_role(i, cue.role, t_ns)
+        elif isinstance(cue, EmotionCue):
+            self.face.set_emotion(cue.name, cue.intensity, cue.transition_s, t_ns)
+            self.gaze.set_emotion(i, cue.name, cue.intensity, t_ns)
+        elif isinstance(cue, HeadCue):
+            self.head = cue.targets(self.head)
+            self.face.move_head(*self.head, cue.duration_s, t_ns)
+            self.gaze.set_head(i, self.head[0] * self.head_deg[0], self.head[1] * self.head_deg[1], t_ns)
+        elif isinstance(cue, GazeCue):
+            if cue.mode is not None and self.eyes is None:
+                self.gaze.set_mode(i, cue.mode, t_ns)
+            target = cue.target(self.target)
+            if target is not None:
+                self.target = target
+                self.gaze.set_target(i, *target, t_ns)
+
+
+def mouth_at(utterances: list[Utterance], sample_rate: int, t_s: float) -> dict[str, float] | None:
+    """The mouth shapes of the utterance (with a mouth track) playing at `t_s`, or None."""
+    for u in utterances:
+        index = (t_s - u.start_s) * sample_rate
+        if 0 <= index < u.samples.size:
+            assert u.track is not None
+            return u.track.weights_at(index)
+    return None
+
+
 class TimelineAnimator:
     def __init__(self, timeline: Timeline, agent: str, *, seed: int, eyes: str | None,
                  utterances: list[Utterance], sample_rate: int) -> None:
         """`eyes` fixes the eye mode; None lets the timeline's own eye-mode cues decide."""
         self.eyes = eyes
         self.sample_rate = sample_rate
-        self.cues = [c for c in timeline.cues if c.agent == agent and not isinstance(c, SayCue)]
+        self.cues = [c for c in timeline.cues if isinstance(c, AgentCue) and c.agent == agent]
         self.next_cue = 0
         self.utterances = [u for u in utterances if u.track is not None]
-        head = load_toml("flexor_units")["head"]
-        self.head_deg = (float(head["turn_deg"]), float(head["nod_deg"]))
-        self.head = (0.0, 0.0, 0.0)
-        self.target = (0.0, 0.0)
         self.face = FaceModel(seed=FACE_IDLE_SEED, idle_noise=True)
         self.gaze = GazeEngine(1, seed, start_ns=0)
         if eyes is not None:
             self.gaze.set_mode(0, eyes, 0)
+        self.follower = CueFollower(self.face, self.gaze, 0, eyes, head_degrees())
 
     def frame_at(self, t_s: float) -> AnimatedFrame:
         """The face at `t_s`, every cue up to it applied; times must not go back."""
         t_ns = nanoseconds(t_s)
         while self.next_cue < len(self.cues) and nanoseconds(self.cues[self.next_cue].t_s) <= t_ns:
             cue = self.cues[self.next_cue]
-            self._apply(cue, max(nanoseconds(cue.t_s), self.gaze.now_ns))
+            self.follower.apply(cue, max(nanoseconds(cue.t_s), self.gaze.now_ns))
             self.next_cue += 1
         tick = self.gaze.tick(t_ns)
         yaw, pitch, lid = float(tick.yaw_deg[0]), float(tick.pitch_deg[0]), float(tick.lid[0])
         self.face.set_eyes(yaw, pitch, lid)
-        self.face.set_mouth(self._mouth_at(t_s))
+        self.face.set_mouth(mouth_at(self.utterances, self.sample_rate, t_s))
         emotion, intensity = self.face.emotion
         return AnimatedFrame(self.face.frame_at(t_ns).values, yaw, pitch, lid, self.gaze.role_of(0), emotion,
                              intensity)
-
-    def _apply(self, cue: RoleCue | EmotionCue | HeadCue | GazeCue, t_ns: int) -> None:
-        if isinstance(cue, RoleCue):
-            self.gaze.set_role(0, cue.role, t_ns)
-        elif isinstance(cue, EmotionCue):
-            self.face.set_emotion(cue.name, cue.intensity, cue.transition_s, t_ns)
-            self.gaze.set_emotion(0, cue.name, cue.intensity, t_ns)
-        elif isinstance(cue, HeadCue):
-            self.head = cue.targets(self.head)
-            self.face.move_head(*self.head, cue.duration_s, t_ns)
-            self.gaze.set_head(0, self.head[0] * self.head_deg[0], self.head[1] * self.head_deg[1], t_ns)
-        elif isinstance(cue, GazeCue):
-            if cue.mode is not None and self.eyes is None:
-                self.gaze.set_mode(0, cue.mode, t_ns)
-            target = cue.target(self.target)
-            if target is not None:
-                self.target = target
-                self.gaze.set_target(0, *target, t_ns)
-
-    def _mouth_at(self, t_s: float) -> dict[str, float] | None:
-        for u in self.utterances:
-            index = (t_s - u.start_s) * self.sample_rate
-            if 0 <= index < u.samples.size:
-                assert u.track is not None
-                return u.track.weights_at(index)
-        return None

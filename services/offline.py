@@ -93,11 +93,20 @@ CSV_STATE_COLUMNS = ("t_s", "role", "emotion", "emotion_intensity", "eye_yaw_deg
 CSV_COLUMNS = (*CSV_STATE_COLUMNS, *FLEXOR_NAMES)
 
 
-def _fixed(value: float) -> str:
+def fixed6(value: float) -> str:
     # Six decimals (a microsecond, a millionth of a flexor's range); -0 printed as 0 so that a value
     # rounding to zero reads the same from either side.
     text = f"{value:.6f}"
     return text[1:] if text == "-0.000000" else text
+
+
+def agent_fields(rendered: RenderedTimeline, k: int) -> tuple[str, ...]:
+    """Frame k's columns after `t_s` (CSV_COLUMNS[1:]) as text: role and emotion as names, numbers with six
+    decimals."""
+    state = (rendered.role[k], rendered.emotion[k], fixed6(float(rendered.emotion_intensity[k])),
+             fixed6(float(rendered.eye_yaw_deg[k])), fixed6(float(rendered.eye_pitch_deg[k])),
+             fixed6(float(rendered.lid[k])))
+    return (*state, *(fixed6(float(v)) for v in rendered.flexors[k]))
 
 
 def write_flexor_csv(path: Path, rendered: RenderedTimeline) -> None:
@@ -106,10 +115,7 @@ def write_flexor_csv(path: Path, rendered: RenderedTimeline) -> None:
     with open(path, "w", newline="\n", encoding="utf-8") as fh:
         fh.write(",".join(CSV_COLUMNS) + "\n")
         for k, t in enumerate(rendered.t_s):
-            state = (_fixed(float(t)), rendered.role[k], rendered.emotion[k],
-                     _fixed(float(rendered.emotion_intensity[k])), _fixed(float(rendered.eye_yaw_deg[k])),
-                     _fixed(float(rendered.eye_pitch_deg[k])), _fixed(float(rendered.lid[k])))
-            fh.write(",".join((*state, *(_fixed(float(v)) for v in rendered.flexors[k]))) + "\n")
+            fh.write(",".join((fixed6(float(t)), *agent_fields(rendered, k))) + "\n")
 
 
 def mux_audio(video_path: Path, audio: np.ndarray, out_path: Path) -> None:

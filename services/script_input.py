@@ -34,11 +34,14 @@ def open_voices(command: str, no_voice: bool) -> VoiceCache | None:
     return VoiceCache()
 
 
-def load_run(paths: Sequence[str | Path], agent: str | None, voices: VoiceCache | None) -> ScriptSet:
-    """The scripts as one run, their text lines measured (and spoken ahead) with `voices` if given."""
+def load_run(paths: Sequence[str | Path], agent: str | None, voices: VoiceCache | None,
+             several_agents: bool = False) -> ScriptSet:
+    """The scripts as one run, their text lines measured (and spoken ahead) with `voices` if given; a
+    dialogue of several agents only where the caller animates them (`several_agents`)."""
     run = load_scripts(paths, agent=agent, duration_of=sound_duration,
-                       text_duration=voices.duration_of_text if voices is not None else None)
-    if voices is not None:
+                       text_duration=voices.duration_of_text if voices is not None else None,
+                       several_agents=several_agents)
+    if voices is not None and len(run.agents) == 1:  # several agents speak with voices of their own
         prepare_voices(run.timeline, voices, run.agent)
     return run
 

@@ -18,7 +18,7 @@ DATA = Path(__file__).parent / "data" / "scripts"
 
 def test_every_demo_file_passes_check(capsys: pytest.CaptureFixture[str]) -> None:
     files = sorted(str(p) for p in DEMO.iterdir() if p.suffix in (".xml", ".txt"))
-    assert len(files) == 5
+    assert len(files) == 6  # the dialogue of one agent, its four parameter files, the dialogue of three
     assert main(["check", *files]) == 0
     out = capsys.readouterr().out.splitlines()
     assert len(out) == len(files) and all(": OK: " in line for line in out)

@@ -11,6 +11,7 @@ from agent.script.elements import (
     RoleCue,
     SayCue,
     Timeline,
+    TurnCue,
     merge,
 )
 from agent.script.errors import ScriptError, ScriptErrors
@@ -35,6 +36,7 @@ __all__ = [
     "ScriptErrors",
     "ScriptSet",
     "Timeline",
+    "TurnCue",
     "UnmeasurableAudio",
     "audio_file_problem",
     "build_timeline",

@@ -10,6 +10,10 @@
 Turns follow one another; a turn lasts its `duration`, else its audio's length (measured through the
 `duration_of` hook), else an estimate from its word count. Everything becomes one Timeline.
 
+A dialogue of several agents (`<dialogue agents="ada bob cy">`) seats them side by side with the user in
+front; each turn sets every agent's role (the speaker talking, the others listening) and adds a TurnCue
+(who speaks to whom), from which the situated gaze model decides who looks at whom.
+
 Every problem is collected and raised at once (ScriptErrors): a wrong attribute or element is reported
 and the builder goes on with the next. Only XML that is not well-formed stops a file at its first
 problem, since nothing after it can be trusted to be where the parser thinks.
@@ -24,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from agent.script.audiofile import AudioFileError, UnmeasurableAudio, audio_file_problem, describe, wav_duration
-from agent.script.elements import AnimationElement, SayCue, Timeline, flexor_tuple, merge
+from agent.script.elements import AnimationElement, SayCue, Timeline, TurnCue, flexor_tuple, merge
 from agent.script.errors import ScriptError, ScriptErrors, raise_collected
 from agent.script.paramfile import (
     AGENT_ID_RE,
@@ -47,6 +51,12 @@ from agent.script.vocab import (
 )
 from agent.script.xmltree import Node, parse_xml
 
+# An agent= that names no agent of the dialogue: reported once, and nothing it would have driven is checked
+# for want of an agent again.
+UNKNOWN = ""
+# The user's id among the people of a dialogue of several agents, as agent/gaze/situated.py names it (a test
+# holds the two alike; importing it would make parsing a script load the gaze engine).
+USER = "user"
 DEFAULT_WPM = 160.0  # a calm speaking rate; espeak-ng's default is 175
 DEFAULT_GAP_S = 0.3  # between two speech turns: conversational turn-taking gaps are ~0.2-0.5 s
 MIN_SPEECH_S = 0.6
@@ -54,16 +64,20 @@ DEFAULT_HEAD_S = 1.0
 
 _NUMBER_RE = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _ATTRS = {
-    "dialogue": {"agent", "partner", "wpm", "gap", "title"},
+    "dialogue": {"agent", "agents", "partner", "wpm", "gap", "title"},
     "params": {"href", "offset", "agent"},
     "turn": {"speaker", "role", "emotion", "intensity", "transition", "audio", "duration", "id"},
     "silence": {"duration", "speaker", "role", "emotion", "intensity", "transition"},
     "head": {"turn", "nod", "tilt", "duration", "at"},
     "gaze": {"mode", "yaw", "pitch", "at", "duration"},
 }
+# Attributes that only a dialogue of several agents takes: whom a turn is spoken to, and which agent a
+# turn's emotion and role, or a head or gaze move, belong to.
+_SEVERAL_ONLY = {"turn": {"to", "agent"}, "silence": {"agent"}, "head": {"agent"}, "gaze": {"agent"}}
 
 DurationOf = Callable[[Path], float]
-AgentCheck = Callable[[str], str | None]  # the dialogue's agent -> why it may not be played, or None
+# The dialogue's agent (a tuple for a dialogue of several) -> why it may not be played, or None.
+AgentCheck = Callable[[str | tuple[str, ...]], str | None]
 
 
 def estimate_speech_s(text: str, wpm: float = DEFAULT_WPM) -> float:
@@ -73,6 +87,10 @@ def estimate_speech_s(text: str, wpm: float = DEFAULT_WPM) -> float:
 
 @dataclass(frozen=True)
 class Dialogue:
+    """A parsed dialogue. `agents` are the agents it animates in seat order, left to right: (agent,) for
+    a dialogue of one, whose `partner` is the other person; with several, `agent` is the first and the
+    partner is the user."""
+
     path: str
     agent: str
     partner: str
@@ -80,6 +98,7 @@ class Dialogue:
     silences: int
     params: tuple[ParamFile, ...]
     timeline: Timeline
+    agents: tuple[str, ...] = ()
 
 
 class _Builder:
@@ -96,6 +115,8 @@ class _Builder:
         self.errors: list[ScriptError] = []
         self.agent = ""
         self.agent_known = False  # False when the root's agent is missing or wrong: no speaker checks
+        self.several = False  # a dialogue of several agents (`agents=`)
+        self.agents: tuple[str, ...] = ()
         self.partner = "user"
         self.wpm = DEFAULT_WPM
         self.gap = DEFAULT_GAP_S
@@ -103,17 +124,22 @@ class _Builder:
         self.says: list[SayCue] = []
         self.params: list[ParamFile] = []
         self.ids: set[str] = set()
-        self.roles: list[tuple[float, Role, int]] = []
-        self.emotions: list[tuple[float, str, float, float, int]] = []
+        self.turn_cues: list[TurnCue] = []
+        # Per agent, one entry per change: (start, role, line) and (start, emotion, intensity, transition, line).
+        self.roles: dict[str, list[tuple[float, Role, int]]] = {}
+        self.emotions: dict[str, list[tuple[float, str, float, float, int]]] = {}
 
     def report(self, node: Node, message: str) -> None:
         self.errors.append(ScriptError(self.name, node.line, node.column, f"<{node.tag}>: {message}"))
 
     def check_attrs(self, node: Node, required: tuple[str, ...] = ()) -> bool:
         """Reports unknown and missing attributes; False when a required one is missing."""
-        allowed = _ATTRS[node.tag]
+        several_only = _SEVERAL_ONLY.get(node.tag, set())
+        allowed = _ATTRS[node.tag] | (several_only if self.several else set())
         for key in node.attrs:
-            if key not in allowed:
+            if key in several_only and not self.several:
+                self.report(node, f"attribute {key!r} is for a dialogue of several agents (<dialogue agents=...>)")
+            elif key not in allowed:
                 self.report(node, f"unknown attribute {key!r}; allowed: {', '.join(sorted(allowed))}")
         missing = [key for key in required if key not in node.attrs]
         for key in missing:
@@ -188,15 +214,23 @@ class _Builder:
         if root.tag != "dialogue":
             self.report(root, "the root element must be <dialogue>")
             raise ScriptErrors(self.errors)  # nothing else in it can be read as a dialogue
-        self.check_attrs(root, ("agent",))
-        agent = self.agent_id(root, "agent", None)
-        if agent is not None:
-            self.agent, self.agent_known = agent, True
-        self.partner = self.agent_id(root, "partner", "user") or "user"
-        if self.agent_known and self.partner == self.agent:
-            self.report(root, "agent and partner must differ")
+        self.several = "agents" in root.attrs  # with agent= too (an error), the rest is read as several's
+        self.check_attrs(root)
+        if "agent" in root.attrs and "agents" in root.attrs:
+            self.report(root, "give agent (one agent) or agents (several), not both")
+        elif self.several:
+            self.seat_agents(root)
+        elif "agent" in root.attrs:
+            agent = self.agent_id(root, "agent", None)
+            if agent is not None:
+                self.agent, self.agent_known, self.agents = agent, True, (agent,)
+            self.partner = self.agent_id(root, "partner", "user") or "user"
+            if self.agent_known and self.partner == self.agent:
+                self.report(root, "agent and partner must differ")
+        else:
+            self.report(root, "missing attribute 'agent' (one agent) or 'agents' (several)")
         if self.agent_known and self.agent_check is not None:
-            problem = self.agent_check(self.agent)
+            problem = self.agent_check(self.agents if self.several else self.agent)
             if problem is not None:
                 self.errors.append(ScriptError(self.name, root.line, root.column, problem))
         self.wpm = self.number(root, "wpm", DEFAULT_WPM, 40, 400, " words per minute")
@@ -222,17 +256,116 @@ class _Builder:
         raise_collected(self.errors, self.name)
         self.flush_states(cursor)
         timeline = merge([*self.elements, *(e for p in self.params for e in p.elements)], self.says,
-                         min_length_s=cursor)
-        return Dialogue(self.name, self.agent, self.partner, turns, silences, tuple(self.params), timeline)
+                         min_length_s=cursor, turns=self.turn_cues)
+        return Dialogue(self.name, self.agent, self.partner, turns, silences, tuple(self.params), timeline,
+                        self.agents)
 
-    def include(self, node: Node, base_s: float = 0.0) -> None:
-        """A parameter file whose times count from `base_s` (the dialogue's, turn's or silence's start)."""
+    # --- a dialogue of several agents -----------------------------------------------------------
+
+    def seat_agents(self, root: Node) -> None:
+        """`agents="ada bob cy"`: two or more distinct ids, seated left to right in that order."""
+        names = root.attrs["agents"].split()
+        seated: list[str] = []
+        for name in names:
+            if not AGENT_ID_RE.fullmatch(name):
+                self.report(root, f"agents: {name!r} must be 1-64 letters, digits, '_', '-' or '.'")
+            elif name == USER:
+                self.report(root, f"agents: {USER!r} is the user, who is always there; name the agents only")
+            elif name in seated:
+                self.report(root, f"agents: {name!r} is named twice")
+            else:
+                seated.append(name)
+        if len(names) < 2:
+            self.report(root, "agents names two or more agents, separated by spaces; a dialogue of one agent "
+                              "names it with agent=")
+        if "partner" in root.attrs:
+            self.report(root, f"partner is for a dialogue of one agent; with agents= the other person is "
+                              f"the user, {USER!r}")
+        if len(seated) == len(names) >= 2:
+            self.agents, self.agent, self.agent_known = tuple(seated), seated[0], True
+        self.partner = USER
+
+    def check_speaker(self, node: Node, speaker: str) -> None:
+        if self.several:
+            if speaker not in (*self.agents, USER):
+                self.report(node, f"speaker {speaker!r} is not in this dialogue ({self.people()})")
+        elif speaker not in (self.agent, self.partner):
+            if node.tag == "silence":
+                self.report(node, f"speaker {speaker!r} is neither agent nor partner")
+            else:
+                self.report(node, f"speaker {speaker!r} is neither the agent {self.agent!r} nor the "
+                                  f"partner {self.partner!r}")
+
+    def people(self) -> str:
+        return f"{', '.join(self.agents)} or {USER}"
+
+    def addressees(self, node: Node, speaker: str) -> tuple[str, ...]:
+        """Whom a turn is spoken to: its `to` (names separated by spaces), else everyone but the speaker."""
+        everyone_else = tuple(p for p in (*self.agents, USER) if p != speaker)
+        if "to" not in node.attrs or not self.agent_known:
+            return everyone_else
+        names = node.attrs["to"].split()
+        if not names:
+            self.report(node, f"attribute to is empty; name whom the turn is spoken to ({self.people()})")
+        chosen: list[str] = []
+        for name in names:
+            if name == speaker:
+                self.report(node, f"to names the speaker {name!r}; a turn is spoken to the others")
+            elif name not in everyone_else:
+                self.report(node, f"to names {name!r}, who is not in this dialogue ({self.people()})")
+            elif name in chosen:
+                self.report(node, f"to names {name!r} twice")
+            else:
+                chosen.append(name)
+        return tuple(chosen) or everyone_else
+
+    def turn_agent(self, node: Node, speaker: str | None) -> str | None:
+        """The agent a turn's or silence's emotion and role describe, and its head and gaze moves drive: the
+        dialogue's agent; with several, the turn's `agent`, else its speaker when that is an agent. None when
+        there is none; UNKNOWN when the `agent` named is wrong (reported)."""
+        if not self.several:
+            return self.agent
+        if "agent" in node.attrs:
+            return self.member(node, node.attrs["agent"])
+        return speaker if speaker in self.agents else None
+
+    def member(self, node: Node, name: str) -> str:
+        """`name` when it is one of the dialogue's agents; UNKNOWN (reported) otherwise."""
+        if self.agent_known and name not in self.agents:
+            self.report(node, f"agent {name!r} is not one of the dialogue's agents ({', '.join(self.agents)})")
+            return UNKNOWN
+        return name
+
+    def owner(self, node: Node, turn_agent: str | None, what: str) -> str | None:
+        """The agent an element inside a turn or silence drives: its own `agent` (several agents only), else
+        the turn's agent; None (reported) when neither names one, UNKNOWN when one named is wrong (reported)."""
+        if self.several and "agent" in node.attrs:
+            return self.member(node, node.attrs["agent"])
+        if turn_agent is None and self.agent_known:
+            self.whose(node, what)
+        return turn_agent
+
+    def whose(self, node: Node, what: str) -> None:
+        self.report(node, f"say whose {what} this is with agent= ({', '.join(self.agents)}); only an agent's own "
+                          "turn implies it")
+
+    def include(self, node: Node, base_s: float = 0.0, turn_agent: str | None = None) -> None:
+        """A parameter file whose times count from `base_s` (the dialogue's, turn's or silence's start).
+
+        It drives its `agent`, else the dialogue's agent; in a dialogue of several, else the agent of the
+        turn it is in (at the top level it must name one)."""
         if not self.check_attrs(node, ("href",)):
             return
         path = self.params_path(node)
         offset = self.number(node, "offset", 0.0, 0, 1e6, " seconds")
-        agent = self.agent_id(node, "agent", self.agent if self.agent_known else DEFAULT_AGENT)
-        if path is None or agent is None:
+        if self.several and "agent" in node.attrs:
+            agent = self.agent_id(node, "agent", None)
+            agent = self.member(node, agent) if agent is not None else UNKNOWN
+        elif self.several:
+            agent = self.owner(node, turn_agent, "parameters")
+        else:
+            agent = self.agent_id(node, "agent", self.agent if self.agent_known else DEFAULT_AGENT)
+        if path is None or not agent:
             return
         # Errors inside it name it as the dialogue does, relative to the dialogue's own name.
         shown = str(Path(self.name).parent / node.attrs["href"].strip())
@@ -244,9 +377,8 @@ class _Builder:
     def turn(self, node: Node, start: float, index: int) -> float:
         self.check_attrs(node, ("speaker",))
         speaker = node.attrs.get("speaker", self.agent)
-        if "speaker" in node.attrs and self.agent_known and speaker not in (self.agent, self.partner):
-            self.report(node, f"speaker {speaker!r} is neither the agent {self.agent!r} nor the "
-                              f"partner {self.partner!r}")
+        if "speaker" in node.attrs and self.agent_known:
+            self.check_speaker(node, speaker)
         text = " ".join(node.text.split())
         audio = self.audio_path(node) if "audio" in node.attrs else None
         duration = self.turn_duration(node, text, audio)
@@ -257,9 +389,12 @@ class _Builder:
             self.ids.add(uid)
             self.says.append(SayCue(start, speaker, uid, text, None if audio is None else str(audio),
                                     duration))
-        default_role: Role = "talking" if speaker == self.agent else "listening"
-        self.states(node, start, duration, default_role)
-        self.moves(node, start, duration)
+        roles: dict[str, Role] = {a: "talking" if a == speaker else "listening" for a in self.agents or ("",)}
+        who = self.turn_agent(node, speaker)
+        if self.several:
+            self.turn_cues.append(TurnCue(start, speaker, self.addressees(node, speaker), duration))
+        self.states(node, start, duration, roles, who)
+        self.moves(node, start, duration, who)
         return start + duration
 
     def turn_duration(self, node: Node, text: str, audio: Path | None) -> float:
@@ -309,20 +444,32 @@ class _Builder:
         if node.text.strip():
             self.report(node, "a silence holds no text")
         duration = self.optional(node, "duration", 0.01, 3600, " seconds") or 0.0
-        if "speaker" in node.attrs and self.agent_known and node.attrs["speaker"] not in (self.agent, self.partner):
-            self.report(node, f"speaker {node.attrs['speaker']!r} is neither agent nor partner")
-        self.states(node, start, duration, "silence")
-        self.moves(node, start, duration)
+        if "speaker" in node.attrs and self.agent_known:
+            self.check_speaker(node, node.attrs["speaker"])
+        who = self.turn_agent(node, None)
+        if self.several:
+            self.turn_cues.append(TurnCue(start, None, (), duration))
+        self.states(node, start, duration, dict.fromkeys(self.agents or ("",), "silence"), who)
+        self.moves(node, start, duration, who)
         return start + duration
 
     # --- role and emotion: one element per change ---------------------------------------------
 
-    def states(self, node: Node, start: float, duration: float, default_role: Role) -> None:
-        role = parse_role(node.attrs.get("role", default_role))
-        if role is None:
-            self.report(node, f"unknown role {node.attrs['role']!r}; expected one of {', '.join(ROLES)}")
-        elif not self.roles or self.roles[-1][1] != role:
-            self.roles.append((start, role, node.line))
+    def states(self, node: Node, start: float, duration: float, roles: dict[str, Role], who: str | None) -> None:
+        """Every agent's role from this turn or silence on (`roles`, with the `role` attribute for `who`, the
+        turn's agent), and `who`'s emotion if the element gives one."""
+        if "role" in node.attrs:
+            role = parse_role(node.attrs["role"])
+            if role is None:
+                self.report(node, f"unknown role {node.attrs['role']!r}; expected one of {', '.join(ROLES)}")
+            elif who:
+                roles[who] = role
+            elif who is None and self.agent_known:
+                self.whose(node, "role")
+        for agent, role in roles.items():
+            history = self.roles.setdefault(agent, [])
+            if not history or history[-1][1] != role:
+                history.append((start, role, node.line))
         if "emotion" not in node.attrs:
             for key in ("intensity", "transition"):
                 if key in node.attrs:
@@ -335,51 +482,61 @@ class _Builder:
         intensity = self.number(node, "intensity", 1.0, 0, 1)
         transition = self.number(node, "transition", min(DEFAULT_EMOTION_TRANSITION_S, duration), 0, 60,
                                  " seconds")
-        if emotion is not None and (not self.emotions or self.emotions[-1][1:3] != (emotion, intensity)):
-            self.emotions.append((start, emotion, intensity, transition, node.line))
+        if who is None:
+            if self.agent_known:
+                self.whose(node, "emotion")
+            return
+        changes = self.emotions.setdefault(who, [])
+        if emotion is not None and (not changes or changes[-1][1:3] != (emotion, intensity)):
+            changes.append((start, emotion, intensity, transition, node.line))
 
     def flush_states(self, end: float) -> None:
-        for i, (start, role, line) in enumerate(self.roles):
-            stop = self.roles[i + 1][0] if i + 1 < len(self.roles) else end
-            self.elements.append(AnimationElement(
-                start, max(stop - start, 1e-6), "status", self.agent, flexor_tuple({}), role=role,
-                file=self.name, line=line))
-        for i, (start, name, intensity, transition, line) in enumerate(self.emotions):
-            stop = self.emotions[i + 1][0] if i + 1 < len(self.emotions) else end
-            self.elements.append(AnimationElement(
-                start, max(stop - start, 1e-6), "emotion", self.agent, emotion_pose(name, intensity),
-                transition_s=transition, emotion=name, intensity=intensity, file=self.name, line=line))
+        for agent, roles in self.roles.items():
+            for i, (start, role, line) in enumerate(roles):
+                stop = roles[i + 1][0] if i + 1 < len(roles) else end
+                self.elements.append(AnimationElement(
+                    start, max(stop - start, 1e-6), "status", agent, flexor_tuple({}), role=role,
+                    file=self.name, line=line))
+        for agent, emotions in self.emotions.items():
+            for i, (start, name, intensity, transition, line) in enumerate(emotions):
+                stop = emotions[i + 1][0] if i + 1 < len(emotions) else end
+                self.elements.append(AnimationElement(
+                    start, max(stop - start, 1e-6), "emotion", agent, emotion_pose(name, intensity),
+                    transition_s=transition, emotion=name, intensity=intensity, file=self.name, line=line))
 
     # --- head and gaze moves inside a turn or silence ------------------------------------------
 
-    def moves(self, node: Node, start: float, duration: float) -> None:
+    def moves(self, node: Node, start: float, duration: float, who: str | None) -> None:
         for child in node.children:
             if child.tag == "head":
-                self.head(child, start)
+                self.head(child, start, who)
             elif child.tag == "gaze":
-                self.gaze(child, start, duration)
+                self.gaze(child, start, duration, who)
             elif child.tag == "params":
-                self.include(child, start)
+                self.include(child, start, who)
             else:
                 self.report(child, f"unknown element inside <{node.tag}>; expected <head>, <gaze> or <params>")
                 continue
             if child.children:
                 self.report(child.children[0], f"<{child.tag}> holds no elements")
 
-    def head(self, node: Node, start: float) -> None:
+    def head(self, node: Node, start: float, who: str | None) -> None:
         self.check_attrs(node)
-        axes = tuple(self.optional(node, k, -1, 1) for k in ("turn", "nod", "tilt"))
+        agent = self.owner(node, who, "head")
+        axes = (self.optional(node, "turn", -1, 1), self.optional(node, "nod", -1, 1),
+                self.optional(node, "tilt", -1, 1))
         if not any(k in node.attrs for k in ("turn", "nod", "tilt")):
             self.report(node, "give at least one of turn, nod, tilt (flexor values in [-1, 1])")
         at = self.number(node, "at", 0.0, 0, 3600, " seconds")
         duration = self.number(node, "duration", DEFAULT_HEAD_S, 0.01, 3600, " seconds")
         flexors = {k: v for k, v in zip(("turn", "nod", "tilt"), axes, strict=True) if v is not None}
         self.elements.append(AnimationElement(
-            start + at, duration, "head", self.agent, flexor_tuple(flexors),
+            start + at, duration, "head", agent or "", flexor_tuple(flexors),
             transition_s=duration, head=axes, file=self.name, line=node.line))
 
-    def gaze(self, node: Node, start: float, turn_s: float) -> None:
+    def gaze(self, node: Node, start: float, turn_s: float, who: str | None) -> None:
         self.check_attrs(node)
+        agent = self.owner(node, who, "gaze")
         mode = None
         if "mode" in node.attrs:
             mode = parse_eye_mode(node.attrs["mode"])
@@ -401,7 +558,7 @@ class _Builder:
         else:
             yaw = pitch = None  # half a target is refused above
         self.elements.append(AnimationElement(
-            start + at, duration, "gaze", self.agent, flexor_tuple(flexors), eye_mode=mode,
+            start + at, duration, "gaze", agent or "", flexor_tuple(flexors), eye_mode=mode,
             yaw_deg=yaw, pitch_deg=pitch, file=self.name, line=node.line))
 
 

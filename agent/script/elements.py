@@ -129,14 +129,27 @@ class SayCue:
     duration_s: float
 
 
-Cue = RoleCue | EmotionCue | HeadCue | GazeCue | SayCue
+@dataclass(frozen=True)
+class TurnCue:
+    """A turn of a dialogue of several agents: `speaker` (one of its agents or the user; None for a silence)
+    speaks to `addressees` from `t_s` for `duration_s`. Who looks at whom follows from it
+    (agent/gaze/situated.py); it drives no agent by itself, so it has no `agent`."""
 
-# At one instant the role switches before anything else so that speech starts on a talking face.
-_CUE_ORDER = {RoleCue: 0, EmotionCue: 1, HeadCue: 2, GazeCue: 3, SayCue: 4}
+    t_s: float
+    speaker: str | None
+    addressees: tuple[str, ...]
+    duration_s: float
+
+
+Cue = RoleCue | EmotionCue | HeadCue | GazeCue | SayCue | TurnCue
+
+# At one instant the role switches before anything else so that speech starts on a talking face; a turn
+# comes after every agent's own cues of its instant, so the people to look at are chosen in the new roles.
+_CUE_ORDER = {RoleCue: 0, EmotionCue: 1, HeadCue: 2, GazeCue: 3, TurnCue: 4, SayCue: 5}
 _KIND_ORDER = {"status": 0, "emotion": 1, "head": 2, "gaze": 3}
 
 
-def element_cue(element: AnimationElement) -> Cue:
+def element_cue(element: AnimationElement) -> RoleCue | EmotionCue | HeadCue | GazeCue:
     """The bus command an element starts with."""
     e = element
     if e.kind == "status":
@@ -206,12 +219,14 @@ def _changes_nothing(cue: Cue, last: dict[tuple[type, str], Cue]) -> bool:
 
 
 def merge(
-    elements: Iterable[AnimationElement], says: Iterable[SayCue] = (), min_length_s: float = 0.0
+    elements: Iterable[AnimationElement], says: Iterable[SayCue] = (), min_length_s: float = 0.0,
+    turns: Iterable[TurnCue] = (),
 ) -> Timeline:
     """One time-ordered timeline; ties keep the kinds' order (status first) then the input order.
 
     Every element stays in `elements`; a role or emotion cue that restates the one in force is left
-    out of `cues`, so a parameter file may repeat what the dialogue already says.
+    out of `cues`, so a parameter file may repeat what the dialogue already says. `turns` are the turns
+    of a dialogue of several agents (none for one agent).
     """
     tidy = [dataclasses.replace(e, start_s=_tidy(e.start_s)) for e in elements]
     indexed = sorted(enumerate(tidy), key=lambda p: (p[1].start_s, _KIND_ORDER[p[1].kind], p[0]))
@@ -219,6 +234,7 @@ def merge(
     say_list = [dataclasses.replace(s, t_s=_tidy(s.t_s)) for s in says]
     cues: list[Cue] = [element_cue(e) for e in ordered]
     cues.extend(say_list)
+    cues.extend(dataclasses.replace(turn, t_s=_tidy(turn.t_s)) for turn in turns)
     cues = [c for _, c in sorted(enumerate(cues), key=lambda p: (p[1].t_s, _CUE_ORDER[type(p[1])], p[0]))]
     last: dict[tuple[type, str], Cue] = {}
     cues = [c for c in cues if not _changes_nothing(c, last)]

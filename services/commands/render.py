@@ -1,10 +1,13 @@
-"""`eca render SCRIPT... -o out.mp4`: the deterministic offline render, with audio and a flexor CSV."""
+"""`eca render SCRIPT... -o out.mp4`: the deterministic offline render, with audio and a flexor CSV.
+
+A dialogue of several agents is rendered with its agents side by side (services/offline_conversation.py)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,7 +41,9 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--view", choices=["full", "upper"], default="full")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes and blinks")
     p.add_argument("--fps", type=float, default=30.0)
-    p.add_argument("--size", default="640x480", help="WxH, even numbers")
+    p.add_argument("--size", default=None,
+                   help="WxH, even numbers (default 640x480; for a dialogue of several agents 400x300 per agent, "
+                        "side by side)")
     p.add_argument("--no-voice", action="store_true", help="do not speak lines that have only text")
 
 
@@ -57,14 +62,17 @@ def settings_from(args: argparse.Namespace) -> RenderSettings:
 
     if not 1 <= args.fps <= 120:
         raise ValueError(f"--fps {args.fps} must lie in [1, 120]")
-    return RenderSettings(fps=args.fps, size=parse_size(args.size), view=args.view,
+    size = parse_size(args.size) if args.size is not None else RenderSettings().size
+    return RenderSettings(fps=args.fps, size=size, view=args.view,
                           eyes=None if args.eyes == "script" else args.eyes, seed=args.seed)
 
 
-def load_inputs(args: argparse.Namespace, command: str = "render") -> tuple[ScriptSet, VoiceCache | None]:
-    """The scripts as one run (its agent: --agent or the dialogue's own) and the voices they speak with."""
+def load_inputs(args: argparse.Namespace, command: str = "render",
+                several_agents: bool = False) -> tuple[ScriptSet, VoiceCache | None]:
+    """The scripts as one run (its agent: --agent or the dialogue's own; a dialogue of several agents where
+    the command can animate them) and the voices they speak with."""
     voices = open_voices(command, args.no_voice)
-    return load_run(args.scripts, args.agent, voices), voices
+    return load_run(args.scripts, args.agent, voices, several_agents), voices
 
 
 def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings: RenderSettings,
@@ -123,15 +131,27 @@ def run(args: argparse.Namespace) -> int:
         settings = settings_from(args)
         if args.output.suffix.lower() != ".mp4":
             raise ValueError(f"{args.output}: the output must be an .mp4 file")
-        loaded, voices = load_inputs(args)
+        loaded, voices = load_inputs(args, several_agents=True)
+        if len(loaded.agents) > 1:
+            from services.offline_conversation import default_size, panel_widths
+
+            if args.size is None:
+                settings = replace(settings, size=default_size(len(loaded.agents)))
+            panel_widths(settings.size[0], len(loaded.agents))  # wide enough for every face
     except (ScriptError, SpeechSynthesisError, ValueError) as exc:
         print_failure("render", exc, "nothing rendered")
         return 1
     csv_path = args.csv or args.output.with_suffix(".csv")
     try:
-        render_video(loaded.timeline, voices, loaded.agent, settings, args.output, csv_path)
+        if len(loaded.agents) > 1:
+            from services.offline_conversation import render_conversation_video
+
+            render_conversation_video(loaded.timeline, voices, loaded.agents, settings, args.output, csv_path)
+        else:
+            render_video(loaded.timeline, voices, loaded.agent, settings, args.output, csv_path)
     except RENDER_ERRORS as exc:
         print_render_failure("render", exc)
         return 1
-    print(f"wrote {args.output} ({loaded.timeline.length_s:.1f} s, agent {loaded.agent}) and {csv_path}")
+    who = f"agents {', '.join(loaded.agents)}" if len(loaded.agents) > 1 else f"agent {loaded.agent}"
+    print(f"wrote {args.output} ({loaded.timeline.length_s:.1f} s, {who}) and {csv_path}")
     return 0
