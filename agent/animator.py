@@ -9,6 +9,7 @@ rather than from the script.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,9 +17,11 @@ import numpy as np
 from agent.clock import nanoseconds
 from agent.config import load_toml
 from agent.face.model import FaceModel
+from agent.gaze.backchannel import USER, Backchannel, BackchannelParams, ListenerBlink
 from agent.gaze.engine import GazeEngine
 from agent.lipsync.estimator import MouthTrack
 from agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, Timeline
+from agent.vocabulary import BACKCHANNEL_MODES
 
 FACE_IDLE_SEED = 7  # fixed: the render seed changes eyes and blinks only
 
@@ -86,6 +89,39 @@ class CueFollower:
                 self.gaze.set_target(i, *target, t_ns)
 
 
+SpeechEvent = tuple[float, str, bool]  # (t_s, who, started): a speaker's voice starts or stops
+
+
+class ListenerResponses:
+    """The listeners' backchannels (agent/gaze/backchannel.py) at the pauses of a script's speech: fed when
+    each speaker's voice starts and stops (found in the audio), it nods the faces and blinks the gaze rows of
+    `agents` (rows 0, 1, ... of `gaze`), in the eye modes that have backchannels. A speaker who is not one of
+    the agents is the user (a single agent's dialogue partner)."""
+
+    def __init__(self, agents: Sequence[str], faces: Sequence[FaceModel], gaze: GazeEngine, seed: int,
+                 speech: Sequence[SpeechEvent], params: BackchannelParams | None = None) -> None:
+        self.agents, self.faces, self.gaze = tuple(agents), list(faces), gaze
+        self.index = {a: k for k, a in enumerate(self.agents)}
+        self.model = Backchannel(self.agents, seed, params)
+        self.speech = sorted(speech, key=lambda e: (e[0], e[2]))  # a stop before a start at one instant
+        self.next = 0
+
+    def advance(self, t_ns: int) -> None:
+        """Feed the speech up to `t_ns` and show the responses due by then."""
+        while self.next < len(self.speech) and nanoseconds(self.speech[self.next][0]) <= t_ns:
+            at, who, started = self.speech[self.next]
+            self.model.speaking(nanoseconds(at), who if who in self.index else USER, started)
+            self.next += 1
+        for action in self.model.due(t_ns):
+            k = self.index[action.agent]
+            if self.gaze.mode_of(k) not in BACKCHANNEL_MODES:
+                continue  # the paper's conditions stay as they were
+            if isinstance(action, ListenerBlink):
+                self.gaze.blink_at(k, max(action.t_ns, self.gaze.now_ns))
+            else:
+                self.faces[k].nod(action.amplitude_deg, action.duration_s, action.t_ns)
+
+
 def mouth_at(utterances: list[Utterance], sample_rate: int, t_s: float) -> dict[str, float] | None:
     """The mouth shapes of the utterance (with a mouth track) playing at `t_s`, or None."""
     for u in utterances:
@@ -98,8 +134,10 @@ def mouth_at(utterances: list[Utterance], sample_rate: int, t_s: float) -> dict[
 
 class TimelineAnimator:
     def __init__(self, timeline: Timeline, agent: str, *, seed: int, eyes: str | None,
-                 utterances: list[Utterance], sample_rate: int) -> None:
-        """`eyes` fixes the eye mode; None lets the timeline's own eye-mode cues decide."""
+                 utterances: list[Utterance], sample_rate: int, speech: Sequence[SpeechEvent] = (),
+                 backchannel: BackchannelParams | None = None) -> None:
+        """`eyes` fixes the eye mode; None lets the timeline's own eye-mode cues decide. `speech`: when each
+        speaker's voice starts and stops, for the agent's backchannels (configs/backchannel.toml)."""
         self.eyes = eyes
         self.sample_rate = sample_rate
         self.cues = [c for c in timeline.cues if isinstance(c, AgentCue) and c.agent == agent]
@@ -110,6 +148,7 @@ class TimelineAnimator:
         if eyes is not None:
             self.gaze.set_mode(0, eyes, 0)
         self.follower = CueFollower(self.face, self.gaze, 0, eyes, head_degrees())
+        self.responses = ListenerResponses((agent,), (self.face,), self.gaze, seed, speech, backchannel)
 
     def frame_at(self, t_s: float) -> AnimatedFrame:
         """The face at `t_s`, every cue up to it applied; times must not go back."""
@@ -118,6 +157,7 @@ class TimelineAnimator:
             cue = self.cues[self.next_cue]
             self.follower.apply(cue, max(nanoseconds(cue.t_s), self.gaze.now_ns))
             self.next_cue += 1
+        self.responses.advance(t_ns)
         tick = self.gaze.tick(t_ns)
         yaw, pitch, lid = float(tick.yaw_deg[0]), float(tick.pitch_deg[0]), float(tick.lid[0])
         self.face.set_eyes(yaw, pitch, lid)

@@ -16,6 +16,9 @@ a person at once and stays there while the head follows or moves, as the vestibu
 (eye-head gaze shifts: the eyes lead, the head follows; Freedman & Sparks 1997). The frames report the eyes
 as shown.
 
+Listeners answer pauses in whoever speaks (`speech`: when each speaker's voice starts and stops, from the
+audio) with nods and blinks (agent/gaze/backchannel.py), in the eye modes that have them.
+
 The same seed and timeline give the same frames at any frame rate. The seed drives the eyes, the blinks and
 the choices of who is looked at; each face's idle noise has a fixed seed of its own (the first agent's is
 the single-agent animator's).
@@ -28,10 +31,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent.animator import FACE_IDLE_SEED, AgentCue, AnimatedFrame, CueFollower, Utterance, head_degrees, mouth_at
+from agent.animator import (
+    FACE_IDLE_SEED,
+    AgentCue,
+    AnimatedFrame,
+    CueFollower,
+    ListenerResponses,
+    SpeechEvent,
+    Utterance,
+    head_degrees,
+    mouth_at,
+)
 from agent.clock import nanoseconds
 from agent.face.flexors import FLEXOR_INDEX
 from agent.face.model import FaceModel
+from agent.gaze.backchannel import BackchannelParams
 from agent.gaze.engine import GazeEngine
 from agent.gaze.events import GazeTick
 from agent.gaze.situated import USER, Action, Conversation, SituatedParams, apply
@@ -54,10 +68,12 @@ class ConversationFrame:
 class ConversationAnimator:
     def __init__(self, timeline: Timeline, agents: Sequence[str], *, seed: int, eyes: str | None,
                  utterances: Mapping[str, list[Utterance]], sample_rate: int,
-                 situated: SituatedParams | None = None) -> None:
+                 situated: SituatedParams | None = None, speech: Sequence[SpeechEvent] = (),
+                 backchannel: BackchannelParams | None = None) -> None:
         """`agents` in seat order, left to right; `eyes` fixes every agent's eye mode (None: the timeline's
         eye-mode cues decide); `utterances` are each agent's own lines (with mouth tracks); `situated` the
-        constants of configs/conversation.toml."""
+        constants of configs/conversation.toml; `speech` when each speaker's voice starts and stops (agents
+        and the user); `backchannel` the constants of configs/backchannel.toml."""
         self.agents = tuple(agents)
         if not self.agents or len(set(self.agents)) != len(self.agents) or USER in self.agents:
             raise ValueError(f"a conversation needs distinct agents other than {USER!r}, got {list(agents)!r}")
@@ -78,6 +94,7 @@ class ConversationAnimator:
         self._degrees = np.array([units.turn_deg, units.nod_deg])
         self._eye_range = np.array([units.look_x_deg, units.look_y_deg])
         self.turn: TurnCue | None = None
+        self.responses = ListenerResponses(self.agents, self.faces, self.gaze, seed, speech, backchannel)
 
     def frame_at(self, t_s: float) -> ConversationFrame:
         """Every agent's face at `t_s`, every cue and situated action up to it applied; times must not go
@@ -94,6 +111,7 @@ class ConversationAnimator:
                 self.followers[self.index[cue.agent]].apply(cue, at)
             self.next_cue += 1
         self._act(self.conversation.due(t_ns))
+        self.responses.advance(t_ns)
         tick = self.gaze.tick(t_ns)
         faces = tuple(self._face(k, tick, t_s) for k in range(len(self.agents)))
         turn = self.turn

@@ -18,6 +18,9 @@ ROLES: tuple[Role, ...] = get_args(Role)
 EyeMode = Literal["static", "noise", "saccade", "saccade+blink", "saccade+noise+blink"]
 EYE_MODES: tuple[EyeMode, ...] = get_args(EyeMode)
 SACCADE_MODES: frozenset[EyeMode] = frozenset(m for m in EYE_MODES if m.startswith("saccade"))
+# The modes whose listeners answer a partner's pauses with nods and blinks (agent/gaze/backchannel.py): the
+# recommendation's; the paper's conditions stay as they were.
+BACKCHANNEL_MODES: frozenset[EyeMode] = frozenset({"saccade+noise+blink"})
 
 # The Eyes Alive decisions (mutual, away), head-led saccades, and the small saccades of the fixational noise:
 # scans between a partner's eyes and mouth, and microsaccades.

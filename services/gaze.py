@@ -33,6 +33,7 @@ from agent.gaze.backchannel import Nod as NodAction
 from agent.gaze.engine import GazeEngine
 from agent.gaze.params import KINDS
 from agent.gaze.situated import USER, Action, Conversation, HeadTurn, apply
+from agent.vocabulary import BACKCHANNEL_MODES
 from protocol.endpoints import BusConfig
 from protocol.messages import (
     AttentionState,
@@ -192,6 +193,8 @@ class GazeService(Service):
         self._act(self.conversation.due(now_ns))
         for action in self.backchannel.due(now_ns):
             i = self.index[action.agent]
+            if self.engine.mode_of(i) not in BACKCHANNEL_MODES:
+                continue  # the paper's conditions stay as they were
             if isinstance(action, ListenerBlink):
                 self.engine.blink_at(i, max(action.t_ns, self.engine.now_ns))
             elif isinstance(action, NodAction):

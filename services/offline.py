@@ -14,10 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.animator import TimelineAnimator, Utterance
+from agent.animator import SpeechEvent, TimelineAnimator, Utterance
 from agent.face.flexors import FLEXOR_NAMES
+from agent.gaze.backchannel import BackchannelParams
 from agent.gaze.params import default_eye_mode
 from agent.lipsync.estimator import mouth_track
+from agent.lipsync.pauses import speech_segments
 from agent.script import SayCue, Timeline
 from services.audio.files import read_sound_file
 from services.audio.resample import resample
@@ -59,6 +61,20 @@ def load_audio(path: str | Path) -> np.ndarray:
 
 
 def gather_speech(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[Utterance]:
+    """Every line on the timeline, the agent's own with its mouth track."""
+    return [u for u, _ in _lines(timeline, agent, voices)]
+
+
+def speech_events(lines: list[tuple[Utterance, str]], min_pause_s: float) -> list[SpeechEvent]:
+    """When each speaker's voice starts and stops: its pauses of `min_pause_s` or more, found in the audio."""
+    events: list[SpeechEvent] = []
+    for line, speaker in lines:
+        for start, end in speech_segments(line.samples, AUDIO_RATE, min_pause_s):
+            events += [(line.start_s + start, speaker, True), (line.start_s + end, speaker, False)]
+    return events
+
+
+def _lines(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[tuple[Utterance, str]]:
     out = []
     for cue in timeline.cues:
         if not isinstance(cue, SayCue):
@@ -73,7 +89,7 @@ def gather_speech(timeline: Timeline, agent: str, voices: VoiceCache | None) -> 
             continue
         samples = load_audio(path)
         track = mouth_track(samples, AUDIO_RATE) if cue.agent == agent else None
-        out.append(Utterance(cue.t_s, samples, track))
+        out.append((Utterance(cue.t_s, samples, track), cue.agent))
     return out
 
 
@@ -148,12 +164,15 @@ def mux_audio(video_path: Path, audio: np.ndarray, out_path: Path) -> None:
 def animate(timeline: Timeline, agent: str, settings: RenderSettings, voices: VoiceCache | None,
             on_frame: Callable[[int, np.ndarray], None] | None = None) -> RenderedTimeline:
     """Every frame's flexors (and eye angles) for the timeline; `on_frame(k, flexors)` sees each."""
-    utterances = gather_speech(timeline, agent, voices)
+    lines = _lines(timeline, agent, voices)
+    utterances = [u for u, _ in lines]
     audio = mix(utterances, timeline.length_s)
     length_s = max(timeline.length_s, audio.size / AUDIO_RATE)
     n_frames = int(np.floor(length_s * settings.fps)) + 1
+    backchannel = BackchannelParams.load()
     animator = TimelineAnimator(timeline, agent, seed=settings.seed, eyes=settings.eyes, utterances=utterances,
-                                sample_rate=AUDIO_RATE)
+                                sample_rate=AUDIO_RATE, speech=speech_events(lines, backchannel.min_pause_s),
+                                backchannel=backchannel)
     t_s = np.arange(n_frames) / settings.fps
     flexors = np.empty((n_frames, len(FLEXOR_NAMES)))
     eyes = np.empty((n_frames, 3))

@@ -16,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.animator import Utterance
+from agent.animator import SpeechEvent, Utterance
 from agent.conversation_animator import ConversationAnimator
 from agent.face.flexors import FLEXOR_NAMES
+from agent.gaze.backchannel import BackchannelParams
 from agent.gaze.situated import SituatedParams
 from agent.lipsync.estimator import mouth_track
 from agent.script import SayCue, Timeline
@@ -32,6 +33,7 @@ from services.offline import (
     load_audio,
     mix,
     mux_audio,
+    speech_events,
 )
 from services.playback import AGENT_VOICE, PARTNER_VOICE, VoiceCache
 
@@ -67,11 +69,13 @@ class RenderedConversation:
     audio: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
 
 
-def gather_lines(timeline: Timeline, agents: Sequence[str],
-                 voices: VoiceCache | None) -> tuple[list[Utterance], dict[str, list[Utterance]]]:
-    """Every line on the timeline (to mix), and each agent's own (with its mouth track)."""
+def gather_lines(timeline: Timeline, agents: Sequence[str], voices: VoiceCache | None,
+                 min_pause_s: float) -> tuple[list[Utterance], dict[str, list[Utterance]], list[SpeechEvent]]:
+    """Every line on the timeline (to mix), each agent's own (with its mouth track), and when each speaker's
+    voice starts and stops (its pauses of `min_pause_s` or more, found in the audio)."""
     heard: list[Utterance] = []
     spoken: dict[str, list[Utterance]] = {agent: [] for agent in agents}
+    voiced: list[tuple[Utterance, str]] = []
     for cue in timeline.cues:
         if not isinstance(cue, SayCue):
             continue
@@ -89,7 +93,8 @@ def gather_lines(timeline: Timeline, agents: Sequence[str],
         heard.append(line)
         if own:
             spoken[cue.agent].append(line)
-    return heard, spoken
+        voiced.append((line, cue.agent))
+    return heard, spoken, speech_events(voiced, min_pause_s)
 
 
 def animate_conversation(
@@ -98,12 +103,14 @@ def animate_conversation(
 ) -> RenderedConversation:
     """Every frame of every agent; `on_frame(k, flexors per agent)` sees each frame."""
     agents = tuple(agents)
-    heard, spoken = gather_lines(timeline, agents, voices)
+    backchannel = BackchannelParams.load()
+    heard, spoken, speech = gather_lines(timeline, agents, voices, backchannel.min_pause_s)
     audio = mix(heard, timeline.length_s)
     length_s = max(timeline.length_s, audio.size / AUDIO_RATE)
     n_frames = int(np.floor(length_s * settings.fps)) + 1
     animator = ConversationAnimator(timeline, agents, seed=settings.seed, eyes=settings.eyes, utterances=spoken,
-                                    sample_rate=AUDIO_RATE, situated=situated)
+                                    sample_rate=AUDIO_RATE, situated=situated, speech=speech,
+                                    backchannel=backchannel)
     t_s = np.arange(n_frames) / settings.fps
     n = len(agents)
     flexors = np.empty((n, n_frames, len(FLEXOR_NAMES)))

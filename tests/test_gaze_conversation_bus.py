@@ -14,7 +14,7 @@ from agent.gaze.backchannel import USER, Backchannel
 from agent.gaze.backchannel import Nod as NodAction
 from agent.gaze.situated import Conversation, HeadTurn
 from protocol.bus import Publisher, Subscriber
-from protocol.messages import AttentionState, EmotionState, Error, Message, Nod, RoleState, UserSpeech
+from protocol.messages import AttentionState, EmotionState, Error, EyesState, Message, Nod, RoleState, UserSpeech
 from services.gaze import GazeService
 from services.testing import BrokerThread, ServiceThread, private_bus_config
 
@@ -115,6 +115,27 @@ def test_an_agent_that_talks_does_not_nod_at_the_user_s_pause() -> None:
         dialogue.publish(UserSpeech(agent="ada", speaking=False), category="event")
         handled(sub, dialogue, "mark4")
         clock.advance_s(2.0)
-        handled(sub, dialogue, "mark5")  # ticks have run past every nod's time
-        got = collect(sub, lambda m: len([x for x in m if isinstance(x, Nod)]) >= len(expected), timeout_s=2.0)
+        got = handled(sub, dialogue, "mark5")  # ticks have run past every nod's time
+        got += collect(sub, lambda m: len([x for x in m if isinstance(x, Nod)]) >= len(expected), timeout_s=2.0)
+    assert {m.agent for m in got if isinstance(m, Nod)} == expected
+
+
+def test_an_agent_in_one_of_the_paper_s_conditions_does_not_backchannel() -> None:
+    model = Backchannel(AGENTS, SEED)
+    model.speaking(0, USER, True)
+    model.speaking(NS, USER, False)
+    expected = {a.agent for a in model.due(3 * NS) if isinstance(a, NodAction)} - {"ada"}
+    assert expected == {"bob"}
+    clock = VirtualClock(10 * NS)
+    with conversation_bus(clock) as (sub, dialogue):
+        dialogue.publish(EyesState(agent="ada", mode="saccade+blink"))
+        dialogue.publish(UserSpeech(agent="ada", speaking=True), category="event")
+        handled(sub, dialogue, "mode")
+        clock.advance_s(1.0)
+        dialogue.publish(UserSpeech(agent="ada", speaking=False), category="event")
+        handled(sub, dialogue, "stop")
+        clock.advance_s(2.0)
+        got = handled(sub, dialogue, "after")  # ticks have run past every nod's time
+        got += collect(sub, lambda m: any(isinstance(x, Nod) for x in m), timeout_s=2.0)
+        got += collect(sub, lambda m: False, timeout_s=0.3)  # anything else still on its way
     assert {m.agent for m in got if isinstance(m, Nod)} == expected

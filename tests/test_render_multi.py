@@ -137,3 +137,59 @@ def test_eca_render_draws_three_faces_side_by_side_and_writes_one_csv(script: Pa
     assert eca(["render", str(script), "-o", str(tmp_path / "n.mp4"), "--size", "40x24", "--no-voice"]) == 1
     assert "too narrow for 3 faces" in capsys.readouterr().err
     assert not (tmp_path / "n.mp4").exists()
+
+
+def _pausing_voice(path: Path, stretches: int) -> None:
+    """`stretches` one-second voiced stretches, each followed by 0.6 s of silence: pauses to answer."""
+    t = np.arange(AUDIO_RATE) / AUDIO_RATE
+    buzz = sum(np.sin(2 * np.pi * 120 * h * t) / h for h in range(1, 30)) * 0.3 * (0.6 + 0.4 * np.sin(np.pi * t))
+    gap = np.zeros(int(0.6 * AUDIO_RATE))
+    voice = np.concatenate([np.concatenate([buzz, gap]) for _ in range(stretches)])
+    with wave.open(str(path), "wb") as fh:
+        fh.setnchannels(1)
+        fh.setsampwidth(2)
+        fh.setframerate(AUDIO_RATE)
+        fh.writeframes((voice * 32767).astype(np.int16).tobytes())
+
+
+def test_listeners_nod_at_the_speakers_pauses_only_in_the_recommended_mode(tmp_path: Path) -> None:
+    import dataclasses
+
+    from agent.conversation_animator import ConversationAnimator
+    from agent.gaze.backchannel import BackchannelParams
+    from services.offline_conversation import gather_lines
+
+    _pausing_voice(tmp_path / "user.wav", 6)
+    _pausing_voice(tmp_path / "ada.wav", 3)
+    path = tmp_path / "pauses.xml"
+    path.write_text('<dialogue agents="ada bob">\n  <turn speaker="user" audio="user.wav">Well.</turn>\n'
+                    '  <turn speaker="ada" audio="ada.wav">So.</turn>\n</dialogue>\n')
+    run = load_scripts([path])
+    params = BackchannelParams.load()
+    heard, spoken, speech = gather_lines(run.timeline, run.agents, None, params.min_pause_s)
+    user_stops = [t for t, who, started in speech if who == "user" and not started]
+    assert len(user_stops) == 6  # the pauses are found in the audio
+    nod = FLEXOR_INDEX["nod"]
+
+    def nods(eyes: str, probability: float) -> np.ndarray:
+        chosen = dataclasses.replace(params, nod_probability=probability, blink_probability=0.0)
+        animator = ConversationAnimator(run.timeline, run.agents, seed=3, eyes=eyes, utterances=spoken,
+                                        sample_rate=AUDIO_RATE, speech=speech, backchannel=chosen)
+        return np.array([[f.flexors[nod] for f in animator.frame_at(k / 30).faces] for k in range(30 * 16)])
+
+    always, never = nods("saccade+noise+blink", 1.0), nods("saccade+noise+blink", 0.0)
+    dips = never - always  # > 0 where a nod lowers the chin
+    t = np.arange(len(dips)) / 30
+    for a, agent in enumerate(run.agents):
+        down = t[dips[:, a] > 0.05]
+        assert down.size, f"{agent} never nodded"
+        # every nod starts within a second after a pause in the other speaker's speech ...
+        stops = [s for s, who, started in speech if who != agent and not started]
+        assert all(any(0 < x - s < 1.4 for s in stops) for x in down), agent
+        # ... and never while the agent itself speaks
+        own = [(s, e) for (s, who, on), (e, _, _) in zip(speech[::2], speech[1::2], strict=True) if who == agent]
+        assert not any(s <= x <= e for x in down for s, e in own), agent
+    # the user's six pauses are answered by both listeners; refractory times keep nods apart
+    assert (dips[t < 9.6, 1] > 0.05).any() and (dips[t < 9.6, 0] > 0.05).any()
+    # the paper's conditions never backchannel: the same render with and without nods is the same
+    assert np.array_equal(nods("saccade+blink", 1.0), nods("saccade+blink", 0.0))

@@ -170,3 +170,42 @@ def test_the_csv_header_and_rows_read_back_in_the_documented_units(tmp_path: Pat
     for name in FLEXOR_NAMES:
         assert np.all(np.abs(table[name]) <= 1.0), name
     assert all(len(v.split(".")[1]) == 6 for v in lines[1].split(",") if v[-1].isdigit())
+
+
+def test_a_single_listener_nods_at_its_partner_s_pauses_in_the_recommended_mode(tmp_path: Path) -> None:
+    import dataclasses
+    import wave
+
+    from agent.animator import TimelineAnimator
+    from agent.face.flexors import FLEXOR_INDEX
+    from agent.gaze.backchannel import BackchannelParams
+    from services.offline import AUDIO_RATE, _lines, speech_events
+
+    t = np.arange(AUDIO_RATE) / AUDIO_RATE
+    buzz = sum(np.sin(2 * np.pi * 120 * h * t) / h for h in range(1, 30)) * 0.3 * (0.6 + 0.4 * np.sin(np.pi * t))
+    voice = np.concatenate([np.concatenate([buzz, np.zeros(int(0.6 * AUDIO_RATE))]) for _ in range(4)])
+    with wave.open(str(tmp_path / "user.wav"), "wb") as fh:
+        fh.setnchannels(1)
+        fh.setsampwidth(2)
+        fh.setframerate(AUDIO_RATE)
+        fh.writeframes((voice * 32767).astype(np.int16).tobytes())
+    script = tmp_path / "listen.xml"
+    script.write_text('<dialogue agent="ada"><turn speaker="user" audio="user.wav">Hm.</turn></dialogue>\n')
+    timeline = build_timeline([script])
+    lines = _lines(timeline, "ada", None)
+    params = BackchannelParams.load()
+    speech = speech_events(lines, params.min_pause_s)
+    assert sum(1 for _, who, on in speech if who == "user" and not on) == 4
+    nod = FLEXOR_INDEX["nod"]
+
+    def nods(eyes: str, probability: float) -> np.ndarray:
+        animator = TimelineAnimator(timeline, "ada", seed=2, eyes=eyes, utterances=[u for u, _ in lines],
+                                    sample_rate=AUDIO_RATE, speech=speech,
+                                    backchannel=dataclasses.replace(params, nod_probability=probability))
+        return np.array([animator.frame_at(k / 30).flexors[nod] for k in range(30 * 7)])
+
+    dips = nods("saccade+noise+blink", 0.0) - nods("saccade+noise+blink", 1.0)
+    down = np.flatnonzero(dips > 0.05) / 30
+    stops = [s for s, _, on in speech if not on]
+    assert down.size and all(any(0 < x - s < 1.4 for s in stops) for x in down)
+    assert np.array_equal(nods("saccade+blink", 0.0), nods("saccade+blink", 1.0))
