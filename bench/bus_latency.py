@@ -204,7 +204,7 @@ def summarise(latencies_ns: list[int], lost: int) -> dict[str, Any]:
 
 @contextmanager
 def broker_process(config_path: Path, instance: str) -> Iterator[subprocess.Popen[bytes]]:
-    from services.testing import running
+    from tests.support.bus import running
 
     argv = [sys.executable, "-m", "services.run", "broker", "--config", str(config_path), "--instance", instance]
     with running(argv) as (proc, out):
@@ -250,7 +250,7 @@ def rss_kib(pid: int) -> int | None:
 
 def up_benchmark(runs: int, config_path: Path) -> dict[str, Any]:
     """Time `eca up` to ready; read each process's resident memory once it is ready."""
-    from services.testing import eca_command, running
+    from tests.support.bus import eca_command, running
 
     ready_s: list[float] = []
     wall_s: list[float] = []
@@ -309,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         return run_publisher(args.mode, args.config, args.instance, args.count, args.rate)
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    from services.testing import write_test_config
+    from tests.support.bus import write_test_config
 
     directory = Path(tempfile.mkdtemp(prefix="eca-"))
     try:

@@ -151,7 +151,7 @@ def bus_offsets_ms(utterances: int, fps: float = 60.0, timeout_s: float = 20.0) 
     from services.dialogue import DialogueService
     from services.renderer.options import RendererOptions
     from services.renderer.service import RendererService
-    from services.testing import BrokerThread, ServiceThread, private_bus_config
+    from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
     vowel = synthetic_vowel(750, 1200, 0.25, BUS_RATE)
     offsets: list[float] = []

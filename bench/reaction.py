@@ -47,7 +47,7 @@ from protocol.bus import Publisher, Subscriber  # noqa: E402
 from protocol.client import AgentClient  # noqa: E402
 from protocol.endpoints import BusConfig, load_bus_config  # noqa: E402
 from protocol.messages import EmotionState, EyeState, FaceFrame, Saccade  # noqa: E402
-from services.testing import private_bus_config, running  # noqa: E402
+from tests.support.bus import private_bus_config, running  # noqa: E402
 
 EXPRESSION = [n for n in FLEXOR_NAMES if n not in ("look_x", "look_y", "blink_l", "blink_r", "turn", "nod", "tilt")]
 

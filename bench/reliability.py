@@ -1123,7 +1123,7 @@ def guarded(phase: str, report: Report, body: Callable[[], None]) -> None:
 
 
 def run(args: argparse.Namespace, report: Report) -> None:
-    from services.testing import eca_command, private_bus_config, running
+    from tests.support.bus import eca_command, private_bus_config, running
 
     workdir = Path(tempfile.mkdtemp(prefix="eca-rel-"))
     try:

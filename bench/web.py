@@ -1,7 +1,7 @@
 """Web front-end: A/V offset as the browser presents it, command -> frame latency, and cost per viewer.
 
 Starts `eca up --web` (dialogue, gaze, audio and the web service; no renderer) on a private instance and
-a free port, and drives a real headless Chromium (services/browser.py) on the product page. What the
+a free port, and drives a real headless Chromium (tests/support/browser.py) on the product page. What the
 bench measures in the page it injects (selenium's execute_script); the page itself is not changed. The
 instance's viewer watchdog waits 30 s instead of 5 s (see instance(): with 5 s it drops healthy pages).
 
@@ -469,7 +469,7 @@ class Instance:
 
 @contextmanager
 def instance() -> Iterator[Instance]:
-    from services.testing import eca_command, private_bus_config, running
+    from tests.support.bus import eca_command, private_bus_config, running
 
     with private_bus_config(services=["dialogue", "gaze", "audio"]) as config:
         # The product's own viewer watchdog runs (silent_timeout_s): the bench's connections last minutes,
@@ -498,7 +498,7 @@ def open_page(driver: Any, url: str) -> None:
 
 
 def connect_page(driver: Any) -> None:
-    from services.browser import wait_for
+    from tests.support.browser import wait_for
 
     driver.find_element("id", "connect").click()
     wait_for(driver, "return window.eca.state", CONNECT_TIMEOUT_S, "the page connecting", lambda s: s == "connected")
@@ -660,7 +660,7 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
     from protocol.bus import Subscriber
     from protocol.client import AgentClient
     from protocol.messages import MouthKeys, Say, SpeechStarted
-    from services.browser import wait_for
+    from tests.support.browser import wait_for
 
     details: dict[str, Any] = {}
     report.details["av"] = details
@@ -1272,7 +1272,7 @@ def guarded(phase: str, report: Report, body: Callable[[], None]) -> None:
 
 
 def run(args: argparse.Namespace, report: Report) -> None:
-    from services.browser import browser_available, chromium
+    from tests.support.browser import browser_available, chromium
 
     problem = browser_available()
     if problem:

@@ -167,7 +167,9 @@ class Service:
         for got in early:
             self.dispatch(got)
 
-    def run(self, install_signals: bool = True) -> int:
+    def run(self, install_signals: bool = True, on_ready: Callable[[], None] | None = None) -> int:
+        """The process's life: connect, loop until stopped, tear down; 1 when it cannot start. `on_ready` is
+        called once connected (a test running the service in a thread waits on it)."""
         if install_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self._stop.set())
@@ -180,6 +182,8 @@ class Service:
                 self.log.error("cannot start: %s", exc)
                 return 1
             self.log.info("ready (pid %d)", os.getpid())
+            if on_ready is not None:
+                on_ready()
             while not self._stop.is_set():
                 self.run_once()
         finally:

@@ -1,14 +1,38 @@
-"""Suite-wide set-up."""
+"""Suite-wide set-up: the shared `bus` fixture, and the renderer's compiled code for the tests that draw."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import pytest
 
-from services.renderer.kernels import warm_up
+from protocol.endpoints import BusConfig
+from tests.support.bus import BrokerThread, private_bus_config
+
+_compiled = False
 
 
-@pytest.fixture(scope="session", autouse=True)
-def compiled_renderer_code() -> None:
-    """The renderer's compiled per-frame code, loaded (or compiled, on a machine that never ran setup)
-    before any test, so that no test measuring time pays for it inside its measurement."""
-    warm_up()
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """The renderer's compiled per-frame code, loaded (or compiled, on a machine that never ran setup) before
+    the first test that draws (marked `gl`) or starts real processes that may (`slow`), so that none of them
+    pays for it inside a measurement or a readiness timeout. Tests that draw nothing never load it."""
+    global _compiled
+    if not _compiled and (item.get_closest_marker("gl") or item.get_closest_marker("slow")):
+        from services.renderer.kernels import warm_up
+
+        warm_up()
+        _compiled = True
+
+
+@pytest.fixture
+def bus_extra() -> str:
+    """TOML tables the private instance of `bus` adds to the default config; a module overrides it."""
+    return ""
+
+
+@pytest.fixture
+def bus(bus_extra: str) -> Iterator[BusConfig]:
+    """A private instance (its own runtime directory, so tests run in parallel) with a real broker in a
+    thread of the test process."""
+    with private_bus_config(extra=bus_extra) as config, BrokerThread(config):
+        yield config

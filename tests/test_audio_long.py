@@ -37,7 +37,7 @@ from services.audio.events import TERMINAL_EVENTS as TERMINAL_PLAYER
 from services.audio.service import AudioService
 from services.dialogue import DialogueService
 from services.runtime import wait_until
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 RATE = 16_000
 SPEED = 20.0  # the fast sink plays this many seconds of audio per second

@@ -24,7 +24,7 @@ from protocol.messages import (
 from services.audio.service import AudioService
 from services.audio.sinks import NullSink
 from services.dialogue import DialogueService
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 RATE = 16_000
 

@@ -25,7 +25,7 @@ from services.audio.resample import resample
 from services.audio.service import AudioService
 from services.audio.sinks import NullSink
 from services.dialogue import DialogueService
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 SR = 48_000
 BLOCK = 480

@@ -1,7 +1,7 @@
 """State that outlives a broker: publishers see a new broker, owners publish their state again, the cache
 orders versions by time and stays bounded, and the dialogue service's state survives any restart.
 
-These run the real broker and services in threads of the test process (services.testing); the process
+These run the real broker and services in threads of the test process (tests/support/bus.py); the process
 tests (test_field_processes.py) do the same with kill -9 on real processes.
 """
 
@@ -24,7 +24,7 @@ from services.broker import Broker
 from services.dialogue import DialogueService
 from services.runtime import wait_until
 from services.state_snapshot import StateSnapshot, snapshot_path
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 
 @pytest.fixture

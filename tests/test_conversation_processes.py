@@ -16,7 +16,7 @@ from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import AttentionState, FaceFrame, Message, Nod, RoleState
-from services.testing import eca_command, private_bus_config, running
+from tests.support.bus import eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow
 

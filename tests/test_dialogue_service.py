@@ -32,13 +32,7 @@ from protocol.messages import (
 )
 from services.dialogue import DialogueService
 from services.runtime import wait_until
-from services.testing import BrokerThread, ServiceThread, private_bus_config
-
-
-@pytest.fixture
-def bus() -> Iterator[object]:
-    with private_bus_config(extra="") as config, BrokerThread(config):
-        yield config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 
 @pytest.fixture

@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 
-from services.browser import browser_available, chromium, wait_for
 from services.cli import main as eca
 from services.experiment import CONDITIONS
+from tests.support.browser import browser_available, chromium, wait_for
 
 pytestmark = [pytest.mark.gl, pytest.mark.slow,
               pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))]

@@ -40,7 +40,7 @@ from protocol.messages import (
 from protocol.topics import CATEGORIES
 from services.liveness import liveness_endpoint
 from services.processes import LineReader
-from services.testing import eca_command, private_bus_config, running
+from tests.support.bus import eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow
 

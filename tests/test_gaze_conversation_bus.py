@@ -16,7 +16,7 @@ from agent.gaze.situated import Conversation, HeadTurn
 from protocol.bus import Publisher, Subscriber
 from protocol.messages import AttentionState, EmotionState, Error, EyesState, Message, Nod, RoleState, UserSpeech
 from services.gaze import GazeService
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 AGENTS = ["ada", "bob", "cy"]
 SEED = 14  # its first pause draws nods from ada and bob

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from services.gaze import GazeService
-from services.testing import private_bus_config
+from tests.support.bus import private_bus_config
 
 
 @pytest.mark.parametrize(("argv", "says"), [

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
+
 try:
     from services.renderer import create_headless_context
 

@@ -1,5 +1,5 @@
 """The example bot (examples/pipecat_bot.py) end to end: the bot runs as its own process, a real headless
-Chromium (services/browser.py) opens its page and connects, and its fake microphone is a WAV of espeak-ng
+Chromium (tests/support/browser.py) opens its page and connects, and its fake microphone is a WAV of espeak-ng
 speech after a few seconds of silence. The browser decodes the face, the bot answers the user's turn (its
 voice reaches the browser: audio energy in getStats), and on the bot's private eca instance the face
 listens while the user speaks, says the answer and changes its emotion as the script's tool call asks.
@@ -23,8 +23,6 @@ from PIL import Image
 
 pytest.importorskip("pipecat.frames.frames", reason="pipecat is not installed: pip install 'eca[pipecat]'")
 
-from web_client import user_speech_wav  # noqa: E402
-
 from protocol.bus import Subscriber  # noqa: E402
 from protocol.endpoints import default_runtime_root, load_bus_config  # noqa: E402
 from protocol.messages import (  # noqa: E402
@@ -36,8 +34,9 @@ from protocol.messages import (  # noqa: E402
     SpeechStarted,
     UserSpeech,
 )
-from services.browser import browser_available, chromium, page_stats, wait_for  # noqa: E402
-from services.testing import running  # noqa: E402
+from tests.support.browser import browser_available, chromium, page_stats, wait_for  # noqa: E402
+from tests.support.bus import running  # noqa: E402
+from tests.support.web_client import user_speech_wav  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.gl,
               pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))]

@@ -52,7 +52,7 @@ from services.audio.service import AudioService  # noqa: E402
 from services.audio.sinks import NullSink  # noqa: E402
 from services.dialogue import DialogueService  # noqa: E402
 from services.pipecat import EcaFaceParams, EcaVideoService  # noqa: E402
-from services.testing import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
 
 pytestmark = [pytest.mark.gl, pytest.mark.filterwarnings("ignore::DeprecationWarning")]  # pipecat's own
 RATE = 16_000

@@ -32,7 +32,7 @@ from protocol.messages import EmotionState, HeadState  # noqa: E402
 from services.dialogue import DialogueService  # noqa: E402
 from services.pipecat import EcaFaceParams, EcaTools, EcaVideoService  # noqa: E402
 from services.processes import REPO_ROOT, subprocess_env  # noqa: E402
-from services.testing import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pipecat's own
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import msgpack
@@ -18,13 +17,7 @@ from services.cli import main as eca
 from services.dialogue import DialogueService
 from services.playback import CueTranslator
 from services.recording import RecordingError, RecordingWriter, read_recording
-from services.testing import BrokerThread, ServiceThread, private_bus_config
-
-
-@pytest.fixture
-def bus() -> Iterator[object]:
-    with private_bus_config() as config, BrokerThread(config):
-        yield config
+from tests.support.bus import ServiceThread
 
 
 def test_head_cue_leaves_unnamed_axes_where_they_were() -> None:

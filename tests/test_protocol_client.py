@@ -9,7 +9,7 @@ import zmq
 
 from protocol.bus import BusTimeout
 from protocol.client import AgentClient
-from services.testing import private_bus_config
+from tests.support.bus import private_bus_config
 
 
 def test_a_client_that_finds_no_broker_closes_its_sockets() -> None:

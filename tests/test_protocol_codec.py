@@ -40,7 +40,7 @@ from protocol.messages import (
     SpeechState,
 )
 from protocol.topics import topic_for
-from services.testing import BrokerThread, private_bus_config
+from tests.support.bus import BrokerThread, private_bus_config
 
 ENVELOPE = tuple(f.name for f in dataclasses.fields(Message))
 DOC = Path(__file__).resolve().parent.parent / "docs" / "protocol.md"

@@ -2,7 +2,7 @@
 
 Nothing from eca's protocol package is used on the client side (no Publisher, Subscriber, codec or
 message classes): if this client works, a program in another language that follows the document
-works too. `services.testing` only starts and stops the process group.
+works too. `tests/support/bus.py` only starts and stops the process group.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import msgpack
 import pytest
 import zmq
 
-from services.testing import eca_command, running, write_test_config
+from tests.support.bus import eca_command, running, write_test_config
 
 AGENT = "ada"
 TIMEOUT_S = 10.0

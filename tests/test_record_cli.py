@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from services.cli import main
-from services.testing import private_bus_config
+from tests.support.bus import private_bus_config
 
 
 def test_record_into_an_unwritable_place_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -35,7 +35,7 @@ def test_a_recording_starts_with_the_current_state_and_holds_what_followed(tmp_p
     from protocol.client import AgentClient
     from services.dialogue import DialogueService
     from services.recording import read_recording
-    from services.testing import BrokerThread, ServiceThread, eca_command, running
+    from tests.support.bus import BrokerThread, ServiceThread, eca_command, running
 
     target = tmp_path / "bus.rec"
     with private_bus_config() as config, BrokerThread(config), ServiceThread(DialogueService(config)):

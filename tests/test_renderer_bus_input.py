@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+import pytest
 import zmq
 
 from protocol.bus import Publisher, Received, Subscriber
@@ -11,7 +12,9 @@ from protocol.messages import ClockAnchor, EmotionState, MouthKeys, SpeechFailed
 from protocol.topics import topic_for
 from services.renderer.options import RendererOptions
 from services.renderer.service import RendererService
-from services.testing import BrokerThread, private_bus_config
+from tests.support.bus import BrokerThread, private_bus_config
+
+pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
 
 
 def drain_until(svc: RendererService, predicate, timeout_s: float = 5.0) -> bool:  # noqa: ANN001

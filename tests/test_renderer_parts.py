@@ -35,7 +35,7 @@ from services.renderer.schedule import FrameSchedule
 from services.renderer.service import RendererService
 from services.renderer.video import PngWriter
 from services.runtime import Service
-from services.testing import BrokerThread, private_bus_config
+from tests.support.bus import BrokerThread, private_bus_config
 
 S = 1_000_000_000
 

@@ -19,7 +19,9 @@ from protocol.messages import ClockAnchor, EmotionState, EyeState, FaceFrame, He
 from services.renderer.options import RendererOptions, options_from
 from services.renderer.service import RendererService
 from services.renderer.video import read_video_frames
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
+
+pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
 
 UNITS = load_flexor_units()
 SMALL = (96, 72)

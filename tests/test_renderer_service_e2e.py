@@ -23,7 +23,9 @@ from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, FaceFrame, RoleState, Saccade
-from services.testing import private_bus_config, running
+from tests.support.bus import private_bus_config, running
+
+pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
 
 UNITS = load_flexor_units()
 EXPRESSION = [n for n in FLEXOR_NAMES if n not in ("look_x", "look_y", "blink_l", "blink_r", "turn", "nod", "tilt")]

@@ -12,7 +12,7 @@ import zmq
 from protocol.bus import Subscriber
 from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, FaceFrame, RoleState, Saccade
-from services.testing import REPO_ROOT, eca_command, private_bus_config, running
+from tests.support.bus import REPO_ROOT, eca_command, private_bus_config, running
 
 pytestmark = [pytest.mark.slow, pytest.mark.gl]
 FPS = 30.0

@@ -5,7 +5,6 @@ sent."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,13 +18,12 @@ from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, SetEmotion
 from services.cli import main
 from services.dialogue import DialogueService
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import ServiceThread
 
 
 @pytest.fixture
-def bus() -> Iterator[BusConfig]:
-    with private_bus_config(extra="[dialogue]\nsay_start_timeout_s = 0.3\n") as config, BrokerThread(config):
-        yield config
+def bus_extra() -> str:
+    return "[dialogue]\nsay_start_timeout_s = 0.3\n"  # a say no audio service takes fails soon
 
 
 def send(config: BusConfig, *args: str) -> list[str]:

@@ -196,7 +196,7 @@ def test_a_broker_that_cannot_bind_releases_its_sockets_and_lock(tmp_path) -> No
     import zmq
 
     from services.broker import Broker
-    from services.testing import private_bus_config
+    from tests.support.bus import private_bus_config
 
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))

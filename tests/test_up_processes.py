@@ -19,8 +19,8 @@ from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, Heartbeat
 from services.cli import main as eca_main
-from services.testing import LineReader, eca_command, private_bus_config, running
 from services.up import instance_running
+from tests.support.bus import LineReader, eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow
 

@@ -15,18 +15,18 @@ from typing import Any
 import numpy as np
 import pytest
 import zmq
-from web_client import user_speech_wav
 
 from agent.vocabulary import EYE_MODES
 from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import Say, SpeechFinished, SpeechInterrupted, UserAudio, UserSpeech
-from services.browser import browser_available, chromium, page_stats, wait_for
 from services.processes import LineReader
-from services.testing import BrokerThread, ServiceThread, eca_command, private_bus_config, running
 from services.web.options import WebOptions
 from services.web.service import WebService
+from tests.support.browser import browser_available, chromium, page_stats, wait_for
+from tests.support.bus import BrokerThread, ServiceThread, eca_command, private_bus_config, running
+from tests.support.web_client import user_speech_wav
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
                                                    reason=str(browser_available()))]

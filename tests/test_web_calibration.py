@@ -10,14 +10,14 @@ from typing import Any
 
 import numpy as np
 import pytest
-from web_client import SMALL, Client, post
 
 from agent.clock import NS_PER_S, VirtualClock
-from services.testing import BrokerThread, ServiceThread, private_bus_config
 from services.web.calibration import CLICK_S, ClickFeed, FlashFeed, click_track, flash_track
 from services.web.options import WebOptions
 from services.web.service import WebService
 from services.web.tracks import VIDEO_RATE
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
+from tests.support.web_client import SMALL, Client, post
 
 RATE = 48_000
 FRAME_NS = 20_000_000  # the voice track's 20 ms

@@ -8,13 +8,13 @@ import asyncio
 from collections.abc import Iterator
 
 import pytest
-from web_client import Client, post
 
 from protocol.endpoints import BusConfig
 from services.runtime import wait_until
-from services.testing import BrokerThread, ServiceThread, private_bus_config
 from services.web.options import WebOptions
 from services.web.service import WebService
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
+from tests.support.web_client import Client, post
 
 pytestmark = pytest.mark.gl
 

@@ -19,15 +19,15 @@ import numpy as np
 import pytest
 import zmq
 from aiortc.contrib.media import MediaPlayer
-from web_client import SMALL, Client, post, user_speech_wav
 
 from protocol.bus import Publisher, Subscriber
 from protocol.endpoints import BusConfig
 from protocol.messages import UserAudio, UserSpeech, VoiceBlock
 from services.runtime import wait_until
-from services.testing import BrokerThread, ServiceThread, private_bus_config
 from services.web.options import WebOptions
 from services.web.service import WebService
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
+from tests.support.web_client import SMALL, Client, post, user_speech_wav
 
 pytestmark = pytest.mark.gl
 

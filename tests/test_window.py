@@ -20,7 +20,9 @@ from services.renderer import read_rgb
 from services.renderer.options import RendererOptions
 from services.renderer.service import RendererService
 from services.renderer.window import EMOTION_KEYS, AgentStatus, LocalAction, action_for_key
-from services.testing import BrokerThread, ServiceThread, private_bus_config
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
+
+pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
 
 
 def test_keys_stand_for_commands_given_the_agent_state() -> None:

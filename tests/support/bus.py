@@ -95,18 +95,13 @@ class ServiceThread:
         self.error: BaseException | None = None
 
     def _run(self) -> None:
-        svc = self.service
-        try:
-            svc.connect()  # type: ignore[attr-defined]
-            self.ready.set()
-            while not svc.stopping:  # type: ignore[attr-defined]
-                svc.run_once()  # type: ignore[attr-defined]
+        try:  # the service's own loop, without the process's signal handlers
+            if self.service.run(install_signals=False, on_ready=self.ready.set) != 0:  # type: ignore[attr-defined]
+                self.error = RuntimeError(f"{self._thread.name} could not start (its log says why)")
         except BaseException as exc:  # surfaced to the test by __enter__/__exit__
             self.error = exc
-            self.ready.set()
         finally:
-            svc.teardown()  # type: ignore[attr-defined]
-            svc.close()  # type: ignore[attr-defined]
+            self.ready.set()
 
     def __enter__(self) -> ServiceThread:
         self._thread.start()
