@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import re
 import stat
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+_AGENT_ID = re.compile(r"[A-Za-z0-9_-]{1,32}")  # as the codec's agent ids (protocol/codec.py)
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "default.toml"
 _MAX_IPC_PATH = 107  # sun_path limit on Linux
@@ -31,6 +34,7 @@ class BusConfig:
     connect_timeout_s: float  # how long a process with no supervisor waits for the broker
     config_path: Path
     raw: dict[str, Any]  # the whole file, for service-specific tables
+    agents: tuple[str, ...] = ("ada",)  # [agents] ids: the agents this instance animates, in seat order
 
 
 def load_config_file(path: str | Path | None = None) -> tuple[Path, dict[str, Any]]:
@@ -87,7 +91,24 @@ def load_bus_config(path: str | Path | None = None, instance: str | None = None,
                      max_message_bytes=_get(bus, "max_message_bytes", int, where),
                      heartbeat_interval_s=interval, heartbeat_timeout_s=timeout,
                      connect_timeout_s=connect_timeout, config_path=config_path,
-                     raw=raw)
+                     raw=raw, agents=_agents(raw, config_path))
+
+
+MAX_AGENTS = 64  # one instance's faces; far more than share a screen
+
+
+def _agents(raw: dict[str, Any], path: Path) -> tuple[str, ...]:
+    """[agents] ids, checked: distinct agent ids (1-32 letters, digits, '_' or '-'), not 'user'."""
+    where = f"{path} [agents]"
+    table = raw.get("agents", {"ids": ["ada"]})
+    if not isinstance(table, dict):
+        raise BusConfigError(f"{path}: 'agents' must be a table")
+    ids = _get(table, "ids", list, where)
+    bad = [a for a in ids if not (isinstance(a, str) and _AGENT_ID.fullmatch(a)) or a == "user"]
+    if not ids or len(ids) > MAX_AGENTS or bad or len(set(ids)) != len(ids):
+        raise BusConfigError(f"{where}: 'ids' must list 1 to {MAX_AGENTS} distinct agent ids (letters, digits, "
+                             f"'_' or '-', at most 32; not 'user'), got {ids!r}"[:400])
+    return tuple(ids)
 
 
 def default_runtime_root() -> Path:

@@ -116,7 +116,7 @@ class DialogueService(Service):
 
     def __init__(self, config: BusConfig, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
-        self.agent_ids: list[str] = list(config.raw.get("agents", {}).get("ids", ["ada"]))
+        self.agent_ids: list[str] = list(config.agents)
         dialogue = config.raw.get("dialogue", {})
         self.say_start_timeout_ns = int(float(dialogue.get("say_start_timeout_s", 3.0)) * 1e9)
         self.emotions = load_emotion_table()

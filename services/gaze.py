@@ -57,7 +57,7 @@ class GazeService(Service):
         super().__init__(config, **kwargs)
         table = config.raw.get("gaze", {})
         self.tick_hz = float(table.get("rate_hz", 60.0))
-        self.agent_ids: list[str] = list(config.raw.get("agents", {}).get("ids", ["ada"]))
+        self.agent_ids: list[str] = list(config.agents)
         self.index = {a: i for i, a in enumerate(self.agent_ids)}
         units = load_toml("flexor_units")["head"]
         self.head_deg = (float(units["turn_deg"]), float(units["nod_deg"]))

@@ -133,7 +133,7 @@ def run_up(config: BusConfig, services: Sequence[str], *, view: bool = True, dur
     poller = zmq.Poller()
     poller.register(liveness.socket, zmq.POLLIN)
     poller.register(sub.socket, zmq.POLLIN)
-    bus_view = BusView(config.raw.get("agents", {}).get("ids", []))
+    bus_view = BusView(list(config.agents))
     t0 = time.monotonic()
     code = 0
     try:

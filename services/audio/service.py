@@ -65,7 +65,7 @@ class AudioService(Service):
 
     def __init__(self, config: BusConfig, sink_factory: Any = None, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
-        self.agent_ids: list[str] = list(config.raw.get("agents", {}).get("ids", ["ada"]))
+        self.agent_ids: list[str] = list(config.agents)
         self.audio_config = AudioConfig.load()
         self.tts = tts_engine(self.audio_config.tts)  # voices a say that has text and no audio
         self._sink_factory = sink_factory or (lambda: open_sink(config=self.audio_config, clock=self.clock))

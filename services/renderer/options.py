@@ -70,7 +70,7 @@ class RendererOptions:
 
     def agent_ids(self, config: BusConfig) -> list[str]:
         """The agents drawn: those named here, else every agent of the instance."""
-        return list(self.agents or config.raw.get("agents", {}).get("ids", ["ada"]))
+        return list(self.agents or config.agents)
 
     @classmethod
     def from_table(cls, table: dict[str, Any]) -> RendererOptions:

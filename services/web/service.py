@@ -60,7 +60,7 @@ class WebService(Service):
     def __init__(self, config: BusConfig, options: WebOptions | None = None, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
         self.options = (options or WebOptions()).check()
-        instance_agents = tuple(config.raw.get("agents", {}).get("ids", ["ada"]))
+        instance_agents = config.agents
         self.agent_ids = self.options.agents or instance_agents
         unknown = [a for a in self.agent_ids if a not in instance_agents]
         if unknown:
