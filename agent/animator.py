@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from agent.clock import nanoseconds
-from agent.config import load_toml
 from agent.face.model import FaceModel
+from agent.face.settings import load_flexor_units
 from agent.gaze.backchannel import USER, Backchannel, BackchannelParams, ListenerBlink
 from agent.gaze.engine import GazeEngine
 from agent.lipsync.estimator import MouthTrack
@@ -55,8 +55,8 @@ AgentCue = RoleCue | EmotionCue | HeadCue | GazeCue
 
 def head_degrees() -> tuple[float, float]:
     """Degrees of head turn and nod per flexor unit (configs/flexor_units.toml [head])."""
-    head = load_toml("flexor_units")["head"]
-    return float(head["turn_deg"]), float(head["nod_deg"])
+    units = load_flexor_units()
+    return units.turn_deg, units.nod_deg
 
 
 class CueFollower:

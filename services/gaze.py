@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from agent.config import load_toml
+from agent.face.settings import load_flexor_units
 from agent.gaze.backchannel import Backchannel, ListenerBlink
 from agent.gaze.backchannel import Nod as NodAction
 from agent.gaze.engine import GazeEngine
@@ -59,8 +59,8 @@ class GazeService(Service):
         self.tick_hz = float(table.get("rate_hz", 60.0))
         self.agent_ids: list[str] = list(config.agents)
         self.index = {a: i for i, a in enumerate(self.agent_ids)}
-        units = load_toml("flexor_units")["head"]
-        self.head_deg = (float(units["turn_deg"]), float(units["nod_deg"]))
+        units = load_flexor_units()
+        self.head_deg = (units.turn_deg, units.nod_deg)
         seed = int(table.get("seed", 0) if seed is None else seed)
         self.engine = GazeEngine(len(self.agent_ids), seed, start_ns=self.clock.now_ns())
         self.conversation = Conversation(self.agent_ids, seed)

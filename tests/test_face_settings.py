@@ -68,7 +68,8 @@ def test_bad_face_settings_name_file_and_key(tmp_path: Path, text: str, message:
 def test_bad_flexor_units_name_file_and_key(tmp_path: Path) -> None:
     path = tmp_path / "units.toml"
     path.write_text("[eyes]\nlook_x_deg = 30.0\nlook_y_deg = 0.0\n[head]\nturn_deg = 1\nnod_deg = 1\ntilt_deg = 1\n")
-    with pytest.raises(ConfigError, match=r"units.toml: \[eyes\] 'look_y_deg' must be a number > 0"):
+    with pytest.raises(ConfigError,
+                       match=r"units.toml: \[eyes\] 'look_y_deg' must be a number of degrees in \(0, 90\]"):
         load_flexor_units(path)
     path.write_text("[eyes]\nlook_x_deg = 30.0\nlook_y_deg = 30.0\n")
     with pytest.raises(ConfigError, match=r"missing table \[head\]"):

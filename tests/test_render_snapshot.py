@@ -47,8 +47,8 @@ def test_parse_size() -> None:
 def test_pose_flexors_layers_gaze_head_and_mouth_over_the_emotion() -> None:
     table, config = load_emotion_table(), load_render_config()
     f = pose_flexors(table, config, "surprised", 0.5, yaw=15.0, pitch=-6.0, turn=0.2, mouth="oo")
-    assert f[FLEXOR_INDEX["look_x"]] == pytest.approx(15.0 / config.units.look_x)
-    assert f[FLEXOR_INDEX["look_y"]] == pytest.approx(-6.0 / config.units.look_y)
+    assert f[FLEXOR_INDEX["look_x"]] == pytest.approx(15.0 / config.units.look_x_deg)
+    assert f[FLEXOR_INDEX["look_y"]] == pytest.approx(-6.0 / config.units.look_y_deg)
     assert f[FLEXOR_INDEX["turn"]] == 0.2
     assert f[FLEXOR_INDEX["say_oo"]] == 1.0 and f[FLEXOR_INDEX["say_ah"]] == 0.0  # --mouth wins
     full = pose_flexors(table, config, "surprised", 1.0)

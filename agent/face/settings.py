@@ -98,7 +98,8 @@ def load_flexor_units(path: str | Path | None = None) -> FlexorUnits:
     ):
         for key in keys:
             value = require(table, key, float, f"{source}: [{section}]")
-            if not math.isfinite(value) or value <= 0:
-                raise ConfigError(f"{source}: [{section}] '{key}' must be a number > 0, got {value!r}")
+            if not math.isfinite(value) or not 0 < value <= 90:
+                raise ConfigError(f"{source}: [{section}] '{key}' must be a number of degrees in (0, 90], "
+                                  f"got {value!r}")
             values[key] = value
     return FlexorUnits(**values)

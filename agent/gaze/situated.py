@@ -27,6 +27,7 @@ from typing import Any
 
 from agent.config import ConfigError, load_toml, require
 from agent.counter_rng import uniform01
+from agent.face.settings import load_flexor_units
 
 USER = "user"
 _NS = 1_000_000_000
@@ -53,7 +54,7 @@ class SituatedParams:
     @classmethod
     def load(cls, name: str = "conversation", units: str = "flexor_units") -> SituatedParams:
         doc, where = load_toml(name), f"configs/{name}.toml" if not name.endswith(".toml") else name
-        head_units = require(load_toml(units), "head", dict, f"configs/{units}.toml")
+        head_units = load_flexor_units(units)
         sections = {key: require(doc, key, dict, where) for key in ("seats", "gaze", "turns", "head")}
         seats, gaze, turns, head = (sections[k] for k in ("seats", "gaze", "turns", "head"))
         ws = f"{where} [seats]"
@@ -70,7 +71,7 @@ class SituatedParams:
             head_share=_share(head, "share", f"{where} [head]"),
             eye_comfort_deg=_number(head, "eye_comfort_deg", f"{where} [head]", positive=True),
             head_turn_s=_number(head, "turn_s", f"{where} [head]", positive=True),
-            head_limits_deg=(float(head_units["turn_deg"]), float(head_units["nod_deg"])),
+            head_limits_deg=(head_units.turn_deg, head_units.nod_deg),
         )
 
 

@@ -29,7 +29,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, cast
 
-from agent.config import load_toml
+from agent.face.settings import load_flexor_units
 from agent.script.elements import AnimationElement, flexor_tuple
 from agent.script.errors import ScriptError, ScriptErrors, raise_collected
 from agent.script.poses import emotion_pose
@@ -121,8 +121,8 @@ class ParamFile:
 @lru_cache(maxsize=1)
 def eye_range_deg() -> tuple[float, float]:
     """Degrees of gaze at look_x = +1 and look_y = +1."""
-    eyes = load_toml("flexor_units")["eyes"]
-    return float(eyes["look_x_deg"]), float(eyes["look_y_deg"])
+    units = load_flexor_units()
+    return units.look_x_deg, units.look_y_deg
 
 
 def _tokens(line: str) -> list[tuple[str, int]]:

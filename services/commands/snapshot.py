@@ -98,14 +98,14 @@ def pose_flexors(
         raise SnapshotError(f"unknown emotion {emotion!r}; known: {', '.join(table.names)}")
     _check_range("--intensity", intensity, 0.0, 1.0)
     units = config.units
-    _check_range("--yaw", yaw, -units.look_x, units.look_x, " degrees (the eye range in flexor_units.toml)")
-    _check_range("--pitch", pitch, -units.look_y, units.look_y, " degrees (the eye range in flexor_units.toml)")
+    _check_range("--yaw", yaw, -units.look_x_deg, units.look_x_deg, " degrees (the eye range in flexor_units.toml)")
+    _check_range("--pitch", pitch, -units.look_y_deg, units.look_y_deg, " degrees (the eye range in flexor_units.toml)")
     for name, value in (("--turn", turn), ("--nod", nod), ("--tilt", tilt)):
         _check_range(name, value, -1.0, 1.0)
     _check_range("--blink", blink, 0.0, 1.0)
     f = np.nan_to_num(table.pose(emotion, intensity), nan=0.0)
-    f[FLEXOR_INDEX["look_x"]] = yaw / units.look_x if units.look_x else 0.0
-    f[FLEXOR_INDEX["look_y"]] = pitch / units.look_y if units.look_y else 0.0
+    f[FLEXOR_INDEX["look_x"]] = yaw / units.look_x_deg
+    f[FLEXOR_INDEX["look_y"]] = pitch / units.look_y_deg
     for name, value in (("turn", turn), ("nod", nod), ("tilt", tilt)):
         if value is not None:
             f[FLEXOR_INDEX[name]] = value

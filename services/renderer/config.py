@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from agent.config import ConfigError, config_path, load_toml, require
-from services.renderer.mesh import Units
+from agent.face.settings import FlexorUnits, load_flexor_units
 
 COLOR_NAMES: tuple[str, ...] = (
     "background",
@@ -53,7 +53,7 @@ class RenderConfig:
     supersample: int = 2
     mesh_detail: float = 1.0  # tessellation of the live mesh; stills use still_detail
     still_detail: float = 2.0
-    units: Units = field(default_factory=Units)
+    units: FlexorUnits = field(default_factory=load_flexor_units)
 
 
 def _floats(table: dict[str, Any], key: str, n: int, where: str, lo: float, hi: float) -> tuple[float, ...]:
@@ -75,20 +75,6 @@ def _number(table: dict[str, Any], key: str, where: str, lo: float, hi: float) -
 def _table(doc: dict[str, Any], key: str, where: str) -> dict[str, Any]:
     value = require(doc, key, dict, where)
     return value
-
-
-def load_units(name: str | Path = "flexor_units") -> Units:
-    doc = load_toml(name)
-    where = str(config_path(str(name)))
-    eyes = _table(doc, "eyes", where)
-    head = _table(doc, "head", where)
-    return Units(
-        look_x=_number(eyes, "look_x_deg", f"{where} [eyes]", 0.0, 90.0),
-        look_y=_number(eyes, "look_y_deg", f"{where} [eyes]", 0.0, 90.0),
-        turn=_number(head, "turn_deg", f"{where} [head]", 0.0, 90.0),
-        nod=_number(head, "nod_deg", f"{where} [head]", 0.0, 90.0),
-        tilt=_number(head, "tilt_deg", f"{where} [head]", 0.0, 90.0),
-    )
 
 
 def load_render_config(name: str | Path = "render", units: str | Path = "flexor_units") -> RenderConfig:
@@ -130,5 +116,5 @@ def load_render_config(name: str | Path = "render", units: str | Path = "flexor_
         supersample=int(_number(image, "supersample", wi, 1, 4)),
         mesh_detail=_number(mesh, "detail", f"{where} [mesh]", 0.5, 4.0),
         still_detail=_number(mesh, "still_detail", f"{where} [mesh]", 0.5, 4.0),
-        units=load_units(units),
+        units=load_flexor_units(units),
     )

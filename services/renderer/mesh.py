@@ -31,6 +31,7 @@ import numba
 import numpy as np
 
 from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from agent.face.settings import FlexorUnits, load_flexor_units
 
 # Vertex layout shared with the shaders: position(3) normal(3) aux(3) info(4) as float32, where
 # info = (material, bone0, bone1, weight of bone1) and aux is a rest-frame direction or position a
@@ -971,17 +972,6 @@ class Pose:
     mouth: MouthShape | None = None
 
 
-@dataclass(frozen=True)
-class Units:
-    """Degrees per flexor unit (configs/flexor_units.toml)."""
-
-    look_x: float = 30.0
-    look_y: float = 30.0
-    turn: float = 40.0
-    nod: float = 25.0
-    tilt: float = 20.0
-
-
 @numba.njit(cache=True)
 def lid_elevations(blink: float, lids: float, pitch_deg: float) -> tuple[float, float]:
     """Upper and lower rim elevations (degrees) for one eye."""
@@ -1074,14 +1064,14 @@ def _pose_bones(
 class FacePoser:
     """Turns a flexor vector into a Pose; holds the reusable buffers for the dynamic vertices."""
 
-    def __init__(self, units: Units | None = None) -> None:
-        self.units = units or Units()
+    def __init__(self, units: FlexorUnits | None = None) -> None:
+        self.units = units or load_flexor_units()
         self.layout = DynamicLayout()
         self._dynamic = self.layout.template()
         self._centres = {1: eye_centre(1), -1: eye_centre(-1)}
         self._centre_rows = np.array([self._centres[1], self._centres[-1]])  # the agent's left eye first
         u = self.units
-        self._degrees = np.array([u.look_x, u.look_y, u.turn, u.nod, u.tilt], dtype=np.float64)
+        self._degrees = np.array([u.look_x_deg, u.look_y_deg, u.turn_deg, u.nod_deg, u.tilt_deg], dtype=np.float64)
 
     def pose(self, flexors: np.ndarray, dynamic: bool = True) -> Pose:
         """The pose for `flexors`. With dynamic=False the brows and mouth are left for build_dynamic(),
@@ -1105,8 +1095,8 @@ class FacePoser:
     def gaze_points(self, gaze: np.ndarray, model: np.ndarray) -> np.ndarray:
         """World positions of both pupil centres for each (look_x, look_y) row: shape (2, N, 3)."""
         gaze = np.asarray(gaze, dtype=np.float64).reshape(-1, 2)
-        yaw = np.radians(-np.clip(gaze[:, 0], -1, 1) * self.units.look_x)
-        pitch = np.radians(np.clip(gaze[:, 1], -1, 1) * self.units.look_y)
+        yaw = np.radians(-np.clip(gaze[:, 0], -1, 1) * self.units.look_x_deg)
+        pitch = np.radians(np.clip(gaze[:, 1], -1, 1) * self.units.look_y_deg)
         # Ry(yaw) @ Rx(-pitch) applied to +z
         d = np.stack([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)], -1)
         out = np.empty((2, gaze.shape[0], 3))
