@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from agent.gaze.engine import GazeEngine  # noqa: E402
 from agent.gaze.params import GazeParams  # noqa: E402
+from bench.report import machine  # noqa: E402
 
 NS = 1_000_000_000
 FRAME_NS = NS // 60
@@ -272,7 +273,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--sizes, --ticks and --python-agents must be at least 1")
     params = GazeParams.load()
     mode = args.mode or params.default_mode
-    print(f"eye mode {mode}, role talking, 60 Hz ticks")
+    host = machine()  # the load moves every figure: it is printed with them
+    print(f"eye mode {mode}, role talking, 60 Hz ticks; {host['cores']} cores, {host['cpu']}, "
+          f"load average {host['load_average']}")
     results = []
     print(f"{'agents':>10} {'engine ms/tick':>15} {'ticks/s':>10} {'python ms/tick':>15} {'ratio':>8}  target")
     for n in args.sizes:
@@ -298,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.json:
         print(json.dumps({"bench": "gaze_engine", "statistic": "median", "tick_hz": 60, "mode": mode,
-                          "results": results}))
+                          "machine": host, "results": results}))
     return 0
 
 

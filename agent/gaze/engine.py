@@ -47,7 +47,15 @@ from agent.gaze.fixation import Fixations
 from agent.gaze.generator import direction_weights
 from agent.gaze.inflight import Flights, LiveBlinks
 from agent.gaze.params import KINDS, MODES, ROLES, GazeParams, check_name
-from agent.gaze.rows import aligned_rows, as_rows, column_pair, float_bits, stream_keys, uniform_draws
+from agent.gaze.rows import (
+    DEGREES_PER_RADIAN,
+    aligned_rows,
+    column_pair,
+    float_bits,
+    scatter_rows,
+    stream_keys,
+    uniform_draws,
+)
 from agent.gaze.synth import saccade_progress
 from agent.noise import perlin1d, perlin_blink
 
@@ -476,7 +484,7 @@ class GazeEngine:
             self._flights.keep_current(lambda agents: self._rows.take(agents, axis=0)[:, [ONSET, END]])
         self._flights.write_positions(t, yaw, pitch, self._resting)
         if self._fixating:  # after the flights: a small saccade moves an eye that has landed
-            self._fixations.advance(self._fixations.due(t), t + 1, self._eyes)
+            self._fixations.run_due(self._fixations.due(t), t + 1, self._eyes)
         blinks = self._take_blinks()
         self._blink_lids(t, lid, blinks)
         self._apply_non_saccade_modes(t, yaw, pitch, lid)
@@ -524,7 +532,7 @@ class GazeEngine:
 
     def _store(self, idx: np.ndarray, rows: np.ndarray) -> None:
         """Scatter gathered rows back and refresh the agents' next event times."""
-        as_rows(self._rows)[idx] = as_rows(rows)
+        scatter_rows(self._rows, idx, rows)
         next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]
         self._next_event[idx] = np.minimum(next_saccade, next_blink)
 
@@ -737,11 +745,14 @@ class GazeEngine:
         if self._cued and hold_s is not None:
             self._clear_cues(agents)
         fixating = np.flatnonzero(rows[:, MODE] == FIXATIONAL) if self._fixating else agents[:0]
+        whole = fixating.size == agents.size  # the whole batch fixates: no gathers
         if fixating.size:  # the small saccades before the launch run first: the eye starts where they left it
-            self._fixations.advance(agents.take(fixating), times.take(fixating))
+            fixating_agents = agents if whole else agents.take(fixating)
+            fixating_times = times if whole else times.take(fixating)
+            self._fixations.advance(fixating_agents, fixating_times)
         start_yaw, start_pitch = self._position(rows, times)
         if fixating.size:
-            landed = fixating[times.take(fixating) >= rows[fixating, END]]
+            landed = fixating[fixating_times >= rows[:, END].take(fixating)]
             off_yaw, off_pitch = self._fixations.offsets(agents.take(landed))
             start_yaw[landed] = self._clip_yaw(start_yaw[landed] + off_yaw)
             start_pitch[landed] = self._clip_pitch(start_pitch[landed] + off_pitch)
@@ -764,13 +775,14 @@ class GazeEngine:
         self._couple_blinks(agents, rows, times, amplitude, u_pull, u_follow, head, least_pull)
         self._flights.add(agents, rows[:, _FLIGHT])
         if fixating.size:
-            self._start_fixations(agents.take(fixating), rows[fixating], end.take(fixating))
+            self._start_fixations(fixating_agents, rows if whole else rows.take(fixating, axis=0),
+                                  end if whole else end.take(fixating))
         if magnitude is None:
             magnitude = amplitude
         elif drawn is not None:
             magnitude = np.where(drawn, magnitude, amplitude)
         direction = np.arctan2(delta_pitch, delta_yaw)
-        np.rad2deg(direction, out=direction)
+        direction *= DEGREES_PER_RADIAN
         # np.mod(direction, 360) for angles within one turn, without its slow floating remainder: negative
         # angles go up a turn, the others get 0.0 added, which turns -0.0 into 0.0 as np.mod does.
         direction += (direction < 0.0) * 360.0
@@ -914,9 +926,9 @@ class GazeEngine:
             agent, onset, kind = (np.concatenate(column) for column in list(zip(*chunks, strict=True))[:3])
             floats = np.concatenate([chunk[3] for chunk in chunks], axis=1)
         chunks.clear()
-        order = _onset_order(agent, onset, self._n)
+        order, agent, onset = _sort_onsets(agent, onset, self._n)
         return SaccadeOnsets.from_columns(
-            agent.take(order), onset.take(order), kind.take(order), floats.take(order, axis=1)
+            agent, onset, kind.take(order), floats.take(order, axis=1)
         )  # take: several times faster than fancy indexing, most of all on the 2-D floats
 
     def _take_blinks(self) -> BlinkOnsets:
@@ -929,8 +941,8 @@ class GazeEngine:
             agent = np.concatenate([c[0] for c in chunks])
             onset = np.concatenate([c[1] for c in chunks])
         chunks.clear()
-        order = _onset_order(agent, onset, self._n)
-        return BlinkOnsets(agent.take(order), onset.take(order))
+        _, agent, onset = _sort_onsets(agent, onset, self._n)
+        return BlinkOnsets(agent, onset)
 
     def _clip_yaw(self, yaw: np.ndarray) -> np.ndarray:
         limit = self.params.eye_yaw_limit_deg
@@ -942,28 +954,39 @@ class GazeEngine:
 
 
 def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndarray:
-    """The order that sorts onsets by (onset, agent), ties kept in the order given: np.lexsort((agent, onset)).
+    """The order that sorts onsets by (onset, agent), ties kept in the order given: np.lexsort((agent, onset))."""
+    return _sort_onsets(agent, onset, n_agents)[0]
+
+
+def _sort_onsets(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The order that sorts onsets by (onset, agent), ties kept in the order given (np.lexsort((agent, onset))),
+    and the agents and onsets in that order.
 
     The three keys packed into the bits of one int64, (onset - first, agent, position), so that a plain
     sort of the values (several times faster than an argsort, and than the two-key stable sort) leaves
-    the order in the low bits; used whenever the three fit in 63 bits (a tick's onsets span milliseconds)."""
-    if agent.size < 512:  # a few numpy calls cost more than the sort here
-        return np.lexsort((agent, onset))
-    # The ufuncs' reductions themselves: ndarray.min and .max go through Python wrappers.
-    first = int(np.minimum.reduce(onset))
-    span = int(np.maximum.reduce(onset)) - first
-    agent_bits = max(n_agents - 1, 1).bit_length()
-    position_bits = (agent.size - 1).bit_length()
-    if span.bit_length() + agent_bits + position_bits > 63:
-        return np.lexsort((agent, onset))
-    key = onset - first
-    key <<= agent_bits
-    key |= agent
-    key <<= position_bits
-    key |= np.arange(agent.size)
-    key.sort()
-    key &= (1 << position_bits) - 1
-    return key
+    the order in the low bits, and the sorted agents and onsets above them (no gathers); used whenever the
+    three fit in 63 bits (a tick's onsets span milliseconds)."""
+    if agent.size >= 512:  # below, a few numpy calls cost more than the sort
+        # The ufuncs' reductions themselves: ndarray.min and .max go through Python wrappers.
+        first = int(np.minimum.reduce(onset))
+        span = int(np.maximum.reduce(onset)) - first
+        agent_bits = max(n_agents - 1, 1).bit_length()
+        position_bits = (agent.size - 1).bit_length()
+        if span.bit_length() + agent_bits + position_bits <= 63:
+            key = onset - first
+            key <<= agent_bits
+            key |= agent
+            key <<= position_bits
+            key |= np.arange(agent.size)
+            key.sort()
+            order = key & ((1 << position_bits) - 1)
+            key >>= position_bits
+            sorted_agent = key & ((1 << agent_bits) - 1)
+            key >>= agent_bits
+            key += first
+            return order, sorted_agent, key
+    order = np.lexsort((agent, onset))
+    return order, agent.take(order), onset.take(order)
 
 
 def _read_only(values: np.ndarray) -> np.ndarray:

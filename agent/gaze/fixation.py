@@ -11,9 +11,11 @@ Eyes Alive decisions and their statistics are untouched: these movements ride on
 
 Each agent has its own counter-based stream (the engine's fourth seed), so the fixational draws never
 shift the Eyes Alive or blink draws. Per agent the state is one cache line (`_WIDTH` int64 columns); the
-next event time is a dense array of its own, scanned each tick. A small saccade moves the eye state in
-one step at its onset: it lasts 26-36 ms (main sequence), about two frames at 60 Hz, and is reported
-with its onset, landing and duration, from which a renderer draws its exact trajectory.
+next event time is a dense array of its own, scanned each tick (one scan of the union with the engine's
+next event times, split afterwards, measured slower: the sparse flatnonzero, not the compare, costs).
+A small saccade moves the eye state in one step at its onset: it lasts 26-36 ms (main sequence), about
+two frames at 60 Hz, and is reported with its onset, landing and duration, from which a renderer draws
+its exact trajectory.
 """
 
 from __future__ import annotations
@@ -24,7 +26,15 @@ from statistics import NormalDist
 import numpy as np
 
 from agent.gaze.params import FACE_FEATURES, KINDS, ROLES, GazeParams
-from agent.gaze.rows import aligned_rows, as_rows, column_pair, grow_rows, stream_keys, uniform_halves
+from agent.gaze.rows import (
+    DEGREES_PER_RADIAN,
+    aligned_rows,
+    column_pair,
+    grow_rows,
+    scatter_rows,
+    stream_keys,
+    uniform_halves,
+)
 
 NEVER_NS = 1 << 62
 _NS = 1_000_000_000
@@ -83,7 +93,9 @@ class Fixations:
                     self._mean_s[c] = 1.0 / rate
                     self._p_scan[c] = (rate - fix.microsaccade_rate_hz) / rate
                     cumulative[c] = np.cumsum(fix.feature_weights(role, eye))
-        self._targets_0, self._targets_1 = cumulative[:, 0].copy(), cumulative[:, 1].copy()
+        # A small saccade is a scan to feature j when its uniform is below p_scan and at or above p_scan times
+        # the cumulative chance of the features before j: those products, per context.
+        self._scan_edges_0, self._scan_edges_1 = self._p_scan * cumulative[:, 0], self._p_scan * cumulative[:, 1]
         quantiles = _lognormal_quantiles(fix.microsaccade_median_deg, fix.microsaccade_log_sd,
                                          fix.microsaccade_max_deg, _AMPLITUDE_TABLE_INTERVALS)
         self._amplitudes, self._amplitude_steps = quantiles[:-1], np.diff(quantiles)
@@ -132,7 +144,7 @@ class Fixations:
         u = uniform_halves(rows[:, COUNTER].view(np.uint64), rows[:, KEY].view(np.uint64), 1)[0]
         rows[:, COUNTER] += 1
         self.next_ns[agents] = landing_ns + self._interval_ns(rows[:, STATE], u)
-        as_rows(self._rows)[agents] = as_rows(rows)
+        scatter_rows(self._rows, agents, rows)
 
     def stop(self, agents: np.ndarray) -> None:
         """These agents left the mode: no more small saccades (their offsets are read first, see offsets)."""
@@ -152,92 +164,137 @@ class Fixations:
         """Run the agents' small saccades that start before `before` (one time, or one per agent), in time
         order. Each landing goes into `eyes` (rows of yaw, pitch, lid); without it, into the eye state at
         the next write_pending (between ticks the eye state handed out stays as it was)."""
-        limit = before
-        while agents.size:
-            due = self.next_ns.take(agents) < limit
-            agents = agents[due]
-            if np.ndim(limit):
-                limit = limit[due]  # type: ignore[index]
-            if agents.size:
-                self._step(agents, eyes)
+        due = self.next_ns.take(agents) < before
+        if np.ndim(before):
+            before = before[due]  # type: ignore[index]
+        self.run_due(agents[due], before, eyes)
 
-    def _step(self, agents: np.ndarray, eyes: np.ndarray | None) -> None:
-        """One small saccade of each agent, at its next event time. Every agent computes both a scan and a
-        microsaccade and keeps one: cheaper than splitting the batch. Angles come from tables, not cos/sin."""
+    def run_due(self, agents: np.ndarray, before: np.ndarray | int, eyes: np.ndarray | None = None) -> None:
+        """advance() for agents whose next small saccade is known to start before `before` (from due())."""
+        while agents.size:
+            again = self._step(agents, eyes) < before
+            agents = agents[again]
+            if np.ndim(before):
+                before = before[again]  # type: ignore[index]
+
+    def _step(self, agents: np.ndarray, eyes: np.ndarray | None) -> np.ndarray:
+        """One small saccade of each agent, at its next event time; returns the onsets of the next ones.
+
+        Every agent computes both a scan and a microsaccade and keeps one: cheaper than splitting the batch.
+        Angles come from tables, not cos/sin. With tens of thousands of agents a tick, the time goes to
+        passes over memory, not to arithmetic: the reported columns are computed in place in the onset
+        matrix, scratch arrays are reused, and each row's fields are read once."""
         rows = self._rows.take(agents, axis=0)
         floats = rows.view(np.float64)
         onset = self.next_ns.take(agents)
         u = uniform_halves(rows[:, COUNTER].view(np.uint64), rows[:, KEY].view(np.uint64), _HASHES)
         rows[:, COUNTER] += _HASHES
-        state = rows[:, STATE]
-        low = state & _STATE_MASK
-        context, fixated = low >> 2, low & 3
-        off_yaw, off_pitch = floats[:, OFF_YAW].copy(), floats[:, OFF_PITCH].copy()
+        state = rows[:, STATE]  # a view: the fixated feature is updated in place below
+        fixated = state & 3
+        context = state & _STATE_MASK
+        context >>= 2
         if self._drift_two_d:  # drift since the eye landed: a Brownian displacement (radius and angle)
-            radius = np.log1p(-u[_U_DRIFT_RADIUS])
+            radius = u[_U_DRIFT_RADIUS]
+            np.negative(radius, out=radius)
+            np.log1p(radius, out=radius)
             radius *= (onset - rows[:, LAST]) * (-2e-9 * self._drift_two_d)
             np.sqrt(radius, out=radius)
-            turn = (u[_U_DRIFT_ANGLE] * _ANGLES).astype(np.intp)
-            off_yaw += radius * self._cos.take(turn)
-            off_pitch += radius * self._sin.take(turn)
+            turn = u[_U_DRIFT_ANGLE]
+            turn *= _ANGLES
+            turn = turn.astype(np.intp)
+            off_yaw = self._cos.take(turn)
+            off_yaw *= radius
+            off_yaw += floats[:, OFF_YAW]
+            off_pitch = self._sin.take(turn)
+            off_pitch *= radius
+            off_pitch += floats[:, OFF_PITCH]
+        else:
+            off_yaw, off_pitch = floats[:, OFF_YAW].copy(), floats[:, OFF_PITCH].copy()
         # Scan or microsaccade; a scan's target from the same uniform, rescaled below p_scan.
-        p_scan = self._p_scan.take(context)
         u_kind = u[_U_KIND]
-        scan = u_kind < p_scan
-        target = (u_kind >= p_scan * self._targets_0.take(context)).view(np.int8)
-        target += (u_kind >= p_scan * self._targets_1.take(context)).view(np.int8)
+        scan = u_kind < self._p_scan.take(context)
+        target = (u_kind >= self._scan_edges_0.take(context)).view(np.int8)
+        target += (u_kind >= self._scan_edges_1.take(context)).view(np.int8)
         # A microsaccade heads back toward the point fixated, within the correction spread.
-        x = u[_U_AMPLITUDE] * _AMPLITUDE_TABLE_INTERVALS
+        x = u[_U_AMPLITUDE]
+        x *= _AMPLITUDE_TABLE_INTERVALS
         cell = x.astype(np.intp)
         x -= cell
         amplitude = self._amplitude_steps.take(cell)
         amplitude *= x
         amplitude += self._amplitudes.take(cell)
-        toward_yaw = self._points_yaw.take(fixated) - off_yaw
-        toward_pitch = self._points_pitch.take(fixated) - off_pitch
-        norm = np.sqrt(toward_yaw * toward_yaw + toward_pitch * toward_pitch)
-        on_point = norm < 1e-12  # heading along the spread alone
-        toward_yaw[on_point], norm[on_point] = 1.0, 1.0
+        toward_yaw = self._points_yaw.take(fixated)
+        toward_yaw -= off_yaw
+        toward_pitch = self._points_pitch.take(fixated)
+        toward_pitch -= off_pitch
+        norm = toward_yaw * toward_yaw
+        scratch = toward_pitch * toward_pitch
+        norm += scratch
+        np.sqrt(norm, out=norm)
+        on_point = np.flatnonzero(norm < 1e-12)  # heading along the spread alone
+        if on_point.size:
+            toward_yaw[on_point], norm[on_point] = 1.0, 1.0
         amplitude /= norm
-        jitter = (u[_U_JITTER] * _ANGLES).astype(np.intp)
+        jitter = u[_U_JITTER]
+        jitter *= _ANGLES
+        jitter = jitter.astype(np.intp)
         cos_j, sin_j = self._jitter_cos.take(jitter), self._jitter_sin.take(jitter)
-        to_off_yaw = (toward_yaw * cos_j - toward_pitch * sin_j) * amplitude
+        to_off_yaw = toward_yaw * cos_j
+        np.multiply(toward_pitch, sin_j, out=scratch)
+        to_off_yaw -= scratch
+        to_off_yaw *= amplitude
         to_off_yaw += off_yaw
-        to_off_pitch = (toward_yaw * sin_j + toward_pitch * cos_j) * amplitude
+        to_off_pitch = np.multiply(toward_yaw, sin_j, out=sin_j)
+        np.multiply(toward_pitch, cos_j, out=scratch)
+        to_off_pitch += scratch
+        to_off_pitch *= amplitude
         to_off_pitch += off_pitch
-        landed_on = fixated.copy()
-        if scan.any():
-            hit = np.flatnonzero(scan)
-            landed_on[hit] = target[hit] + 1
-            to_off_yaw[hit] = self._points_yaw.take(landed_on[hit])
-            to_off_pitch[hit] = self._points_pitch.take(landed_on[hit])
-        base_yaw, base_pitch = floats[:, BASE_YAW], floats[:, BASE_PITCH]
-        from_yaw = np.clip(base_yaw + off_yaw, -self._yaw_limit, self._yaw_limit)
-        from_pitch = np.clip(base_pitch + off_pitch, -self._pitch_limit, self._pitch_limit)
-        to_yaw = np.clip(base_yaw + to_off_yaw, -self._yaw_limit, self._yaw_limit)
-        to_pitch = np.clip(base_pitch + to_off_pitch, -self._pitch_limit, self._pitch_limit)
-        delta_yaw, delta_pitch = to_yaw - from_yaw, to_pitch - from_pitch
-        moved = np.sqrt(delta_yaw * delta_yaw + delta_pitch * delta_pitch)
-        duration_ns = np.rint(moved * self._d_ns_per_deg + self._d0_ns).astype(np.int64)
-        end = onset + duration_ns
-        next_onset = onset + self._interval_ns(state, u[_U_INTERVAL])
+        hit = np.flatnonzero(scan)
+        if hit.size:
+            landed_on = target.take(hit)
+            landed_on += 1
+            to_off_yaw[hit] = self._points_yaw.take(landed_on)
+            to_off_pitch[hit] = self._points_pitch.take(landed_on)
+            state[hit] += landed_on - fixated.take(hit)  # the feature fixated now, in the low bits
+        # The reported columns (events.ONSET_FLOAT_FIELDS), computed where they are reported.
+        out = np.empty((9, agents.size))
+        from_yaw, from_pitch, to_yaw, to_pitch, magnitude, moved, direction, duration_s, hold_s = out
+        for position, base, offset, limit in (
+            (from_yaw, BASE_YAW, off_yaw, self._yaw_limit), (from_pitch, BASE_PITCH, off_pitch, self._pitch_limit),
+            (to_yaw, BASE_YAW, to_off_yaw, self._yaw_limit), (to_pitch, BASE_PITCH, to_off_pitch, self._pitch_limit),
+        ):
+            np.add(floats[:, base], offset, out=position)
+            np.clip(position, -limit, limit, out=position)
+        delta_yaw = np.subtract(to_yaw, from_yaw, out=off_yaw)
+        delta_pitch = np.subtract(to_pitch, from_pitch, out=off_pitch)
+        np.multiply(delta_yaw, delta_yaw, out=moved)
+        np.multiply(delta_pitch, delta_pitch, out=scratch)
+        moved += scratch
+        np.sqrt(moved, out=moved)
+        magnitude[:] = moved
+        duration = np.multiply(moved, self._d_ns_per_deg, out=scratch)
+        duration += self._d0_ns
+        end = np.rint(duration, out=duration).astype(np.int64)
+        end += onset
+        next_onset = self._interval_ns(state, u[_U_INTERVAL])
+        next_onset += onset
         floats[:, OFF_YAW], floats[:, OFF_PITCH] = to_off_yaw, to_off_pitch
         rows[:, LAST] = end
-        rows[:, STATE] = (state & ~_STATE_MASK) | (context << 2) | landed_on
-        as_rows(self._rows)[agents] = as_rows(rows)
+        scatter_rows(self._rows, agents, rows)
         self.next_ns[agents] = next_onset
         if eyes is None:
             self._unwritten.append(agents)
         else:
             _write_eyes(eyes, agents, to_yaw, to_pitch)
-        direction = np.arctan2(delta_pitch, delta_yaw)
-        np.rad2deg(direction, out=direction)
+        np.arctan2(delta_pitch, delta_yaw, out=direction)
+        direction *= DEGREES_PER_RADIAN
         direction += (direction < 0.0) * 360.0
+        np.multiply(end - onset, 1e-9, out=duration_s)
+        np.multiply(next_onset - end, 1e-9, out=hold_s)
         kind = scan.view(np.int8) * np.int8(SCAN - MICRO)
         kind += np.int8(MICRO)
-        self._chunks.append((agents, onset, kind, np.array((
-            from_yaw, from_pitch, to_yaw, to_pitch, moved, moved, direction, duration_ns * 1e-9,
-            (next_onset - end) * 1e-9))))
+        self._chunks.append((agents, onset, kind, out))
+        return next_onset
 
     def write_pending(self, eyes: np.ndarray) -> None:
         """Write the landings of small saccades run between ticks into the eye state."""
@@ -257,9 +314,15 @@ class Fixations:
         return chunks
 
     def _interval_ns(self, state: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Onset to next onset: the refractory gap plus an exponential of the fixation's spread."""
+        """Onset to next onset: the refractory gap plus an exponential of the fixation's spread. `u` is
+        scratch (overwritten)."""
         spread_ns = (state >> _STATE_BITS).astype(np.float64)
-        return self._refractory_ns + np.rint(-spread_ns * np.log1p(-u)).astype(np.int64)
+        np.negative(spread_ns, out=spread_ns)
+        np.negative(u, out=u)
+        spread_ns *= np.log1p(u, out=u)
+        interval = np.rint(spread_ns, out=spread_ns).astype(np.int64)
+        interval += self._refractory_ns
+        return interval
 
 
 def _write_eyes(eyes: np.ndarray, agents: np.ndarray, yaw: np.ndarray, pitch: np.ndarray) -> None:
