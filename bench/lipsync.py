@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from agent.clock import VirtualClock  # noqa: E402
 from agent.lipsync import LipSyncEstimator, MouthTrack  # noqa: E402
-from services.audio import FakeSink, Player, PlayerAnchor, PlayerFinished, PlayerMouthKeys  # noqa: E402
+from services.processes.audio import FakeSink, Player, PlayerAnchor, PlayerFinished, PlayerMouthKeys  # noqa: E402
 
 BLOCK_S = 0.010
 FRAME_S = 1.0 / 60.0
@@ -43,7 +43,7 @@ BUS_RATE = 48_000  # the say requests' PCM rate = the null sink's rate, so no re
 
 def speech_sample() -> tuple[np.ndarray, int, str]:
     try:
-        from services.audio.espeak import EspeakUnavailable, synthesize
+        from services.processes.audio.espeak import EspeakUnavailable, synthesize
 
         speech = synthesize("She sells sea shells by the sea shore, and my father bought a map of the moon.")
         return speech.samples, speech.sample_rate, "espeak-ng sentence"
@@ -146,11 +146,11 @@ def bus_offsets_ms(utterances: int, fps: float = 60.0, timeout_s: float = 20.0) 
         SpeechInterrupted,
         SpeechStarted,
     )
-    from services.audio.service import AudioService
-    from services.audio.sinks import NullSink
-    from services.dialogue import DialogueService
-    from services.renderer.options import RendererOptions
-    from services.renderer.service import RendererService
+    from services.processes.audio.service import AudioService
+    from services.processes.audio.sinks import NullSink
+    from services.processes.dialogue import DialogueService
+    from services.processes.renderer.options import RendererOptions
+    from services.processes.renderer.service import RendererService
     from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
     vowel = synthetic_vowel(750, 1200, 0.25, BUS_RATE)

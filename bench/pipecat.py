@@ -219,7 +219,7 @@ async def latency_block(parts: dict[str, Any], instance: str, with_face: bool, s
 
 
 def latency_phase(parts: dict[str, Any], instance: str, args: argparse.Namespace, report: Report) -> None:
-    from services.tts import EngineSettings, EspeakSpeech
+    from services.processes.audio.tts import EngineSettings, EspeakSpeech
 
     engine = EspeakSpeech(EngineSettings())
     speech: dict[str, bytes] = {}

@@ -53,7 +53,7 @@ EXPRESSION = [n for n in FLEXOR_NAMES if n not in ("look_x", "look_y", "blink_l"
 
 
 def service_argv(config: BusConfig, name: str, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "services.run", name, "--config", str(config.config_path),
+    return [sys.executable, "-m", "services.processes.run", name, "--config", str(config.config_path),
             "--instance", config.instance, *extra]
 
 

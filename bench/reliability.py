@@ -66,7 +66,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
-from services.processes import subprocess_env  # noqa: E402 (after the path is set)
+from services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
 
 AGENT = "ada"
 READY_TIMEOUT_S = 90.0  # eca up to "ready": the renderer's JIT cache may be cold
@@ -658,7 +658,7 @@ class Up:
 @contextmanager
 def child(argv: list[str], stdin: bool = False) -> Iterator[tuple[subprocess.Popen[bytes], Any]]:
     """A helper process of the bench with its stdout read line by line; killed (group) afterwards."""
-    from services.processes import LineReader
+    from services.tools.child_processes import LineReader
 
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
                             env=subprocess_env(), cwd=REPO, start_new_session=True)

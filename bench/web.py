@@ -7,7 +7,7 @@ instance's viewer watchdog waits 30 s instead of 5 s (see instance(): with 5 s i
 
 1. A/V offset as the browser presents it. One page receives three streams at once: the agent (the
    page's own connection, 640x480 at 30 fps) and two references, peer connections whose offers ask for
-   the web service's calibration mode (services/web/calibration.py): a white flash at each whole second
+   the web service's calibration mode (services/processes/web/calibration.py): a white flash at each whole second
    of the master clock and a click in the audio at exactly that time, sent by the face's and voice's own
    track classes, so they go through the same server, encoders, network and browser. The agent says
    loud vowel bursts (250 ms of /a/, gaps drawn from the seeded generator, 0.9-1.2 s, so the onsets fall
@@ -89,7 +89,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
-from services.processes import subprocess_env  # noqa: E402 (after the path is set)
+from services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
 
 AGENT = "ada"
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
@@ -521,7 +521,7 @@ def draw_and_encode_baselines(frames: int = 150) -> dict[str, float]:
     from aiortc.codecs.vpx import Vp8Encoder
 
     from agent.face.model import FaceModel
-    from services.renderer import Renderer, create_headless_context, read_rgb
+    from services.processes.renderer import Renderer, create_headless_context, read_rgb
 
     ctx = create_headless_context()
     try:
@@ -1023,7 +1023,7 @@ def rss_mib(pid: int) -> float:
 @contextmanager
 def load_process(url: str) -> Iterator[tuple[subprocess.Popen[bytes], Any]]:
     """The helper process holding the aiortc viewers; killed (its group) afterwards."""
-    from services.processes import LineReader
+    from services.tools.child_processes import LineReader
 
     argv = [sys.executable, str(Path(__file__).resolve()), "--role", "load", "--url", url]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE, env=subprocess_env(), cwd=REPO,

@@ -13,9 +13,9 @@ import soundfile as sf
 
 from agent.clock import VirtualClock
 from agent.script import audiofile
-from services.audio import FakeSink, Player, PlayerFailed
-from services.audio.files import AudioFileError, MonoReader, open_sound_file, read_sound_file
-from services.offline import AUDIO_RATE, load_audio
+from services.processes.audio import FakeSink, Player, PlayerFailed
+from services.processes.audio.files import AudioFileError, MonoReader, open_sound_file, read_sound_file
+from services.tools.offline import AUDIO_RATE, load_audio
 
 SR = 16_000
 

@@ -31,12 +31,12 @@ from protocol.messages import (
     SpeechInterrupted,
     SpeechStarted,
 )
-from services.audio import Player, PlayerAnchor, PlayerInterrupted, PlayerMouthKeys, PlayerStarted
-from services.audio.config import AudioConfig
-from services.audio.events import TERMINAL_EVENTS as TERMINAL_PLAYER
-from services.audio.service import AudioService
-from services.dialogue import DialogueService
-from services.runtime import wait_until
+from services.processes.audio import Player, PlayerAnchor, PlayerInterrupted, PlayerMouthKeys, PlayerStarted
+from services.processes.audio.config import AudioConfig
+from services.processes.audio.events import TERMINAL_EVENTS as TERMINAL_PLAYER
+from services.processes.audio.service import AudioService
+from services.processes.dialogue import DialogueService
+from services.processes.runtime import wait_until
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 RATE = 16_000

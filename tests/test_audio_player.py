@@ -17,7 +17,7 @@ from scipy.signal import lfilter
 
 from agent.clock import VirtualClock
 from agent.lipsync import MouthKey, MouthTrack, mouth_track
-from services.audio import (
+from services.processes.audio import (
     FakeSink,
     Player,
     PlayerAnchor,
@@ -28,9 +28,9 @@ from services.audio import (
     PlayerMouthReset,
     PlayerStarted,
 )
-from services.audio.config import AudioConfig
-from services.audio.events import TERMINAL_EVENTS
-from services.audio.resample import resample
+from services.processes.audio.config import AudioConfig
+from services.processes.audio.events import TERMINAL_EVENTS
+from services.processes.audio.resample import resample
 
 SR = 48_000
 BLOCK = 480

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from agent.clock import VirtualClock
-from services.audio import FakeSink, Player, PlayerFailed, PlayerFinished, PlayerStarted
-from services.tts import EngineSettings, SpeechSynthesisError, engine
+from services.processes.audio import FakeSink, Player, PlayerFailed, PlayerFinished, PlayerStarted
+from services.processes.audio.tts import EngineSettings, SpeechSynthesisError, engine
 
 SR = 48_000
 BLOCK = 480

@@ -18,13 +18,20 @@ from agent.config import ConfigError, load_toml
 from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.messages import ClockAnchor, Message, SpeechFinished, SpeechInterrupted, VoiceBlock
-from services.audio import FakeSink, Player, PlayerFinished, PlayerInterrupted, PlayerStarted, PlayerVoiceBlock
-from services.audio.config import AudioConfig
-from services.audio.player import pcm16_bytes
-from services.audio.resample import resample
-from services.audio.service import AudioService
-from services.audio.sinks import NullSink
-from services.dialogue import DialogueService
+from services.processes.audio import (
+    FakeSink,
+    Player,
+    PlayerFinished,
+    PlayerInterrupted,
+    PlayerStarted,
+    PlayerVoiceBlock,
+)
+from services.processes.audio.config import AudioConfig
+from services.processes.audio.player import pcm16_bytes
+from services.processes.audio.resample import resample
+from services.processes.audio.service import AudioService
+from services.processes.audio.sinks import NullSink
+from services.processes.dialogue import DialogueService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 SR = 48_000

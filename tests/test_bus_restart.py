@@ -19,11 +19,11 @@ from protocol.client import AgentClient
 from protocol.codec import encode
 from protocol.endpoints import BusConfig
 from protocol.messages import ALL_AGENTS, EmotionState, HeadState, Heartbeat, Say, SpeechFailed
-from services import broker as broker_module
-from services.broker import Broker
-from services.dialogue import DialogueService
-from services.runtime import wait_until
-from services.state_snapshot import StateSnapshot, snapshot_path
+from services.processes import broker as broker_module
+from services.processes.broker import Broker
+from services.processes.dialogue import DialogueService
+from services.processes.runtime import wait_until
+from services.processes.state_snapshot import StateSnapshot, snapshot_path
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 
@@ -113,7 +113,7 @@ def test_the_cache_is_bounded_and_forgets_the_least_recently_changed(config: Bus
 
 
 def test_a_stopped_broker_leaves_no_socket_files_and_a_refused_one_removes_none(config: BusConfig, ctx) -> None:
-    from services.broker import BrokerAlreadyRunning
+    from services.processes.broker import BrokerAlreadyRunning
 
     first = Broker(config, ctx)
     files = [config.runtime_dir / "pub", config.runtime_dir / "sub"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from services.cli import main
+from services.tools.cli import main
 
 
 @pytest.mark.parametrize("argv, option", [

@@ -30,8 +30,8 @@ from protocol.messages import (
     SpeechStarted,
     SpeechState,
 )
-from services.dialogue import DialogueService
-from services.runtime import wait_until
+from services.processes.dialogue import DialogueService
+from services.processes.runtime import wait_until
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 
@@ -293,7 +293,7 @@ def test_a_say_sent_before_the_audio_service_came_up_still_ends_once() -> None:
 
 def test_eca_send_reports_the_state_its_command_caused_not_a_cached_one(
         bus, dialogue, capsys: pytest.CaptureFixture[str]) -> None:
-    from services.cli import main
+    from services.tools.cli import main
 
     where = ["send", "--config", str(bus.config_path), "--instance", bus.instance]
     assert main([*where, "emotion", "gleeful"]) == 1  # the cached "natural 1.0" is no answer to it

@@ -13,8 +13,8 @@ import pytest
 from PIL import Image
 
 from agent.gaze.params import MODES
-from services.cli import main as eca
-from services.experiment import CONDITIONS, OPEN_LID, POSTER_AFTER_S, Condition, Panel, poster_frame, write_index
+from services.tools.cli import main as eca
+from services.tools.experiment import CONDITIONS, OPEN_LID, POSTER_AFTER_S, Condition, Panel, poster_frame, write_index
 
 
 class Page(HTMLParser):

@@ -38,8 +38,8 @@ from protocol.messages import (
     SpeechState,
 )
 from protocol.topics import CATEGORIES
-from services.liveness import liveness_endpoint
-from services.processes import LineReader
+from services.processes.liveness import liveness_endpoint
+from services.tools.child_processes import LineReader
 from tests.support.bus import eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow
@@ -329,14 +329,14 @@ def test_a_service_alone_with_no_broker_says_so_in_one_line(tmp_path: Path) -> N
     import subprocess
     import sys
 
-    from services.processes import REPO_ROOT, subprocess_env
+    from services.tools.child_processes import REPO_ROOT, subprocess_env
 
     with private_bus_config() as config:
         text = config.config_path.read_text()
         config.config_path.write_text(text.replace("connect_timeout_s = 10.0", "connect_timeout_s = 0.6", 1))
-        done = subprocess.run([sys.executable, "-m", "services.run", "dialogue", "--config", str(config.config_path),
-                               "--instance", config.instance], capture_output=True, text=True, timeout=60,
-                              env=subprocess_env(), cwd=REPO_ROOT)
+        done = subprocess.run([sys.executable, "-m", "services.processes.run", "dialogue",
+                               "--config", str(config.config_path), "--instance", config.instance],
+                              capture_output=True, text=True, timeout=60, env=subprocess_env(), cwd=REPO_ROOT)
     assert done.returncode == 1
     errors = [line for line in done.stderr.splitlines() if "ERROR" in line]
     assert len(errors) == 1 and "no broker answered at ipc://" in errors[0] and "within 0.6 s" in errors[0]

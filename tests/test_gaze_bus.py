@@ -12,7 +12,7 @@ import zmq
 from agent.gaze.synth import eye_position_at
 from protocol.bus import Publisher, Subscriber
 from protocol.messages import EyeState, HeadState, RoleState, Saccade
-from services.gaze import GazeService
+from services.processes.gaze import GazeService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 # Scheduled ticks 20 s apart: a saccade within the test's few seconds can only come from the reaction.

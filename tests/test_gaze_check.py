@@ -15,9 +15,9 @@ from agent.face.flexors import FLEXOR_INDEX
 from agent.gaze.situated import USER, SituatedParams
 from agent.gaze_check import NOBODY, GazeCheck, LookCounts, check_gaze, looked_at
 from agent.script import load_scripts, parse_dialogue
-from services.cli import main as eca
-from services.offline import RenderSettings
-from services.offline_conversation import animate_conversation, write_conversation_csv
+from services.tools.cli import main as eca
+from services.tools.offline import RenderSettings
+from services.tools.offline_conversation import animate_conversation, write_conversation_csv
 
 AGENTS = ("ada", "bob", "cy")
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from agent.gaze.params import FACE_FEATURES, GazeParams
-from services.cli import main
-from services.commands.gaze_plot import PANELS, ZOOM_DEG, simulate_panels, trajectory_figure
-from services.commands.gaze_trace import COLUMNS, EVENT_KINDS
+from services.tools.cli import main
+from services.tools.commands.gaze_plot import PANELS, ZOOM_DEG, simulate_panels, trajectory_figure
+from services.tools.commands.gaze_trace import COLUMNS, EVENT_KINDS
 
 NEW_MODE = "saccade+noise+blink"
 EYES_ALIVE = ("mutual", "away")

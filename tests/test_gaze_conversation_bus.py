@@ -15,7 +15,7 @@ from agent.gaze.backchannel import Nod as NodAction
 from agent.gaze.situated import Conversation, HeadTurn
 from protocol.bus import Publisher, Subscriber
 from protocol.messages import AttentionState, EmotionState, Error, EyesState, Message, Nod, RoleState, UserSpeech
-from services.gaze import GazeService
+from services.processes.gaze import GazeService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 AGENTS = ["ada", "bob", "cy"]

@@ -1,10 +1,10 @@
-"""The gaze service's command line (`python -m services.run gaze ...`)."""
+"""The gaze service's command line (`python -m services.processes.run gaze ...`)."""
 
 from __future__ import annotations
 
 import pytest
 
-from services.gaze import GazeService
+from services.processes.gaze import GazeService
 from tests.support.bus import private_bus_config
 
 

@@ -15,7 +15,7 @@ import soundfile as sf
 from agent.lipsync import mouth_track
 from agent.lipsync.validation import Agreement, score
 
-espeak = pytest.importorskip("services.audio.espeak")
+espeak = pytest.importorskip("services.processes.audio.espeak")
 
 SENTENCES = (
     "papa mama see you",

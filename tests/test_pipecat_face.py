@@ -48,10 +48,10 @@ from protocol.messages import (  # noqa: E402
     SpeechStarted,
     UserSpeech,
 )
-from services.audio.service import AudioService  # noqa: E402
-from services.audio.sinks import NullSink  # noqa: E402
-from services.dialogue import DialogueService  # noqa: E402
 from services.pipecat import EcaFaceParams, EcaVideoService  # noqa: E402
+from services.processes.audio.service import AudioService  # noqa: E402
+from services.processes.audio.sinks import NullSink  # noqa: E402
+from services.processes.dialogue import DialogueService  # noqa: E402
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
 
 pytestmark = [pytest.mark.gl, pytest.mark.filterwarnings("ignore::DeprecationWarning")]  # pipecat's own

@@ -24,7 +24,7 @@ from pipecat.tests.utils import SleepFrame, run_test  # noqa: E402
 
 from protocol.endpoints import default_runtime_root  # noqa: E402
 from services.pipecat import EcaFaceParams, EcaVideoService  # noqa: E402
-from services.processes import REPO_ROOT, LineReader, subprocess_env  # noqa: E402
+from services.tools.child_processes import REPO_ROOT, LineReader, subprocess_env  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::DeprecationWarning")]  # pipecat's own
 RATE = 16_000

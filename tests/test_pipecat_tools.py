@@ -29,9 +29,9 @@ from pipecat.workers.runner import WorkerRunner  # noqa: E402
 from agent.face.emotions import load_emotion_table  # noqa: E402
 from protocol.client import AgentClient  # noqa: E402
 from protocol.messages import EmotionState, HeadState  # noqa: E402
-from services.dialogue import DialogueService  # noqa: E402
 from services.pipecat import EcaFaceParams, EcaTools, EcaVideoService  # noqa: E402
-from services.processes import REPO_ROOT, subprocess_env  # noqa: E402
+from services.processes.dialogue import DialogueService  # noqa: E402
+from services.tools.child_processes import REPO_ROOT, subprocess_env  # noqa: E402
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pipecat's own
@@ -133,7 +133,7 @@ def test_without_pipecat_the_import_says_how_to_install_it() -> None:
         "        if name == 'pipecat' or name.startswith('pipecat.'):\n"
         "            raise ModuleNotFoundError(f'No module named {name!r}')\n"
         "sys.meta_path.insert(0, NoPipecat())\n"
-        "import protocol.client, services.web.service  # eca itself needs no pipecat\n"
+        "import protocol.client, services.processes.web.service  # eca itself needs no pipecat\n"
         "try:\n"
         "    import services.pipecat\n"
         "except ImportError as exc:\n"

@@ -14,7 +14,7 @@ from pipecat.frames.frames import TTSAudioRawFrame, TTSSpeakFrame, TTSStartedFra
 from pipecat.pipeline.worker import PipelineParams  # noqa: E402
 from pipecat.tests.utils import SleepFrame, run_test  # noqa: E402
 
-from services.tts import espeak_available  # noqa: E402
+from services.processes.audio.tts import espeak_available  # noqa: E402
 
 pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning"),  # pipecat's own
               pytest.mark.skipif(not espeak_available(), reason="espeak-ng is not installed")]

@@ -13,10 +13,10 @@ from agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, SayCue
 from protocol.bus import Publisher, Subscriber
 from protocol.codec import encode
 from protocol.messages import EmotionState, MoveHead, RoleState, Say, SetEmotion, SetGazeTarget
-from services.cli import main as eca
-from services.dialogue import DialogueService
-from services.playback import CueTranslator
-from services.recording import RecordingError, RecordingWriter, read_recording
+from services.processes.dialogue import DialogueService
+from services.tools.cli import main as eca
+from services.tools.playback import CueTranslator
+from services.tools.recording import RecordingError, RecordingWriter, read_recording
 from tests.support.bus import ServiceThread
 
 

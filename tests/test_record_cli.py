@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from services.cli import main
+from services.tools.cli import main
 from tests.support.bus import private_bus_config
 
 
@@ -33,8 +33,8 @@ def test_record_with_no_instance_says_so_instead_of_recording_nothing(tmp_path: 
 
 def test_a_recording_starts_with_the_current_state_and_holds_what_followed(tmp_path: Path) -> None:
     from protocol.client import AgentClient
-    from services.dialogue import DialogueService
-    from services.recording import read_recording
+    from services.processes.dialogue import DialogueService
+    from services.tools.recording import read_recording
     from tests.support.bus import BrokerThread, ServiceThread, eca_command, running
 
     target = tmp_path / "bus.rec"

@@ -16,7 +16,7 @@ from PIL import Image
 
 from agent.face.emotions import load_emotion_table
 from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from services.renderer import HeadlessContextError, Renderer, RenderToggles, create_headless_context, read_rgb
+from services.processes.renderer import HeadlessContextError, Renderer, RenderToggles, create_headless_context, read_rgb
 
 pytestmark = pytest.mark.gl
 

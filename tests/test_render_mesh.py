@@ -9,8 +9,8 @@ import pytest
 
 from agent.face.flexors import N_FLEXORS
 from agent.face.frame import FlexorFrame
-from services.renderer.config import load_render_config
-from services.renderer.mesh import (
+from services.processes.renderer.config import load_render_config
+from services.processes.renderer.mesh import (
     BONE_ULID_L,
     CURVE_POINTS,
     EXTRUDED,

@@ -13,9 +13,9 @@ import pytest
 
 from agent.face.flexors import FLEXOR_INDEX
 from agent.script import load_scripts
-from services.cli import main as eca
-from services.offline import AUDIO_RATE, RenderSettings
-from services.offline_conversation import (
+from services.tools.cli import main as eca
+from services.tools.offline import AUDIO_RATE, RenderSettings
+from services.tools.offline_conversation import (
     AGENT_VOICES,
     CONVERSATION_CSV_COLUMNS,
     animate_conversation,
@@ -23,7 +23,7 @@ from services.offline_conversation import (
     voice_of,
     write_conversation_csv,
 )
-from services.playback import AGENT_VOICE, PARTNER_VOICE
+from services.tools.playback import AGENT_VOICE, PARTNER_VOICE
 
 AGENTS = ("ada", "bob", "cy")
 TURN, SAY_AH = FLEXOR_INDEX["turn"], FLEXOR_INDEX["say_ah"]
@@ -157,7 +157,7 @@ def test_listeners_nod_at_the_speakers_pauses_only_in_the_recommended_mode(tmp_p
 
     from agent.conversation_animator import ConversationAnimator
     from agent.gaze.backchannel import BackchannelParams
-    from services.offline_conversation import gather_lines
+    from services.tools.offline_conversation import gather_lines
 
     _pausing_voice(tmp_path / "user.wav", 6)
     _pausing_voice(tmp_path / "ada.wav", 3)

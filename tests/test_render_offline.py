@@ -11,8 +11,8 @@ import pytest
 
 from agent.face.flexors import FLEXOR_NAMES
 from agent.script import build_timeline
-from services.cli import main as eca
-from services.offline import CSV_COLUMNS, RenderSettings, animate
+from services.tools.cli import main as eca
+from services.tools.offline import CSV_COLUMNS, RenderSettings, animate
 
 pytestmark = pytest.mark.gl
 DATA = Path(__file__).parent / "data" / "scripts"
@@ -179,7 +179,7 @@ def test_a_single_listener_nods_at_its_partner_s_pauses_in_the_recommended_mode(
     from agent.animator import TimelineAnimator
     from agent.face.flexors import FLEXOR_INDEX
     from agent.gaze.backchannel import BackchannelParams
-    from services.offline import AUDIO_RATE, _lines, speech_events
+    from services.tools.offline import AUDIO_RATE, _lines, speech_events
 
     t = np.arange(AUDIO_RATE) / AUDIO_RATE
     buzz = sum(np.sin(2 * np.pi * 120 * h * t) / h for h in range(1, 30)) * 0.3 * (0.6 + 0.4 * np.sin(np.pi * t))

@@ -11,10 +11,10 @@ from PIL import Image
 
 from agent.face.emotions import PAPER_EMOTIONS, load_emotion_table
 from agent.face.flexors import FLEXOR_INDEX
-from services.commands import snapshot
-from services.commands.snapshot import SnapshotError, parse_size, pose_flexors
-from services.renderer import HeadlessContextError, create_headless_context
-from services.renderer.config import load_render_config
+from services.processes.renderer import HeadlessContextError, create_headless_context
+from services.processes.renderer.config import load_render_config
+from services.tools.commands import snapshot
+from services.tools.commands.snapshot import SnapshotError, parse_size, pose_flexors
 
 
 def _gl_available() -> bool:

@@ -10,8 +10,8 @@ import zmq
 from protocol.bus import Publisher, Received, Subscriber
 from protocol.messages import ClockAnchor, EmotionState, MouthKeys, SpeechFailed, SpeechStarted
 from protocol.topics import topic_for
-from services.renderer.options import RendererOptions
-from services.renderer.service import RendererService
+from services.processes.renderer.options import RendererOptions
+from services.processes.renderer.service import RendererService
 from tests.support.bus import BrokerThread, private_bus_config
 
 pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)

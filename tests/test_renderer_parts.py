@@ -27,14 +27,14 @@ from protocol.messages import (
     Saccade,
 )
 from protocol.topics import topic_for
-from services.renderer import bus_scene
-from services.renderer.bus_scene import KEEP_EYE_SAMPLES, BusScenes
-from services.renderer.options import RendererOptions
-from services.renderer.outputs import DrawnFrame, OffscreenCanvas, SinkOutput
-from services.renderer.schedule import FrameSchedule
-from services.renderer.service import RendererService
-from services.renderer.video import PngWriter
-from services.runtime import Service
+from services.processes.renderer import bus_scene
+from services.processes.renderer.bus_scene import KEEP_EYE_SAMPLES, BusScenes
+from services.processes.renderer.options import RendererOptions
+from services.processes.renderer.outputs import DrawnFrame, OffscreenCanvas, SinkOutput
+from services.processes.renderer.schedule import FrameSchedule
+from services.processes.renderer.service import RendererService
+from services.processes.renderer.video import PngWriter
+from services.processes.runtime import Service
 from tests.support.bus import BrokerThread, private_bus_config
 
 S = 1_000_000_000
@@ -201,7 +201,7 @@ def test_a_drain_reads_a_bounded_number_of_messages_per_frame(config: BusConfig,
 
 @pytest.fixture(scope="module")
 def egl() -> None:
-    from services.renderer import create_headless_context
+    from services.processes.renderer import create_headless_context
 
     try:
         create_headless_context().release()
@@ -270,8 +270,8 @@ def test_every_output_gets_each_drawn_frame_with_its_slot_and_display_time(egl: 
 @pytest.mark.gl
 def test_the_parts_draw_a_face_for_a_service_of_their_own(egl: None, tmp_path: Path) -> None:
     # The web service's way: its own scenes, schedule, stage and outputs, no renderer service.
-    from services.renderer.renderer import Renderer
-    from services.renderer.stage import Stage
+    from services.processes.renderer.renderer import Renderer
+    from services.processes.renderer.stage import Stage
 
     with private_bus_config(agents=["ada", "bob"]) as config:
         svc = Service(config)

@@ -1,4 +1,5 @@
-"""End to end with real processes: broker, dialogue, gaze and a headless renderer, each `python -m services.run`.
+"""End to end with real processes: broker, dialogue, gaze and a headless renderer, each started as
+`python -m services.processes.run`.
 
 Commands go in on the bus like any dialogue manager's; what comes back is the renderer's published face
 frames, which are exactly what it drew.
@@ -31,7 +32,7 @@ UNITS = load_flexor_units()
 EXPRESSION = [n for n in FLEXOR_NAMES if n not in ("look_x", "look_y", "blink_l", "blink_r", "turn", "nod", "tilt")]
 
 try:
-    from services.renderer import create_headless_context
+    from services.processes.renderer import create_headless_context
 
     create_headless_context().release()
 except Exception as exc:  # pragma: no cover - depends on the machine
@@ -39,7 +40,7 @@ except Exception as exc:  # pragma: no cover - depends on the machine
 
 
 def service_argv(config: BusConfig, name: str, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "services.run", name, "--config", str(config.config_path),
+    return [sys.executable, "-m", "services.processes.run", name, "--config", str(config.config_path),
             "--instance", config.instance, *extra]
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from agent.script import DEFAULT_AGENT, HeadCue, ScriptError, load_script, load_scripts
-from services.cli import main as eca
+from services.tools.cli import main as eca
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).parent / "data" / "scripts"
@@ -73,7 +73,7 @@ def test_every_command_defaults_to_the_dialogues_agent(tmp_path: Path, capsys: p
 
 
 def test_no_command_hard_codes_an_agent_of_its_own() -> None:
-    from services.cli import build_parser
+    from services.tools.cli import build_parser
 
     parser = build_parser()
     for command in ("render", "experiment", "check", "play"):

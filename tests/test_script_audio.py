@@ -11,8 +11,8 @@ import pytest
 import soundfile
 
 from agent.script import AudioFileError, ScriptError, load_dialogue, wav_duration
-from services.cli import main as eca
-from services.script_input import sound_duration
+from services.tools.cli import main as eca
+from services.tools.script_input import sound_duration
 
 DATA = Path(__file__).parent / "data" / "scripts"
 

@@ -9,7 +9,7 @@ import pytest
 
 from agent.face.emotions import PAPER_EMOTIONS
 from agent.script import EmotionCue, HeadCue, RoleCue, SayCue, ScriptError, ScriptErrors, load_script, parse_params
-from services.cli import main
+from services.tools.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 DEMO = ROOT / "configs" / "demo"

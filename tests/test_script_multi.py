@@ -18,7 +18,7 @@ from agent.script import (
     parse_dialogue,
 )
 from agent.script.dialogue import USER as SCRIPT_USER
-from services.cli import main as eca
+from services.tools.cli import main as eca
 
 ROOT = Path(__file__).resolve().parent.parent
 THREE = ROOT / "configs" / "demo" / "three.xml"

@@ -16,8 +16,8 @@ from protocol.bus import Publisher
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, SetEmotion
-from services.cli import main
-from services.dialogue import DialogueService
+from services.processes.dialogue import DialogueService
+from services.tools.cli import main
 from tests.support.bus import ServiceThread
 
 
@@ -96,8 +96,8 @@ def test_every_state_verb_takes_every_field_of_its_command_within_its_limits(
         capsys: pytest.CaptureFixture[str]) -> None:
     from protocol.codec import field_specs
     from protocol.messages import ENVELOPE_FIELDS
-    from services.cli import build_parser
-    from services.commands.send import STATE_VERBS, option_name
+    from services.tools.cli import build_parser
+    from services.tools.commands.send import STATE_VERBS, option_name
 
     parser = build_parser()
     for verb, (cls, _) in STATE_VERBS.items():

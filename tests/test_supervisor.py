@@ -7,7 +7,7 @@ import signal
 import pytest
 
 from agent.clock import VirtualClock
-from services.supervisor import RestartPolicy, Supervisor
+from services.tools.supervisor import RestartPolicy, Supervisor
 
 
 class FakeProcess:
@@ -195,7 +195,7 @@ def test_a_broker_that_cannot_bind_releases_its_sockets_and_lock(tmp_path) -> No
 
     import zmq
 
-    from services.broker import Broker
+    from services.processes.broker import Broker
     from tests.support.bus import private_bus_config
 
     with socket.socket() as taken:
@@ -240,7 +240,7 @@ def test_a_killed_service_is_polled_until_its_end_is_collected(rig) -> None:
 def test_the_bus_view_holds_a_fixed_amount_whatever_arrives() -> None:
     from protocol.bus import Received
     from protocol.messages import ALL_AGENTS, EmotionState, Error, Heartbeat
-    from services.bus_view import MAX_SERVICES_SHOWN, BusView
+    from services.tools.bus_view import MAX_SERVICES_SHOWN, BusView
 
     view = BusView(["ada"])
     for k in range(1000):

@@ -18,8 +18,8 @@ from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import EmotionState, Heartbeat
-from services.cli import main as eca_main
-from services.up import instance_running
+from services.tools.cli import main as eca_main
+from services.tools.up import instance_running
 from tests.support.bus import LineReader, eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow

@@ -21,9 +21,9 @@ from protocol.bus import Subscriber
 from protocol.client import AgentClient
 from protocol.endpoints import BusConfig
 from protocol.messages import Say, SpeechFinished, SpeechInterrupted, UserAudio, UserSpeech
-from services.processes import LineReader
-from services.web.options import WebOptions
-from services.web.service import WebService
+from services.processes.web.options import WebOptions
+from services.processes.web.service import WebService
+from services.tools.child_processes import LineReader
 from tests.support.browser import browser_available, chromium, page_stats, wait_for
 from tests.support.bus import BrokerThread, ServiceThread, eca_command, private_bus_config, running
 from tests.support.web_client import user_speech_wav

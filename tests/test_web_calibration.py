@@ -1,4 +1,4 @@
-"""The web service's calibration mode (services/web/calibration.py): flashes and clicks at the whole seconds
+"""The web service's calibration mode (services/processes/web/calibration.py): flashes and clicks at the whole seconds
 of the master clock, sent by the face's and the voice's own tracks, and the offer flag that asks for them.
 """
 
@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from agent.clock import NS_PER_S, VirtualClock
-from services.web.calibration import CLICK_S, ClickFeed, FlashFeed, click_track, flash_track
-from services.web.options import WebOptions
-from services.web.service import WebService
-from services.web.tracks import VIDEO_RATE
+from services.processes.web.calibration import CLICK_S, ClickFeed, FlashFeed, click_track, flash_track
+from services.processes.web.options import WebOptions
+from services.processes.web.service import WebService
+from services.processes.web.tracks import VIDEO_RATE
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post
 
@@ -177,7 +177,7 @@ def test_a_calibration_flag_that_is_not_a_boolean_is_refused(web: WebService, va
 
 
 def test_the_flag_reaches_the_view_request() -> None:
-    from services.web.server import parse_offer
+    from services.processes.web.server import parse_offer
 
     body = {"type": "offer", "sdp": "v=0", "streams": [{"mid": "0", "agent": "ada", "kind": "video"}]}
     _, plain = parse_offer(body, WebOptions(), ("ada",))

@@ -10,9 +10,9 @@ from collections.abc import Iterator
 import pytest
 
 from protocol.endpoints import BusConfig
-from services.runtime import wait_until
-from services.web.options import WebOptions
-from services.web.service import WebService
+from services.processes.runtime import wait_until
+from services.processes.web.options import WebOptions
+from services.processes.web.service import WebService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import Client, post
 

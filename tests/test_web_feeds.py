@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from agent.clock import VirtualClock
-from services.web.feeds import FrameFeed, Picture, VoiceFeed
-from services.web.tracks import FaceTrack, VoiceTrack
+from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
+from services.processes.web.tracks import FaceTrack, VoiceTrack
 
 RATE = 48_000
 BLOCK = 480  # 10 ms

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from services.audio.resample import resample
-from services.web.microphone import FRAME_SAMPLES, RATE, Microphone
-from services.web.options import VadSettings
+from services.processes.audio.resample import resample
+from services.processes.web.microphone import FRAME_SAMPLES, RATE, Microphone
+from services.processes.web.options import VadSettings
 
 SPEECH_AT_S = 1.0
 

@@ -23,9 +23,9 @@ from aiortc.contrib.media import MediaPlayer
 from protocol.bus import Publisher, Subscriber
 from protocol.endpoints import BusConfig
 from protocol.messages import UserAudio, UserSpeech, VoiceBlock
-from services.runtime import wait_until
-from services.web.options import WebOptions
-from services.web.service import WebService
+from services.processes.runtime import wait_until
+from services.processes.web.options import WebOptions
+from services.processes.web.service import WebService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post, user_speech_wav
 

@@ -15,11 +15,11 @@ import zmq
 
 from protocol.bus import Publisher, Subscriber
 from protocol.messages import FaceFrame, Message, MoveHead, SetEmotion, SetEyes, SetRole
-from services.dialogue import DialogueService
-from services.renderer import read_rgb
-from services.renderer.options import RendererOptions
-from services.renderer.service import RendererService
-from services.renderer.window import EMOTION_KEYS, AgentStatus, LocalAction, action_for_key
+from services.processes.dialogue import DialogueService
+from services.processes.renderer import read_rgb
+from services.processes.renderer.options import RendererOptions
+from services.processes.renderer.service import RendererService
+from services.processes.renderer.window import EMOTION_KEYS, AgentStatus, LocalAction, action_for_key
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)

@@ -2,9 +2,9 @@
 
 Problems are worded to follow the file's name, so a script reports them as
 `file:line:column: <turn>: audio 'x.wav' is empty (0 bytes)` and the audio service as
-`audio file '/path/x.wav' is empty (0 bytes)`: one check and one error for both (services/audio/files.py
-adds what a decoder finds). Only WAV is measured here (stdlib); the service layer passes a measuring hook
-that reads every format the audio service plays.
+`audio file '/path/x.wav' is empty (0 bytes)`: one check and one error for both
+(services/processes/audio/files.py adds what a decoder finds). Only WAV is measured here (stdlib); the service
+layer passes a measuring hook that reads every format the audio service plays.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from pathlib import Path
 from loguru import logger
 
 from protocol.endpoints import BusConfig, load_bus_config
-from services.processes import REPO_ROOT, eca_command, subprocess_env
+from services.tools.child_processes import REPO_ROOT, eca_command, subprocess_env
 
 SERVICES = ("dialogue", "gaze", "audio")  # with the broker: what a face in a pipeline needs
 READY_LINE = "[up] ready in"
@@ -37,9 +37,9 @@ GUARD = Path(__file__).resolve().with_name("guard.py")
 
 def runtime_files(config: BusConfig) -> list[str]:
     """The instance's runtime directory and the names of the files `eca up` makes in it."""
-    from services.broker import BROKER_LOCK
-    from services.liveness import liveness_endpoint
-    from services.state_snapshot import snapshot_path
+    from services.processes.broker import BROKER_LOCK
+    from services.processes.liveness import liveness_endpoint
+    from services.processes.state_snapshot import snapshot_path
 
     sockets = [e.removeprefix("ipc://") for e in (config.frontend, config.backend, liveness_endpoint(config))
                if e.startswith("ipc://")]
@@ -138,6 +138,6 @@ class EcaInstance:
         self._reader.join(timeout=2.0)
         if proc.stdout is not None:
             proc.stdout.close()
-        from services.up import remove_runtime_files  # what `eca up` removes on a clean stop
+        from services.tools.up import remove_runtime_files  # what `eca up` removes on a clean stop
 
         remove_runtime_files(self.config)

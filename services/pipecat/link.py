@@ -3,7 +3,7 @@
 ZeroMQ sockets must stay on the thread that made them, and drawing needs its GL context current on one
 thread, so both live on a thread of their own (`LinkThread`), which runs an eca `Service` loop
 (`FaceLink`, named `pipecat` in its heartbeats) exactly as the web service does: it follows the agent's
-states, events and eye streams into a live scene (services/renderer's `BusScenes`), draws the face
+states, events and eye streams into a live scene (`BusScenes`, services/processes/renderer/), draws the face
 headless at every frame slot (`Stage`, `OffscreenCanvas`) and hands each picture to the pipeline. The
 pipeline's side (pipecat's asyncio loop) never touches a socket: what it has for eca (the TTS audio, the
 user's turns, interruptions, tool commands) goes into a queue, and a byte on a pipe wakes the thread's
@@ -63,13 +63,13 @@ from protocol.messages import (
     UserSpeech,
 )
 from services.pipecat.voice import HeardVoice
-from services.renderer.bus_scene import BusScenes
-from services.renderer.context import read_rgb
-from services.renderer.outputs import OffscreenCanvas
-from services.renderer.renderer import Renderer
-from services.renderer.schedule import FrameSchedule
-from services.renderer.stage import Stage
-from services.runtime import Service
+from services.processes.renderer.bus_scene import BusScenes
+from services.processes.renderer.context import read_rgb
+from services.processes.renderer.outputs import OffscreenCanvas
+from services.processes.renderer.renderer import Renderer
+from services.processes.renderer.schedule import FrameSchedule
+from services.processes.renderer.stage import Stage
+from services.processes.runtime import Service
 
 log = logging.getLogger("pipecat-face")
 

@@ -1,6 +1,6 @@
 """espeak-ng as a pipecat TTS service: a voice with no key, no network and no model to download.
 
-Each text is spoken by one espeak-ng process (eca's own engine wrapper, services/tts.py, with its time
+Each text is spoken by one espeak-ng process (eca's own engine wrapper, services/processes/audio/tts.py, with its time
 limit and clear errors), run off the event loop; its samples are converted to the pipeline's output
 rate and yielded as `TTSAudioRawFrame`s of `frame_ms` each, all at once, as a hosted TTS that streams
 faster than real time does: the output transport paces them. pipecat's base class wraps them in
@@ -19,7 +19,7 @@ from pipecat.frames.frames import ErrorFrame, Frame, TTSAudioRawFrame
 from pipecat.services.settings import TTSSettings
 from pipecat.services.tts_service import TTSService
 
-from services.tts import EngineSettings, EspeakSpeech, SpeechSynthesisError
+from services.processes.audio.tts import EngineSettings, EspeakSpeech, SpeechSynthesisError
 
 
 class EspeakTTSService(TTSService):

@@ -21,8 +21,8 @@ from pathlib import Path
 import zmq
 
 from protocol.endpoints import DEFAULT_CONFIG, BusConfig, load_bus_config
-from services.broker import Broker
-from services.processes import REPO_ROOT, LineReader, eca_command, subprocess_env  # noqa: F401 (re-exported)
+from services.processes.broker import Broker
+from services.tools.child_processes import REPO_ROOT, LineReader, eca_command, subprocess_env  # noqa: F401 (re-exported)
 
 
 def write_test_config(directory: Path, services: list[str] | None = None, agents: list[str] | None = None,

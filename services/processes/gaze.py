@@ -1,0 +1,221 @@
+"""The gaze service: the Attention Monitor and saccade engine for this instance's agents, live.
+
+It follows each agent's state (role, emotion, head, eye mode, gaze target) from the dialogue
+service, ticks the engine at a fixed rate (default 60 Hz) and publishes the eye state of every agent
+each tick plus a saccade event at every onset, so a renderer can draw the exact trajectory at its
+own frame times. A message that can start a saccade at once (role, head, gaze target, eye mode) makes
+the service tick right after the batch it came in, so the saccade event and that agent's eye state go
+out then rather than at the next scheduled tick: a renderer learns of it within one bus hop. The other
+agents' eye states keep the scheduled rate.
+
+It also hosts the conversation around the agents. From the agents' roles (who talks, to whom; who
+listens to whom) it follows whose turn it is, and a `Conversation` (agent/gaze/situated.py) turns the
+listeners' eyes to the speaker and the speaker's to its addressees, with a head turn toward the person
+attended published as `state.<agent>.attention`; a speaker looks away as its turn starts and back as it
+ends (Kendon). A `Backchannel` (agent/gaze/backchannel.py) answers the pauses of whoever speaks (an
+agent's speech, the user's voice activity re-published by the dialogue service) with listeners' blinks
+and nods (`event.<agent>.nod`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from agent.face.settings import load_flexor_units
+from agent.gaze.backchannel import Backchannel, ListenerBlink
+from agent.gaze.backchannel import Nod as NodAction
+from agent.gaze.engine import GazeEngine
+from agent.gaze.params import KINDS
+from agent.gaze.situated import USER, Action, Conversation, HeadTurn, apply
+from agent.vocabulary import BACKCHANNEL_MODES
+from protocol.endpoints import BusConfig
+from protocol.messages import (
+    AttentionState,
+    EmotionState,
+    EyesState,
+    EyeState,
+    GazeTargetState,
+    HeadState,
+    Nod,
+    RoleState,
+    Saccade,
+    UserSpeech,
+)
+from services.processes.runtime import Rejected, Service
+
+
+class GazeService(Service):
+    name = "gaze"
+
+    def __init__(self, config: BusConfig, seed: int | None = None, **kwargs: Any) -> None:
+        super().__init__(config, **kwargs)
+        table = config.raw.get("gaze", {})
+        self.tick_hz = float(table.get("rate_hz", 60.0))
+        self.agent_ids: list[str] = list(config.agents)
+        self.index = {a: i for i, a in enumerate(self.agent_ids)}
+        units = load_flexor_units()
+        self.head_deg = (units.turn_deg, units.nod_deg)
+        seed = int(table.get("seed", 0) if seed is None else seed)
+        self.engine = GazeEngine(len(self.agent_ids), seed, start_ns=self.clock.now_ns())
+        self.conversation = Conversation(self.agent_ids, seed)
+        self.backchannel = Backchannel(self.agent_ids, seed)
+        self.roles: dict[str, RoleState] = {}
+        self.talk_order: list[str] = []  # agents talking now, the latest to start last
+        self.floor: tuple[str | None, tuple[str, ...]] | None = None  # (speaker, addressees) of the turn
+        self.modes = [self.engine.mode_of(i) for i in range(len(self.agent_ids))]
+        # Agents whose message in this batch may have started a saccade: the service ticks right after the
+        # batch and sends their eye states then; the others' keep the rate_hz schedule.
+        self.touched: set[int] = set()
+        for cls, handler in ((RoleState, self.on_role), (EmotionState, self.on_emotion), (HeadState, self.on_head),
+                             (EyesState, self.on_eyes), (GazeTargetState, self.on_target),
+                             (UserSpeech, self.on_user_speech)):
+            self.handle(cls, handler)
+
+    @classmethod
+    def from_args(cls, config: BusConfig, argv: list[str], **kwargs: Any) -> GazeService:
+        parser = argparse.ArgumentParser(prog="python -m services.processes.run gaze", add_help=False,
+                                         exit_on_error=False)
+        parser.add_argument("--seed", type=int, default=None, help="seed of the eyes and blinks")
+        try:
+            args, unknown = parser.parse_known_args(argv)
+            if unknown:
+                raise ValueError(f"unknown gaze arguments: {shlex.join(unknown)}")
+        except (argparse.ArgumentError, ValueError) as exc:
+            print(f"[gaze] ERROR {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+        return cls(config, seed=args.seed, **kwargs)
+
+    def subscriptions(self) -> list[str]:
+        return [f"state.{a}." for a in self.agent_ids] + [f"event.{a}.user_speech" for a in self.agent_ids]
+
+    def _i(self, agent: str) -> int:
+        try:
+            return self.index[agent]
+        except KeyError:
+            raise Rejected(f"unknown agent '{agent}'") from None
+
+    def _now(self) -> int:
+        return max(self.clock.now_ns(), self.engine.now_ns)
+
+    def on_role(self, msg: RoleState) -> None:
+        i = self._i(msg.agent)
+        now = self._now()
+        self.engine.set_role(i, msg.role, now)
+        self.touched.add(i)
+        was_talking = msg.agent in self.talk_order
+        self.roles[msg.agent] = msg
+        if msg.role == "talking" and not was_talking:
+            self.talk_order.append(msg.agent)
+            self.backchannel.speaking(now, msg.agent, True)
+        elif msg.role != "talking" and was_talking:
+            self.talk_order.remove(msg.agent)
+            self.backchannel.speaking(now, msg.agent, False)
+        self._follow_floor(now)
+
+    def on_user_speech(self, msg: UserSpeech) -> None:
+        self._i(msg.agent)
+        self.backchannel.speaking(self._now(), USER, msg.speaking)
+
+    def _follow_floor(self, now: int) -> None:
+        """Who speaks to whom, from the roles: the agent that began talking last; else the person the
+        listeners say holds the floor (the user, or an agent a dialogue manager named); else silence."""
+        known = (*self.agent_ids, USER)
+        if self.talk_order:
+            speaker: str | None = self.talk_order[-1]
+            addressees = tuple(p for p in self.roles[self.talk_order[-1]].addressees if p in known and p != speaker)
+        else:
+            named = [r.speaker for r in self.roles.values() if r.role == "listening" and r.speaker]
+            # someone a dialogue manager names who is not on screen sits with the user, in front
+            speaker = (named[-1] if named[-1] in known else USER) if named else None
+            addressees = ()
+        floor = (speaker, addressees)
+        if floor == self.floor:
+            return
+        previous, self.floor = self.floor, floor
+        actions: list[Action] = []
+        if previous is not None and previous[0] in self.agent_ids:
+            actions += self.conversation.end_turn(now)
+        actions += self.conversation.start_turn(now, speaker, addressees)
+        self._act(actions)
+        self.touched.update(self.index[a.agent] for a in actions)
+
+    def _act(self, actions: list[Action]) -> None:
+        for turn in apply(self.engine, actions, self.index):
+            self._publish_attention(turn)
+
+    def _publish_attention(self, turn: HeadTurn) -> None:
+        self.publish(AttentionState(agent=turn.agent, t_ns=max(turn.t_ns, 1),
+                                    person=self.conversation.attending[turn.agent],
+                                    yaw_deg=turn.yaw_deg, pitch_deg=turn.pitch_deg, duration_s=turn.duration_s))
+
+    def on_emotion(self, msg: EmotionState) -> None:
+        try:
+            self.engine.set_emotion(self._i(msg.agent), msg.name, msg.intensity, self._now())
+        except ValueError as exc:
+            raise Rejected(str(exc)) from None
+
+    def on_head(self, msg: HeadState) -> None:
+        # The eyes lead the head: the engine hears the new head direction when the move begins.
+        i = self._i(msg.agent)
+        self.engine.set_head(i, msg.turn * self.head_deg[0], msg.nod * self.head_deg[1], self._now())
+        self.touched.add(i)
+
+    def on_eyes(self, msg: EyesState) -> None:
+        i = self._i(msg.agent)
+        self.engine.set_mode(i, msg.mode, self._now())
+        self.modes[i] = msg.mode
+        self.touched.add(i)
+
+    def on_target(self, msg: GazeTargetState) -> None:
+        i = self._i(msg.agent)
+        self.engine.set_target(i, msg.yaw_deg, msg.pitch_deg, self._now())
+        self.touched.add(i)
+
+    def after_batch(self) -> None:
+        if self.touched:
+            touched = sorted(self.touched)
+            self.touched.clear()
+            self._tick(self._now(), touched)
+
+    def on_tick(self, now_ns: int) -> None:
+        self._tick(now_ns, range(len(self.agent_ids)))
+
+    def _tick(self, now_ns: int, eye_states_for: Iterable[int]) -> None:
+        """Advance every agent and publish every saccade begun since the last tick, and the eye states of
+        `eye_states_for`."""
+        now_ns = max(now_ns, self.engine.now_ns)
+        self._act(self.conversation.due(now_ns))
+        for action in self.backchannel.due(now_ns):
+            i = self.index[action.agent]
+            if self.engine.mode_of(i) not in BACKCHANNEL_MODES:
+                continue  # the paper's conditions stay as they were
+            if isinstance(action, ListenerBlink):
+                self.engine.blink_at(i, max(action.t_ns, self.engine.now_ns))
+            elif isinstance(action, NodAction):
+                self.publish(Nod(agent=action.agent, onset_ns=action.t_ns, amplitude_deg=action.amplitude_deg,
+                                 duration_s=action.duration_s))
+        tick = self.engine.tick(now_ns)
+        s = tick.saccades
+        for k in range(len(s)):
+            agent = self.agent_ids[int(s.agent[k])]
+            self.publish(Saccade(
+                agent=agent, onset_ns=int(s.onset_ns[k]),
+                from_yaw_deg=float(s.from_yaw_deg[k]), from_pitch_deg=float(s.from_pitch_deg[k]),
+                to_yaw_deg=float(s.to_yaw_deg[k]), to_pitch_deg=float(s.to_pitch_deg[k]),
+                amplitude_deg=float(s.amplitude_deg[k]), direction_deg=float(s.direction_deg[k]) % 360.0,
+                duration_s=float(s.duration_s[k]), kind=KINDS[int(s.kind[k])],  # type: ignore[arg-type]
+                hold_s=float(min(s.hold_s[k], 600.0))))
+        yaw = np.clip(tick.yaw_deg, -90.0, 90.0)
+        pitch = np.clip(tick.pitch_deg, -90.0, 90.0)
+        lid = np.clip(tick.lid, 0.0, 1.0)
+        for i in eye_states_for:
+            agent = self.agent_ids[i]
+            self.publish(EyeState(agent=agent, t_ns=tick.t_ns, yaw_deg=float(yaw[i]), pitch_deg=float(pitch[i]),
+                                  lid=float(lid[i]), mode=self.modes[i]))  # type: ignore[arg-type]
+

@@ -1,0 +1,129 @@
+"""The web service's calibration mode: a stream whose picture and sound are in step at their source.
+
+A page measuring how far apart a browser presents the face and the voice needs a reference that it
+knows to be aligned where it leaves the server: a white flash in the video at exactly the master-clock
+time of a click in the audio. An offer with `"calibration": true` gets, for each section it receives,
+one of these synthetic tracks instead of the agent's face or voice:
+
+- video: a picture for every frame slot of the master clock (slot k at k/fps s; at a whole-number rate
+  every whole second is a slot), white for the slot nearest each whole second (the one at it; of two
+  equally near, the earlier), black for the others;
+- audio: silence with a click (a 10 ms burst of a 1 kHz tone, starting at phase zero) at each whole
+  second.
+
+They are the face's and the voice's own track classes (services/processes/web/tracks.py) reading synthetic feeds,
+so the reference is timed, stamped, encoded and sent exactly as the agent is: the video track gets each
+picture when its slot comes (the face gets its picture as soon as it is drawn for its slot), the voice
+track takes 20 ms of samples when the first of them is due at the output. Whatever the reference's
+offset is in the browser, the server, encoders, network and browser made it; the face's offset beyond
+that is the face's own, to within what separate connections differ by (a browser settles each one's
+A/V sync on its own: bench/web.py runs two references to see how far). The service still draws the
+agent for such a viewer, so the reference is measured under the face's load.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+
+from agent.clock import NS_PER_S, Clock
+from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
+from services.processes.web.tracks import FaceTrack, VoiceTrack
+
+CLICK_S = 0.010
+CLICK_HZ = 1_000.0
+CLICK_LEVEL = 0.5  # of full scale: loud, never clipped by Opus
+# video range (BT.601) luma and neutral chroma: what a browser shows as full white and full black
+WHITE_LUMA, BLACK_LUMA, NEUTRAL_CHROMA = 235, 16, 128
+
+
+def solid_yuv(width: int, height: int, luma: int) -> np.ndarray:
+    """A grey picture as yuv420p planes stacked the way av.VideoFrame.from_ndarray takes them."""
+    yuv = np.full((height * 3 // 2, width), NEUTRAL_CHROMA, dtype=np.uint8)
+    yuv[:height] = luma
+    return yuv
+
+
+class FlashFeed(FrameFeed):
+    """A picture per frame slot of the master clock, white at the whole seconds, black otherwise.
+
+    Slot k is at k·1000/(1000·fps) s of the clock, in integer milli-frames per second as the service's
+    own frame schedule counts them (services/processes/renderer/schedule.py), so at a whole-number rate every
+    whole second is exactly a slot."""
+
+    def __init__(self, clock: Clock, width: int, height: int, fps: float) -> None:
+        super().__init__()
+        self.clock = clock
+        self.width, self.height = width, height
+        self._mfps = round(fps * 1000)
+        self._white = solid_yuv(width, height, WHITE_LUMA)
+        self._black = solid_yuv(width, height, BLACK_LUMA)
+
+    def slot_ns(self, k: int) -> int:
+        return k * NS_PER_S * 1000 // self._mfps
+
+    def slot_at_or_before(self, t_ns: int) -> int:
+        """The last slot k with slot_ns(k) <= t_ns."""
+        return ((t_ns + 1) * self._mfps - 1) // (NS_PER_S * 1000)
+
+    def is_flash(self, k: int) -> bool:
+        """Whether slot k is the one for a whole second S: the slot in [S - half a period, S + half a
+        period), exactly one a second (in integer arithmetic on the exact slot times, k / fps s)."""
+        slot = k * NS_PER_S * 1000  # the slot's exact time, times the milli-frame rate
+        per_second = NS_PER_S * self._mfps
+        half_period = NS_PER_S * 1000 // 2
+        second = (slot + half_period) // per_second
+        return slot - second * per_second < half_period
+
+    def picture(self, k: int) -> Picture:
+        return Picture(self.slot_ns(k), self._white if self.is_flash(k) else self._black, self.width, self.height)
+
+    async def next_after(self, agent: str, frame_ns: int) -> Picture:
+        """The newest slot's picture once its time has come, like a face drawn for that slot: the
+        current slot if it is after `frame_ns` (a track that fell behind skips to it), else the next
+        slot after `frame_ns`, when it is due."""
+        now = self.clock.now_ns()
+        k = max(self.slot_at_or_before(now), self.slot_at_or_before(frame_ns) + 1)
+        wait_ns = self.slot_ns(k) - now
+        if wait_ns > 0:
+            await asyncio.sleep(wait_ns / 1e9)  # pacing to the master clock, not synchronisation
+        return self.picture(k)
+
+    def put(self, agent: str, picture: Picture) -> None:
+        raise TypeError("a flash feed makes its own pictures")
+
+
+class ClickFeed(VoiceFeed):
+    """Silence with a click at each whole second of the master clock, for any span a track takes."""
+
+    def __init__(self, sample_rate: int = 48_000) -> None:
+        super().__init__(sample_rate)
+        t = np.arange(round(CLICK_S * sample_rate)) / sample_rate
+        self.click = np.round(CLICK_LEVEL * 32767 * np.sin(2 * np.pi * CLICK_HZ * t)).astype(np.int16)
+
+    def add(self, dac_time_ns: int, samples: np.ndarray, sample_rate: int) -> None:
+        raise TypeError("a click feed makes its own samples")
+
+    def take(self, start_ns: int, count: int) -> np.ndarray:
+        out = np.zeros(count, dtype=np.int16)
+        rate = self.sample_rate
+        end_ns = start_ns + count * NS_PER_S // rate
+        first_second = -(-(start_ns - len(self.click) * NS_PER_S // rate) // NS_PER_S)  # clicks that reach the span
+        for second in range(first_second, end_ns // NS_PER_S + 1):
+            # positions in samples from start_ns, rounded to the nearest sample as the voice's are
+            offset = round((second * NS_PER_S - start_ns) * rate / 1e9)
+            lo, hi = max(0, offset), min(count, offset + len(self.click))
+            if lo < hi:
+                out[lo:hi] = self.click[lo - offset:hi - offset]
+        return out
+
+
+def flash_track(clock: Clock, width: int, height: int, fps: float, epoch_ns: int) -> FaceTrack:
+    """The reference's video: a face track reading flashes instead of the drawn face."""
+    return FaceTrack(FlashFeed(clock, width, height, fps), "calibration", width, height, fps, epoch_ns)
+
+
+def click_track(clock: Clock) -> VoiceTrack:
+    """The reference's audio: a voice track reading clicks instead of the agent's voice."""
+    return VoiceTrack(ClickFeed(), clock)

@@ -1,0 +1,208 @@
+// The eca page: the agents' faces and voices over WebRTC, the user's microphone back, a status line and
+// a developer panel. Standard WebRTC and media APIs only; no build step.
+//
+// URL parameters: token (when the server wants one), agents=ada,bob (default: the instance's first),
+// width, height, fps (within the server's limits), mic=0 (start without the microphone).
+"use strict";
+
+const params = new URLSearchParams(location.search);
+const token = params.get("token");
+const withToken = (path) => (token ? `${path}?token=${encodeURIComponent(token)}` : path);
+const $ = (id) => document.getElementById(id);
+
+const eca = {  // what the page knows, also for tests driving it
+  pc: null, state: "not connected", faces: {}, agents: [], answer: null, error: null,
+  stats: { rttMs: null, fps: null, avOffsetMs: null, width: null, height: null },
+};
+window.eca = eca;
+
+function setStatus(text, isError = false) {
+  const el = $("status");
+  el.textContent = text;
+  el.classList.toggle("error", isError);
+}
+
+function showStats() {
+  if (eca.state !== "connected") return setStatus(eca.state, eca.state.startsWith("error"));
+  const s = eca.stats;
+  const part = (v, unit, digits = 0) => (v == null ? "–" : `${v.toFixed(digits)} ${unit}`);
+  setStatus(`connected · rtt ${part(s.rttMs, "ms")} · ${part(s.fps, "fps")} · A/V offset ${part(s.avOffsetMs, "ms")}`
+            + (s.avOffsetMs == null ? "" : s.avOffsetMs >= 0 ? " (audio late)" : " (audio early)"));
+}
+
+function faceFor(agent) {
+  if (!eca.faces[agent]) {
+    const figure = document.createElement("figure");
+    const video = document.createElement("video");
+    video.autoplay = true;
+    video.playsInline = true;
+    video.dataset.agent = agent;
+    const caption = document.createElement("figcaption");
+    caption.textContent = agent;
+    figure.append(video, caption);
+    $("faces").append(figure);
+    eca.faces[agent] = video;
+  }
+  return eca.faces[agent];
+}
+
+async function gatheringDone(pc) {
+  if (pc.iceGatheringState === "complete") return;
+  await new Promise((resolve) => {
+    const check = () => { if (pc.iceGatheringState === "complete") { pc.removeEventListener("icegatheringstatechange", check); resolve(); } };
+    pc.addEventListener("icegatheringstatechange", check);
+  });
+}
+
+async function connect() {
+  const config = await (await fetch(withToken("/config"))).json();
+  // drawn left to right in the instance's order, the seats its agents look at each other by
+  const seat = (a) => (config.agents.indexOf(a) < 0 ? config.agents.length : config.agents.indexOf(a));
+  const agents = (params.get("agents") || config.agents[0]).split(",").filter(Boolean).sort((a, b) => seat(a) - seat(b));
+  const video = {
+    width: Number(params.get("width") || config.width),
+    height: Number(params.get("height") || config.height),
+    fps: Number(params.get("fps") || config.fps),
+  };
+  const pc = new RTCPeerConnection();
+  eca.pc = pc;
+  eca.agents = agents;
+  let mic = null;  // the microphone's section first: the server reads it best there
+  if ($("mic").checked) {
+    const stream = await navigator.mediaDevices.getUserMedia({ audio: true });
+    mic = pc.addTransceiver(stream.getAudioTracks()[0], { direction: "sendonly" });
+  }
+  const sections = [];
+  for (const agent of agents) {
+    sections.push({ agent, kind: "video", t: pc.addTransceiver("video", { direction: "recvonly" }) });
+    sections.push({ agent, kind: "audio", t: pc.addTransceiver("audio", { direction: "recvonly" }) });
+    faceFor(agent);
+  }
+  // A conversation wants the reply now: ask the receivers to buffer no more than the network needs (a
+  // standard WebRTC extension; where a browser lacks it, its own adaptive buffering stays).
+  for (const s of sections) if ("jitterBufferTarget" in s.t.receiver) s.t.receiver.jitterBufferTarget = 0;
+  pc.ontrack = (event) => {
+    const section = sections.find((s) => s.t === event.transceiver);
+    if (!section) return;
+    const element = faceFor(section.agent);
+    if (!element.srcObject) element.srcObject = new MediaStream();
+    element.srcObject.addTrack(event.track);
+  };
+  pc.onconnectionstatechange = () => {
+    eca.state = pc.connectionState === "connected" ? "connected" : pc.connectionState;
+    showStats();
+  };
+  await pc.setLocalDescription(await pc.createOffer());
+  await gatheringDone(pc);
+  const body = {
+    type: "offer", sdp: pc.localDescription.sdp, token, agents, video,
+    streams: sections.map((s) => ({ mid: s.t.mid, agent: s.agent, kind: s.kind })),
+    mic_mid: mic ? mic.mid : null,
+  };
+  const response = await fetch("/offer", { method: "POST", headers: { "Content-Type": "application/json" },
+                                           body: JSON.stringify(body) });
+  const answer = await response.json();
+  if (!response.ok) throw new Error(answer.error || `the server answered ${response.status}`);
+  eca.answer = answer;
+  await pc.setRemoteDescription({ type: "answer", sdp: answer.sdp });
+}
+
+async function disconnect() {
+  if (eca.pc) eca.pc.close();
+  eca.pc = null;
+  eca.state = "not connected";
+  for (const video of Object.values(eca.faces)) {
+    if (video.srcObject) video.srcObject.getTracks().forEach((t) => t.stop());
+    video.srcObject = null;
+  }
+  showStats();
+}
+
+async function pollStats() {
+  const pc = eca.pc;
+  if (!pc || pc.connectionState !== "connected") return;
+  const report = await pc.getStats();
+  let rtt = null, fps = null, width = null, height = null, videoPlayout = null, audioPlayout = null;
+  report.forEach((s) => {
+    if (s.type === "candidate-pair" && s.nominated && s.currentRoundTripTime != null) rtt = s.currentRoundTripTime * 1000;
+    if (s.type === "inbound-rtp" && s.kind === "video") {
+      fps = s.framesPerSecond ?? fps;
+      width = s.frameWidth ?? width;
+      height = s.frameHeight ?? height;
+      if (s.estimatedPlayoutTimestamp) videoPlayout = s.estimatedPlayoutTimestamp;
+    }
+    if (s.type === "inbound-rtp" && s.kind === "audio" && s.estimatedPlayoutTimestamp) audioPlayout = s.estimatedPlayoutTimestamp;
+  });
+  // what each track plays now, as the sender's clock saw it: video's ahead of audio's = audio late
+  const offset = videoPlayout != null && audioPlayout != null ? videoPlayout - audioPlayout : null;
+  eca.stats = { rttMs: rtt, fps, avOffsetMs: offset, width, height };
+  showStats();
+}
+
+async function sendCommand(command) {
+  const agent = $("agent").value;
+  const response = await fetch("/command", { method: "POST", headers: { "Content-Type": "application/json" },
+                                             body: JSON.stringify({ token, command: { ...command, agent } }) });
+  const answer = await response.json();
+  $("panel-status").textContent = response.ok ? `sent ${command.type} to ${agent}` : answer.error;
+  $("panel-status").classList.toggle("error", !response.ok);
+}
+
+function button(parent, label, command) {
+  const b = document.createElement("button");
+  b.type = "button";
+  b.textContent = label;
+  b.onclick = () => sendCommand(command);
+  $(parent).append(b);
+}
+
+function buildPanel(agents, eyeModes) {
+  for (const agent of agents) $("agent").append(new Option(agent, agent));
+  for (const name of ["natural", "happy", "surprised", "arrogant", "angry", "half-angry", "disappointed",
+                      "annoyed", "frightened"]) {
+    button("emotions", name, { type: "set_emotion", name, intensity: 1.0, transition_s: 0.4 });
+  }
+  for (const role of ["talking", "listening", "silence"]) button("roles", role, { type: "set_role", role });
+  for (const [label, turn, nod] of [["left", -0.5, 0], ["centre", 0, 0], ["right", 0.5, 0], ["up", 0, 0.4],
+                                    ["down", 0, -0.4]]) {
+    button("heads", label, { type: "move_head", turn, nod, tilt: 0, duration_s: 0.6 });
+  }
+  for (const mode of eyeModes) button("eyes", mode, { type: "set_eyes", mode });
+}
+
+$("connect").onclick = async () => {
+  const b = $("connect");
+  b.disabled = true;
+  try {
+    if (eca.pc) {
+      await disconnect();
+      b.textContent = "Connect";
+      $("mute").disabled = true;
+    } else {
+      eca.state = "connecting";
+      showStats();
+      await connect();
+      b.textContent = "Disconnect";
+      $("mute").disabled = false;
+    }
+  } catch (error) {
+    eca.error = String(error.message || error);
+    eca.state = `error: ${eca.error}`;
+    await disconnect();
+    eca.state = `error: ${eca.error}`;
+    showStats();
+  } finally {
+    b.disabled = false;
+  }
+};
+
+$("mute").onclick = () => {
+  const muted = !Object.values(eca.faces).every((v) => v.muted);
+  for (const video of Object.values(eca.faces)) video.muted = muted;
+  $("mute").textContent = muted ? "Unmute voice" : "Mute voice";
+};
+
+if (params.get("mic") === "0") $("mic").checked = false;
+fetch(withToken("/config")).then((r) => r.json()).then((config) => buildPanel(config.agents, config.eye_modes)).catch(() => {});
+setInterval(pollStats, 1000);
+showStats();

@@ -1,0 +1,66 @@
+"""The map of the tree (docs/architecture.md, "Folders") holds: which folder may import which.
+
+Every `import` and `from ... import` is read from the source (the ones inside functions too), so a lazy
+import that runs the wrong way is caught as well as one at the top of a module.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+# folder -> the packages its modules must never import
+FORBIDDEN: dict[str, tuple[str, ...]] = {
+    "agent": ("protocol", "services"),  # pure models
+    "protocol": ("agent", "services"),  # the wire knows nothing of models
+    "services/processes": ("services.tools", "services.pipecat"),  # tools drive processes, never the reverse
+    "services/tools": ("services.pipecat",),
+}
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every absolute module `path` imports; `from services import broker` counts as `services.broker`."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module)
+            found.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return found
+
+
+def within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+@pytest.mark.parametrize("folder", sorted(FORBIDDEN))
+def test_no_import_runs_the_wrong_way(folder: str) -> None:
+    modules = sorted((REPO_ROOT / folder).rglob("*.py"))
+    assert modules, f"{folder}/ holds no module"
+    wrong = [f"{path.relative_to(REPO_ROOT)} imports {module}" for path in modules
+             for module in sorted(imported_modules(path))
+             if any(within(module, package) for package in FORBIDDEN[folder])]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_checker_sees_a_lazy_import(tmp_path: Path) -> None:
+    source = tmp_path / "lazy.py"
+    source.write_text("def f():\n    from services import tools\n    import services.pipecat.face\n")
+    assert {"services.tools", "services.pipecat.face"} <= imported_modules(source)
+
+
+def test_services_holds_processes_tools_and_pipecat_only() -> None:
+    """A newcomer's map: every module of services/ is in one of its three folders."""
+    top = sorted(p.name for p in (REPO_ROOT / "services").iterdir() if p.name != "__pycache__")
+    assert top == ["__init__.py", "pipecat", "processes", "tools"]
+
+
+def test_every_process_run_starts_lives_in_processes() -> None:
+    from services.processes.run import SERVICES
+
+    assert all(within(target.split(":")[0], "services.processes") for target in SERVICES.values())
