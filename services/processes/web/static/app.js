@@ -78,9 +78,6 @@ async function connect() {
     sections.push({ agent, kind: "audio", t: pc.addTransceiver("audio", { direction: "recvonly" }) });
     faceFor(agent);
   }
-  // A conversation wants the reply now: ask the receivers to buffer no more than the network needs (a
-  // standard WebRTC extension; where a browser lacks it, its own adaptive buffering stays).
-  for (const s of sections) if ("jitterBufferTarget" in s.t.receiver) s.t.receiver.jitterBufferTarget = 0;
   pc.ontrack = (event) => {
     const section = sections.find((s) => s.t === event.transceiver);
     if (!section) return;
