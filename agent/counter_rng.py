@@ -24,11 +24,29 @@ def splitmix64(x: np.ndarray | np.uint64) -> np.ndarray:
     return z ^ (z >> np.uint64(31))
 
 
+def splitmix64_inplace(z: np.ndarray, scratch: np.ndarray) -> None:
+    """splitmix64 on a uint64 array in place, with `scratch` (same shape) for the shifts: no temporaries,
+    for the engine's batches (array arithmetic wraps without warnings)."""
+    z += _GOLDEN
+    np.right_shift(z, np.uint64(30), out=scratch)
+    z ^= scratch
+    z *= _MIX1
+    np.right_shift(z, np.uint64(27), out=scratch)
+    z ^= scratch
+    z *= _MIX2
+    np.right_shift(z, np.uint64(31), out=scratch)
+    z ^= scratch
+
+
+def stream_key(seed: int, stream: np.ndarray | int) -> np.ndarray:
+    """The per-stream key of hash3: hash3(seed, stream, counter) = splitmix64(stream_key(seed, stream) ^ counter)."""
+    s = splitmix64(np.uint64(seed & 0xFFFFFFFFFFFFFFFF))
+    return splitmix64(s ^ np.asarray(stream, dtype=np.uint64))
+
+
 def hash3(seed: int, stream: np.ndarray | int, counter: np.ndarray | int) -> np.ndarray:
     """A 64-bit hash of (seed, stream, counter); broadcasts stream and counter like numpy does."""
-    s = splitmix64(np.uint64(seed & 0xFFFFFFFFFFFFFFFF))
-    a = splitmix64(s ^ np.asarray(stream, dtype=np.uint64))
-    return splitmix64(a ^ np.asarray(counter, dtype=np.uint64))
+    return splitmix64(stream_key(seed, stream) ^ np.asarray(counter, dtype=np.uint64))
 
 
 def uniform01(seed: int, stream: np.ndarray | int, counter: np.ndarray | int) -> np.ndarray:

@@ -9,8 +9,10 @@ import pytest
 
 from agent.config import CONFIG_DIR, ConfigError
 from agent.counter_rng import uniform01
-from agent.gaze.engine import COUNTER_SACCADE, KEY_SACCADE, GazeEngine, derive_seed
+from agent.gaze.engine import GazeEngine
+from agent.gaze.generator import SACCADE_STREAM, derive_seed
 from agent.gaze.params import GazeParams
+from agent.gaze.rows import COUNTER_SACCADE, KEY_SACCADE, row_uniforms
 
 EMOTIONS = ("natural", "happy", "surprised", "arrogant", "angry", "half-angry", "disappointed", "annoyed", "frightened")
 
@@ -79,9 +81,11 @@ def test_engine_draws_are_the_counter_rng_streams() -> None:
     agents = np.array([1, 3, 4])
     rows = engine._rows[agents]
     before = rows[:, COUNTER_SACCADE].view(np.uint64).copy()
-    drawn = engine._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)
+    drawn = row_uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)
     expected = uniform01(
-        derive_seed(99, 1), agents[:, None].astype(np.uint64), before[:, None] + np.arange(3, dtype=np.uint64)
+        derive_seed(99, SACCADE_STREAM),
+        agents[:, None].astype(np.uint64),
+        before[:, None] + np.arange(3, dtype=np.uint64),
     )
     np.testing.assert_array_equal(drawn, expected.T)  # one row per draw
     assert np.all(rows[:, COUNTER_SACCADE].view(np.uint64) == before + 3)

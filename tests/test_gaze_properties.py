@@ -6,8 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.gaze.engine import GazeEngine, _onset_order, _sort_onsets
+from agent.gaze.engine import GazeEngine
 from agent.gaze.params import MODES, ROLES, GazeParams
+from agent.gaze.rows import onset_order, sort_onsets
 
 PARAMS = GazeParams.load()
 N_AGENTS = 3
@@ -92,8 +93,8 @@ def test_onsets_are_ordered_by_time_then_agent_ties_as_given(size: int, n_agents
     agent = rng.integers(0, n_agents, size)
     onset = rng.integers(0, span, size, endpoint=True) + int(rng.integers(-(1 << 61), 1 << 61))
     order = np.lexsort((agent, onset))
-    np.testing.assert_array_equal(_onset_order(agent, onset, n_agents), order)
+    np.testing.assert_array_equal(onset_order(agent, onset, n_agents), order)
     # The sorted agents and onsets come out of the packed key itself, equal to those gathered by the order.
-    _, sorted_agent, sorted_onset = _sort_onsets(agent, onset, n_agents)
+    _, sorted_agent, sorted_onset = sort_onsets(agent, onset, n_agents)
     np.testing.assert_array_equal(sorted_agent, agent[order])
     np.testing.assert_array_equal(sorted_onset, onset[order])

@@ -1,12 +1,20 @@
 """GazeEngine: the Attention Monitor, Parameter Generator and Saccade Synthesizer for N agents at once.
 
-Every agent's state lives in numpy arrays. A tick compares one next-event-time array against the clock
-and gathers only the agents whose gaze timer or blink timer expired; their events are processed at
-their exact scheduled times (never quantised to the tick), so the trajectory does not depend on the
-tick rate. Each agent draws from its own counter-based stream (seed, agent index, per-agent counter),
-so adding an agent leaves every other agent's trajectory unchanged.
+The model is that of reference.py, one agent written step by step; this is the same model for whole crowds
+(tests/test_gaze_reference.py holds the two to identical trajectories). Every agent's state lives in numpy
+arrays. A tick compares one next-event-time array against the clock and gathers only the agents whose gaze
+timer or blink timer expired; their events are processed at their exact scheduled times (never quantised
+to the tick), so the trajectory does not depend on the tick rate. Each agent draws from its own
+counter-based stream (seed, agent index, per-agent counter), so adding an agent leaves every other agent's
+trajectory unchanged.
 
-Layout, chosen for memory traffic (with a million agents, random access to per-agent state, not
+The steps, each a section below: events from outside *prepare* their agents (run what was due before, then
+apply the cue); the gaze timer expiring makes a *decision* (mutual or away, magnitude, direction, hold);
+a decision, a head turn or a moved target *launches* a saccade; in mode saccade+noise+blink the eye
+*fixates* between saccades with small saccades and drift (fixation.py); spontaneous and gaze-evoked
+*blinks* run on their own timer; and the tick *reports* every eye's state and the onsets.
+
+Layout, chosen for memory traffic (rows.py; with a million agents, random access to per-agent state, not
 arithmetic, sets the tick time):
 
 - The state an event reads or writes is one row per agent of an int64 matrix (float fields are stored
@@ -41,72 +49,92 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from agent.counter_rng import splitmix64, uniform01
+from agent.counter_rng import uniform01
+from agent.gaze.blink import blink_interval_ns, blink_spread_ns, evoked_blink_probability
 from agent.gaze.events import BlinkOnsets, GazeTick, SaccadeOnsets
 from agent.gaze.fixation import Fixations
-from agent.gaze.generator import direction_weights
+from agent.gaze.generator import (
+    BLINK_STREAM,
+    FIXATION_STREAM,
+    HOLD_TABLE_INTERVALS,
+    NOISE_STREAM,
+    PERLIN_BLINK_STREAM,
+    SACCADE_STREAM,
+    TARGET_CHOICE_STREAM,
+    derive_seed,
+    direction_index_from_uniform,
+    direction_unit_steps,
+    magnitude_from_map,
+    magnitude_map,
+    mutual_probability,
+)
 from agent.gaze.inflight import Flights, LiveBlinks
-from agent.gaze.params import KINDS, MODES, ROLES, GazeParams, check_name
+from agent.gaze.params import (
+    DEFAULT_ROLE,
+    FIXATIONAL,
+    KINDS,
+    MODES,
+    NOISE,
+    ROLES,
+    SACCADE,
+    SACCADE_BLINK,
+    STATIC,
+    GazeParams,
+    check_name,
+)
 from agent.gaze.rows import (
+    BLINK_ONSET,
+    BLINK_SPREAD_NS,
+    COUNTER_BLINK,
+    COUNTER_SACCADE,
     DEGREES_PER_RADIAN,
+    END,
+    FLIGHT,
+    FROM_PITCH,
+    FROM_YAW,
+    HOLD_BASE,
+    HOLD_ROW,
+    INTERVAL_SCALE,
+    KEY_BLINK,
+    KEY_SACCADE,
+    KIND,
+    MAG_SCALE,
+    MAG_SPAN,
+    MODE,
+    N_COLUMNS,
+    NEXT_BLINK,
+    NEXT_SACCADE,
+    ONSET,
+    P_MUTUAL,
+    ROLE,
+    TARGET_PITCH,
+    TARGET_YAW,
+    TO_PITCH,
+    TO_YAW,
     aligned_rows,
     column_pair,
     float_bits,
+    hold_table,
+    read_only,
+    row_uniforms,
     scatter_rows,
+    sort_onsets,
     stream_keys,
     uniform_draws,
 )
 from agent.gaze.synth import saccade_progress
 from agent.noise import perlin1d, perlin_blink
 
-__all__ = ["GazeEngine", "GazeTick", "SaccadeOnsets", "BlinkOnsets", "DEFAULT_ROLE"]
+__all__ = ["GazeEngine", "GazeTick", "SaccadeOnsets", "BlinkOnsets", "DEFAULT_ROLE", "derive_seed"]
 
 NEVER_NS = 1 << 62
 _NS = 1_000_000_000
-_HOLD_TABLE_INTERVALS = 32_768
-_HOLD_ROW = _HOLD_TABLE_INTERVALS + 1
 
-STATIC, NOISE, SACCADE, SACCADE_BLINK, FIXATIONAL = (
-    MODES.index(m) for m in ("static", "noise", "saccade", "saccade+blink", "saccade+noise+blink")
-)  # the blink model runs in modes from SACCADE_BLINK on; the fixational movements in FIXATIONAL
 MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))
 # Cues that shape an agent's next decision (a per-agent bit set, cleared by the decision or a new hold).
 FORCE_MUTUAL, FORCE_AWAY, TURN_BLINK = 1, 2, 4
 TOWARD: dict[str, int] = {"mutual": FORCE_MUTUAL, "away": FORCE_AWAY}
 assert (MUTUAL, AWAY) == (0, 1)  # a decision's kind is its "away" flag read as int8
-DEFAULT_ROLE = "silence"
-
-
-# Columns of the per-agent row matrix; float fields hold float64 bit patterns. The current saccade
-# comes first, so its compact copy for the eyes in flight is one slice of the row.
-(
-    ONSET, END, FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH,
-    NEXT_SACCADE, NEXT_BLINK, COUNTER_SACCADE, COUNTER_BLINK, KEY_SACCADE, KEY_BLINK,
-    ROLE, MODE, KIND, HOLD_BASE, TARGET_YAW, TARGET_PITCH,
-    P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE, BLINK_SPREAD_NS, BLINK_ONSET,
-) = range(24)  # fmt: skip
-# 24 columns are 192 bytes, three whole cache lines when the matrix starts on a line (aligned_rows): a
-# 23-column row straddles four lines at most offsets, and the rows an event batch gathers and scatters
-# back are the bulk of a tick's random memory traffic. The latest blink onset rides in the row, written
-# with the rest of it, instead of costing a random write of its own per blink.
-_N_COLUMNS = 24
-# The compact copy of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch.
-_FLIGHT = slice(ONSET, TO_PITCH + 1)
-
-# Per-agent 1-D arrays outside the rows: name -> (dtype, initial value). The next event time is scanned
-# every tick; the mode is read by events; the rest only by set_head / set_emotion / set_role.
-_COLUMNS_1D: dict[str, tuple[type, float | int]] = {
-    "next_event": (np.int64, NEVER_NS), "mode": (np.int8, 0), "cues": (np.int8, 0),
-    "head_yaw": (np.float64, 0.0), "head_pitch": (np.float64, 0.0),
-    "head_ref_yaw": (np.float64, 0.0), "head_ref_pitch": (np.float64, 0.0),
-    "magnitude_scale": (np.float64, 1.0), "mutual_shift": (np.float64, 0.0),
-    "bias_direction": (np.float64, 0.0), "bias_strength": (np.float64, 0.0),
-}  # fmt: skip
-
-
-def derive_seed(seed: int, purpose: int) -> int:
-    """Independent seeds for the saccade, blink, noise, fixational and target-choice streams of one seed."""
-    return int(splitmix64(np.uint64((seed * 8 + purpose) & 0xFFFFFFFFFFFFFFFF)))
 
 
 class GazeEngine:
@@ -127,36 +155,35 @@ class GazeEngine:
             raise ValueError(f"seed must be an integer, got {seed!r}")
         self.params = params if params is not None else GazeParams.load()
         self.seed = int(seed)
-        self._stream_seeds = (derive_seed(self.seed, 1), derive_seed(self.seed, 2))
-        self._seed_noise = derive_seed(self.seed, 3)
-        self._seed_perlin_blink = derive_seed(self.seed, 4)
-        self._seed_target_choice = derive_seed(self.seed, 6)
+        self._seed_saccade = derive_seed(self.seed, SACCADE_STREAM)
+        self._seed_blink = derive_seed(self.seed, BLINK_STREAM)
+        self._seed_noise = derive_seed(self.seed, NOISE_STREAM)
+        self._seed_perlin_blink = derive_seed(self.seed, PERLIN_BLINK_STREAM)
+        self._seed_target_choice = derive_seed(self.seed, TARGET_CHOICE_STREAM)
         self._now_ns = int(start_ns)
         p = self.params
         blink = p.blink
         self._max_magnitude = np.array([p.roles[r].max_magnitude_deg for r in ROLES])
-        self._p_mutual = np.array([p.roles[r].mutual_probability for r in ROLES])
-        self._blink_spread_ns = np.array(
-            [(60.0 / p.roles[r].blink_rate_per_min - blink.refractory_s) * _NS for r in ROLES]
-        )
-        self._refractory_ns = blink.refractory_s * _NS
+        self._blink_spread_ns = blink_spread_ns(blink, np.array([p.roles[r].blink_rate_per_min for r in ROLES]))
         self._pull_window_ns = int(round(blink.pull_window_s * _NS))
-        # Gaze-evoked blink chance = clip((A - min) * slope, 0, max): the ramp of blink.evoked_blink_probability.
-        self._evoked_slope = blink.evoked_max_probability / max(blink.evoked_full_deg - blink.evoked_min_deg, 1e-9)
-        self._magnitude_top = p.p_max / p.p_ref
         self._d_ns_per_deg = p.d_s_per_deg * _NS
         self._d0_ns = p.d0_s * _NS
-        self._hold = self._hold_table()
-        cumulative = np.cumsum(p.direction_probability)
-        self._direction_cumulative = cumulative[:-1]  # a uniform beyond the last edge falls in the last bin
-        bins = np.deg2rad(p.direction_bins_deg)
-        self._bin_yaw_steps, self._bin_pitch_steps = np.cos(bins), np.sin(bins)
+        self._hold = hold_table(p)
+        self._bin_yaw_steps, self._bin_pitch_steps = direction_unit_steps(p)
         self._biased_agents = 0  # how many agents' emotion tilts the direction bins
         self._n = 0
-        self._rows = np.empty((0, _N_COLUMNS), np.int64)
-        for name, (dtype, _) in _COLUMNS_1D.items():
-            setattr(self, "_" + name, np.empty(0, dtype=dtype))
-        self._fixations = Fixations(p, derive_seed(self.seed, 5))
+        self._rows = np.empty((0, N_COLUMNS), np.int64)
+        # Per-agent 1-D arrays outside the rows (initial values in _grow_columns). The next event time is
+        # scanned every tick; the mode is read by events; the cues by decisions; the rest only by set_head,
+        # set_emotion and set_role.
+        self._next_event = np.empty(0, np.int64)
+        self._mode = np.empty(0, np.int8)
+        self._cues = np.empty(0, np.int8)
+        self._head_yaw, self._head_pitch = np.empty(0), np.empty(0)
+        self._head_ref_yaw, self._head_ref_pitch = np.empty(0), np.empty(0)
+        self._magnitude_scale, self._mutual_shift = np.empty(0), np.empty(0)
+        self._bias_direction, self._bias_strength = np.empty(0), np.empty(0)
+        self._fixations = Fixations(p, derive_seed(self.seed, FIXATION_STREAM))
         self._fixating = 0  # agents in mode saccade+noise+blink
         self._cued = 0  # agents with cues for their next decision (the "cues" column)
         # Agents whose mutual gaze chooses among several points (set_targets): points, cumulative weights,
@@ -177,18 +204,6 @@ class GazeEngine:
         if n_agents:
             self.add_agents(int(n_agents), self._now_ns, role, mode)
 
-    def _hold_table(self) -> np.ndarray:
-        """Quantile tables of the six (role, mutual/away) hold distributions, one row each, raveled: per
-        quantile a pair (step to the next quantile, quantile), as the interpolation reads value + fraction *
-        step. Side by side, a draw reads one cache line of the table instead of one in each of two."""
-        u = np.linspace(0.0, 1.0, _HOLD_TABLE_INTERVALS + 1)
-        rows = []
-        for role in ROLES:
-            for distribution in (self.params.roles[role].mutual_interval, self.params.roles[role].away_interval):
-                rows.append(distribution.sample_s(u))
-        quantiles = np.concatenate(rows)
-        return np.stack([np.append(np.diff(quantiles), 0.0), quantiles], axis=1)
-
     # ------------------------------------------------------------------ agents
 
     def add_agents(self, count: int, t_ns: int, role: str = DEFAULT_ROLE, mode: str | None = None) -> np.ndarray:
@@ -205,21 +220,20 @@ class GazeEngine:
         mode_code = MODES.index(mode)
         t = max(int(t_ns), self._now_ns)
         new = np.arange(self._n, self._n + count, dtype=np.int64)
-        rows = np.zeros((count, _N_COLUMNS), np.int64)  # the bits of 0.0 are 0: eyes at the primary position
+        rows = np.zeros((count, N_COLUMNS), np.int64)  # the bits of 0.0 are 0: eyes at the primary position
         rows[:, ONSET] = rows[:, END] = t
         rows[:, NEXT_SACCADE] = t if mode_code >= SACCADE else NEVER_NS  # the first decision, at t
         rows[:, NEXT_BLINK] = NEVER_NS
         rows[:, BLINK_ONSET] = -NEVER_NS
-        for column, seed in zip((KEY_SACCADE, KEY_BLINK), self._stream_seeds, strict=True):
-            rows[:, column] = stream_keys(seed, new)
+        rows[:, KEY_SACCADE] = stream_keys(self._seed_saccade, new)
+        rows[:, KEY_BLINK] = stream_keys(self._seed_blink, new)
         rows[:, ROLE], rows[:, MODE], rows[:, KIND] = ROLES.index(role), mode_code, MUTUAL
         rows[:, INTERVAL_SCALE] = float_bits(1.0)
-        grown = aligned_rows(self._n + count, _N_COLUMNS)
+        grown = aligned_rows(self._n + count, N_COLUMNS)
         grown[: self._n] = self._rows
         grown[self._n :] = rows
         self._rows = grown
-        for name, (dtype, fill) in _COLUMNS_1D.items():
-            setattr(self, "_" + name, np.concatenate([getattr(self, "_" + name), np.full(count, fill, dtype=dtype)]))
+        self._grow_columns(count)
         self._mode[new] = mode_code
         self._eyes = np.concatenate([self._eyes[: self._n], np.zeros((count + 1, 3))])
         self._n += count
@@ -233,6 +247,21 @@ class GazeEngine:
         self._schedule_blinks(fresh, t)
         self._store(new, fresh)
         return new
+
+    def _grow_columns(self, count: int) -> None:
+        """Append `count` agents' initial values to the per-agent 1-D arrays."""
+
+        def grown(column: np.ndarray, initial: float) -> np.ndarray:
+            return np.concatenate([column, np.full(count, initial, dtype=column.dtype)])
+
+        self._next_event = grown(self._next_event, NEVER_NS)
+        self._mode = grown(self._mode, 0)
+        self._cues = grown(self._cues, 0)
+        self._head_yaw, self._head_pitch = grown(self._head_yaw, 0.0), grown(self._head_pitch, 0.0)
+        self._head_ref_yaw, self._head_ref_pitch = grown(self._head_ref_yaw, 0.0), grown(self._head_ref_pitch, 0.0)
+        self._magnitude_scale = grown(self._magnitude_scale, 1.0)  # the emotion "natural"
+        self._mutual_shift = grown(self._mutual_shift, 0.0)
+        self._bias_direction, self._bias_strength = grown(self._bias_direction, 0.0), grown(self._bias_strength, 0.0)
 
     @property
     def n_agents(self) -> int:
@@ -290,7 +319,7 @@ class GazeEngine:
         j = np.flatnonzero(pull)
         if j.size:
             sub = rows[j]
-            u = self._uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[0]
+            u = row_uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[0]
             sub[:, NEXT_BLINK] += self._blink_interval_ns(sub.view(np.float64)[:, BLINK_SPREAD_NS], u)
             sub[:, BLINK_ONSET] = t
             rows[j] = sub
@@ -388,7 +417,7 @@ class GazeEngine:
         amplitude = np.minimum(turn, self._max_magnitude[rows[:, ROLE]])
         to_yaw = self._clip_yaw(floats[:, TARGET_YAW] + amplitude * d_yaw / turn)
         to_pitch = self._clip_pitch(floats[:, TARGET_PITCH] + amplitude * d_pitch / turn)
-        u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)  # hold, blink pull, blink follower
+        u = row_uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 3)  # hold, blink pull, blink follower
         hold = self._hold_s(rows, u[0], None)
         kind = np.full(idx.size, HEAD, np.int8)
         times = np.full(idx.size, t, dtype=np.int64)
@@ -453,7 +482,7 @@ class GazeEngine:
         if j.size:
             moving = rows[j]
             to_yaw, to_pitch = moving.view(np.float64)[:, TARGET_YAW], moving.view(np.float64)[:, TARGET_PITCH]
-            u = self._uniforms(moving, KEY_SACCADE, COUNTER_SACCADE, 2)  # blink pull, blink follower
+            u = row_uniforms(moving, KEY_SACCADE, COUNTER_SACCADE, 2)  # blink pull, blink follower
             times = np.full(j.size, t, dtype=np.int64)
             kind = np.full(j.size, MUTUAL, np.int8)
             self._launch(idx[j], moving, times, to_yaw, to_pitch, kind, None, u[0], u[1])
@@ -473,7 +502,6 @@ class GazeEngine:
         self._now_ns = t
         yaw, pitch, lid = self._eyes[:, 0], self._eyes[:, 1], self._eyes[:, 2]
         n = self._n
-        self._fixations.write_pending(self._eyes)
         if self._dirty:
             changed = np.concatenate(self._dirty)
             self._dirty.clear()
@@ -483,94 +511,17 @@ class GazeEngine:
             self._flight_stale = False
             self._flights.keep_current(lambda agents: self._rows.take(agents, axis=0)[:, [ONSET, END]])
         self._flights.write_positions(t, yaw, pitch, self._resting)
-        if self._fixating:  # after the flights: a small saccade moves an eye that has landed
+        # After the flights (a landing writes the landing point): where the small saccades run between ticks
+        # left the eyes that have landed; then the small saccades due now.
+        self._fixations.write_pending(self._eyes, lambda agents: self._rows.reshape(-1).take(
+            agents * N_COLUMNS + END) <= t)
+        if self._fixating:
             self._fixations.run_due(self._fixations.due(t), t + 1, self._eyes)
         blinks = self._take_blinks()
         self._blink_lids(t, lid, blinks)
         self._apply_non_saccade_modes(t, yaw, pitch, lid)
         saccades = self._take_saccades()
-        return GazeTick(t, _read_only(yaw[:n]), _read_only(pitch[:n]), _read_only(lid[:n]), saccades, blinks)
-
-    def _blink_lids(self, t: int, lid: np.ndarray, new: BlinkOnsets) -> None:
-        """Write the lids of the agents whose blink is in progress. Of the blinks started since the last
-        tick (`new`) only each agent's latest joins: an earlier one was cut short by it, or by a switch of
-        mode (which resets the agent's latest blink onset)."""
-        agents, onsets = new.agent, new.onset_ns
-        if agents.size:
-            latest = self._rows.reshape(-1).take(agents * _N_COLUMNS + BLINK_ONSET) == onsets
-            if not latest.all():
-                agents, onsets = agents[latest], onsets[latest]
-        self._live_blinks.update(t, lid, agents, onsets)
-
-    def _resting(self, agents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Where the agents' eyes rest once their current saccade has landed (both in one cache line; a
-        whole-row gather would read three)."""
-        return column_pair(self._rows.view(np.float64), agents, TO_YAW, TO_PITCH)
-
-    # ------------------------------------------------------------------ events
-
-    def _prepare(self, i: int | Sequence[int] | np.ndarray, t_ns: int) -> tuple[np.ndarray, int]:
-        """The agents' indices and the event's time, with their events before that time run: those at the
-        time itself wait, so every cue of one instant is in before any decision of that instant."""
-        idx = self._indices(i)
-        t = max(int(t_ns), self._now_ns)
-        self._advance(idx, t - 1)
-        if self._fixating:
-            self._fixations.advance(idx, t)
-        return idx, t
-
-    def _indices(self, i: int | Sequence[int] | np.ndarray) -> np.ndarray:
-        idx = np.atleast_1d(np.asarray(i))
-        if idx.dtype.kind not in "iu" or idx.ndim != 1:
-            raise ValueError(f"agent index must be an integer or a 1-D integer array, got {i!r}")
-        idx = idx.astype(np.int64)
-        if idx.size and (idx.min() < 0 or idx.max() >= self._n):
-            raise ValueError(f"agent index out of range [0, {self._n}): {i!r}")
-        if idx.size > 1 and np.unique(idx).size != idx.size:
-            raise ValueError(f"agent indices must be unique: {i!r}")
-        return idx
-
-    def _store(self, idx: np.ndarray, rows: np.ndarray) -> None:
-        """Scatter gathered rows back and refresh the agents' next event times."""
-        scatter_rows(self._rows, idx, rows)
-        next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]
-        self._next_event[idx] = np.minimum(next_saccade, next_blink)
-
-    def _derive(self, idx: np.ndarray) -> None:
-        """Fold role and emotion into the columns a decision reads (see _decide)."""
-        p = self.params
-        rows = self._rows
-        role = rows[idx, ROLE]
-        scale = self._magnitude_scale[idx]
-        # Eyes Alive eq. 1 with its redraw above the role's limit is P uniform on [P_min, p_max]; for
-        # emotion scales above 1 the unscaled draw is truncated at limit / scale so the limit still holds
-        # (generator.magnitude_from_uniform). Then A = -a scale ln(p_max / p_ref - u (p_max - P_min) / p_ref).
-        p_min = p.p_ref * np.exp(-self._max_magnitude[role] / np.maximum(scale, 1.0) / p.a_scale_deg)
-        rows[idx, MAG_SPAN] = float_bits((p.p_max - p_min) / p.p_ref)
-        rows[idx, MAG_SCALE] = float_bits(-p.a_scale_deg * scale)
-        rows[idx, P_MUTUAL] = float_bits(np.clip(self._p_mutual[role] + self._mutual_shift[idx], 0.0, 1.0))
-        rows[idx, HOLD_BASE] = role * (2 * _HOLD_ROW)
-        rows[idx, BLINK_SPREAD_NS] = float_bits(self._blink_spread_ns[role])
-
-    def _uniforms(self, rows: np.ndarray, key: int, counter: int, count: int) -> np.ndarray:
-        """`count` uniforms in [0, 1) per row from the agent's own stream: shape (count, len(rows)), so
-        each draw is one contiguous row and the broadcasts run along the agents, not along a few draws.
-
-        Bit for bit counter_rng.uniform01(stream seed, agent index, counter), with the per-agent key in
-        the row; the row's counter advances by `count`.
-        """
-        u = uniform_draws(rows[:, counter].view(np.uint64), rows[:, key].view(np.uint64), count)
-        rows[:, counter] += count
-        return u
-
-    def _schedule_blinks(self, rows: np.ndarray, t: int) -> None:
-        """Draw a fresh next blink from `t` for the rows with the statistical blink model."""
-        with_model = np.flatnonzero(rows[:, MODE] >= SACCADE_BLINK)
-        if with_model.size:
-            sub = rows[with_model]
-            u = self._uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[0]
-            sub[:, NEXT_BLINK] = t + self._blink_interval_ns(sub.view(np.float64)[:, BLINK_SPREAD_NS], u)
-            rows[with_model] = sub
+        return GazeTick(t, read_only(yaw[:n]), read_only(pitch[:n]), read_only(lid[:n]), saccades, blinks)
 
     def _advance(self, idx: np.ndarray, t: int) -> None:
         """Process every timer event at or before `t` of the given agents, in time order per agent."""
@@ -608,28 +559,48 @@ class GazeEngine:
                 due.append(deciding[self._next_event.take(deciding) <= t])
             idx = np.concatenate(due) if due else deciding[:0]
 
-    def _blink_in_place(self, agents: np.ndarray) -> np.ndarray:
-        """The blink timers of these agents expired: blink then and draw each one's next spontaneous blink, on
-        their columns of the row matrix. Returns the next blink times."""
-        flat = self._rows.reshape(-1)
-        cells = agents * _N_COLUMNS
-        cells += NEXT_BLINK
-        times = flat.take(cells)
-        next_blink = times + self._blink_interval_ns(
-            flat.take(cells + (BLINK_SPREAD_NS - NEXT_BLINK)).view(np.float64),
-            uniform_draws(
-                flat.take(cells + (COUNTER_BLINK - NEXT_BLINK)).view(np.uint64),
-                flat.take(cells + (KEY_BLINK - NEXT_BLINK)).view(np.uint64),
-                1,
-            )[0],
-        )
-        flat[cells] = next_blink  # flat is a view: the matrix is C-contiguous (aligned_rows)
-        cells += COUNTER_BLINK - NEXT_BLINK
-        flat[cells] += 1
-        cells += BLINK_ONSET - COUNTER_BLINK
-        flat[cells] = times
-        self._blink_chunks.append((agents, times))
-        return next_blink
+    # ------------------------------------------------------------------ prepare
+
+    def _prepare(self, i: int | Sequence[int] | np.ndarray, t_ns: int) -> tuple[np.ndarray, int]:
+        """The agents' indices and the event's time, with their events before that time run: those at the
+        time itself wait, so every cue of one instant is in before any decision of that instant."""
+        idx = self._indices(i)
+        t = max(int(t_ns), self._now_ns)
+        self._advance(idx, t - 1)
+        if self._fixating:
+            self._fixations.advance(idx, t)
+        return idx, t
+
+    def _indices(self, i: int | Sequence[int] | np.ndarray) -> np.ndarray:
+        idx = np.atleast_1d(np.asarray(i))
+        if idx.dtype.kind not in "iu" or idx.ndim != 1:
+            raise ValueError(f"agent index must be an integer or a 1-D integer array, got {i!r}")
+        idx = idx.astype(np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= self._n):
+            raise ValueError(f"agent index out of range [0, {self._n}): {i!r}")
+        if idx.size > 1 and np.unique(idx).size != idx.size:
+            raise ValueError(f"agent indices must be unique: {i!r}")
+        return idx
+
+    def _store(self, idx: np.ndarray, rows: np.ndarray) -> None:
+        """Scatter gathered rows back and refresh the agents' next event times."""
+        scatter_rows(self._rows, idx, rows)
+        next_saccade, next_blink = rows[:, NEXT_SACCADE], rows[:, NEXT_BLINK]
+        self._next_event[idx] = np.minimum(next_saccade, next_blink)
+
+    def _derive(self, idx: np.ndarray) -> None:
+        """Fold role and emotion into the columns a decision reads (see _decide)."""
+        p = self.params
+        rows = self._rows
+        role = rows[idx, ROLE]
+        span, factor = magnitude_map(p, self._max_magnitude[role], self._magnitude_scale[idx])
+        rows[idx, MAG_SPAN] = float_bits(span)
+        rows[idx, MAG_SCALE] = float_bits(factor)
+        rows[idx, P_MUTUAL] = float_bits(mutual_probability(p, role, self._mutual_shift[idx]))
+        rows[idx, HOLD_BASE] = role * (2 * HOLD_ROW)
+        rows[idx, BLINK_SPREAD_NS] = float_bits(self._blink_spread_ns[role])
+
+    # ------------------------------------------------------------------ decide
 
     def _decide(self, agents: np.ndarray, rows: np.ndarray) -> None:
         """The gaze timer expired (or the regime changed): choose mutual or away and launch the saccade.
@@ -639,17 +610,14 @@ class GazeEngine:
         over a trailing axis of two (yaw, pitch) several times slower than it runs along one column."""
         times = rows[:, NEXT_SACCADE].copy()
         floats = rows.view(np.float64)
-        u = self._uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 6)
+        u = row_uniforms(rows, KEY_SACCADE, COUNTER_SACCADE, 6)
         if self._target_sets:
             self._choose_targets(agents, floats)
         away = u[0] >= floats[:, P_MUTUAL]
         least_pull = None
         if self._cued:
             away, least_pull = self._apply_cues(agents, away)
-        magnitude = u[1] * floats[:, MAG_SPAN]
-        np.subtract(self._magnitude_top, magnitude, out=magnitude)
-        np.log(magnitude, out=magnitude)
-        magnitude *= floats[:, MAG_SCALE]
+        magnitude = magnitude_from_map(u[1], self.params, floats[:, MAG_SPAN], floats[:, MAG_SCALE])
         step_yaw, step_pitch = self._direction(agents, u[2])
         to = []
         for step, target, limit in (
@@ -690,35 +658,41 @@ class GazeEngine:
         least[turn] = self.params.blink.turn_probability
         return away, least
 
+    def _clear_cues(self, agents: np.ndarray) -> None:
+        cued = agents[self._cues.take(agents) != 0]
+        self._cues[cued] = 0
+        self._cued -= cued.size
+
     def _direction(self, agents: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The unit step (yaw, pitch) of the drawn direction bin, tilted by the agents' emotions where they
         have one."""
         if self._biased_agents:
             strength = self._bias_strength[agents]
             if strength.any():
-                weights = direction_weights(self.params, self._bias_direction[agents], strength)
-                index = (u[:, None] >= np.cumsum(weights, axis=-1)).sum(axis=-1)
-                index = np.minimum(index, self._bin_yaw_steps.size - 1)
+                index = direction_index_from_uniform(u, self.params, self._bias_direction[agents], strength)
                 return self._bin_yaw_steps.take(index), self._bin_pitch_steps.take(index)
-        index = np.searchsorted(self._direction_cumulative, u, side="right")
+        index = direction_index_from_uniform(u, self.params)
         return self._bin_yaw_steps.take(index), self._bin_pitch_steps.take(index)
 
     def _hold_s(self, rows: np.ndarray, u: np.ndarray, away: np.ndarray | None) -> np.ndarray:
         """Inverse-CDF hold times (s) from the quantile table of each agent's (role, mutual/away), scaled by
-        its emotion; `away=None` means away for every row."""
-        x = u * _HOLD_TABLE_INTERVALS
+        its emotion (generator.hold_from_uniform, on the side-by-side table); `away=None` means away for
+        every row."""
+        x = u * HOLD_TABLE_INTERVALS
         cell = x.astype(np.int64)  # u < 1, so the cell is at most the last one
         x -= cell
         cell += rows[:, HOLD_BASE]
         if away is None:
-            cell += _HOLD_ROW
+            cell += HOLD_ROW
         else:
-            cell += away * _HOLD_ROW  # a masked add (where=) is several times slower
+            cell += away * HOLD_ROW  # a masked add (where=) is several times slower
         pairs = self._hold.take(cell, axis=0)
         hold = pairs[:, 0] * x
         hold += pairs[:, 1]
         hold *= rows.view(np.float64)[:, INTERVAL_SCALE]
         return hold
+
+    # ------------------------------------------------------------------ launch
 
     def _launch(
         self,
@@ -758,7 +732,7 @@ class GazeEngine:
             start_pitch[landed] = self._clip_pitch(start_pitch[landed] + off_pitch)
         delta_yaw, delta_pitch = to_yaw - start_yaw, to_pitch - start_pitch
         amplitude = np.hypot(delta_yaw, delta_pitch)
-        duration = amplitude * self._d_ns_per_deg
+        duration = amplitude * self._d_ns_per_deg  # the main sequence, Eyes Alive eq. 2
         duration += self._d0_ns
         duration_ns = np.rint(duration, out=duration).astype(np.int64)
         end = times + duration_ns
@@ -773,7 +747,7 @@ class GazeEngine:
         floats[:, TO_YAW], floats[:, TO_PITCH] = to_yaw, to_pitch
         rows[:, KIND] = kind
         self._couple_blinks(agents, rows, times, amplitude, u_pull, u_follow, head, least_pull)
-        self._flights.add(agents, rows[:, _FLIGHT])
+        self._flights.add(agents, rows[:, FLIGHT])
         if fixating.size:
             self._start_fixations(fixating_agents, rows if whole else rows.take(fixating, axis=0),
                                   end if whole else end.take(fixating))
@@ -791,56 +765,6 @@ class GazeEngine:
             (start_yaw, start_pitch, to_yaw, to_pitch, magnitude, amplitude, direction, duration, hold_s)
         )
         self._saccade_chunks.append((agents, times, kind, floats_out))
-
-    def _couple_blinks(
-        self,
-        agents: np.ndarray,
-        rows: np.ndarray,
-        times: np.ndarray,
-        amplitude: np.ndarray,
-        u_pull: np.ndarray,
-        u_follow: np.ndarray,
-        head: bool,
-        least_pull: np.ndarray | None = None,
-    ) -> None:
-        """Large saccades and head-led saccades pull the next due blink forward to their onset (blink model
-        agents only), when that blink is due within the pull window; so do turn boundaries (`least_pull`)."""
-        blink = self.params.blink
-        if head:
-            pull = u_pull < blink.head_turn_probability
-        else:
-            chance = amplitude - blink.evoked_min_deg
-            chance *= self._evoked_slope
-            np.minimum(np.maximum(chance, 0.0, out=chance), blink.evoked_max_probability, out=chance)
-            if least_pull is not None:
-                np.maximum(chance, least_pull, out=chance)
-            pull = u_pull < chance
-        next_blink = rows[:, NEXT_BLINK]
-        pull &= next_blink - times <= self._pull_window_ns
-        pull &= rows[:, MODE] >= SACCADE_BLINK
-        j = np.flatnonzero(pull)
-        if j.size:  # through 1-D column views: a (rows, column) fancy index takes the slow general path
-            interval = self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS][j], u_follow[j])
-            next_blink[j] += interval
-            pulled, onset = agents[j], times[j]
-            rows[:, BLINK_ONSET][j] = onset
-            self._blink_chunks.append((pulled, onset))
-
-    def _start_fixations(self, agents: np.ndarray, rows: np.ndarray, landing_ns: np.ndarray) -> None:
-        floats = rows.view(np.float64)
-        self._fixations.start(agents, landing_ns, floats[:, TO_YAW], floats[:, TO_PITCH],
-                              (rows[:, KIND] == MUTUAL).astype(np.int64), rows[:, ROLE], floats[:, INTERVAL_SCALE])
-
-    def _clear_cues(self, agents: np.ndarray) -> None:
-        cued = agents[self._cues.take(agents) != 0]
-        self._cues[cued] = 0
-        self._cued -= cued.size
-
-    def _blink_interval_ns(self, spread_ns: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Refractory gap plus an exponential, with the role's mean interval 60 / rate (spread = mean - gap)."""
-        return np.rint(self._refractory_ns - spread_ns * np.log1p(-u)).astype(np.int64)
-
-    # ------------------------------------------------------------------ positions
 
     def _position(self, rows: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Eye yaw and pitch at `times` along each row's current saccade; landed eyes skip the velocity
@@ -862,6 +786,101 @@ class GazeEngine:
             for position, start, end in ((yaw, FROM_YAW, TO_YAW), (pitch, FROM_PITCH, TO_PITCH)):
                 position[in_flight] = flying_floats[:, start] * remaining + flying_floats[:, end] * progress
         return yaw, pitch
+
+    # ------------------------------------------------------------------ fixate
+
+    def _start_fixations(self, agents: np.ndarray, rows: np.ndarray, landing_ns: np.ndarray) -> None:
+        """New fixations where the rows' saccades land, in their role, gaze (mutual or not) and emotion."""
+        floats = rows.view(np.float64)
+        self._fixations.start(agents, landing_ns, floats[:, TO_YAW], floats[:, TO_PITCH],
+                              (rows[:, KIND] == MUTUAL).astype(np.int64), rows[:, ROLE], floats[:, INTERVAL_SCALE])
+
+    # ------------------------------------------------------------------ blink
+
+    def _schedule_blinks(self, rows: np.ndarray, t: int) -> None:
+        """Draw a fresh next blink from `t` for the rows with the statistical blink model."""
+        with_model = np.flatnonzero(rows[:, MODE] >= SACCADE_BLINK)
+        if with_model.size:
+            sub = rows[with_model]
+            u = row_uniforms(sub, KEY_BLINK, COUNTER_BLINK, 1)[0]
+            sub[:, NEXT_BLINK] = t + self._blink_interval_ns(sub.view(np.float64)[:, BLINK_SPREAD_NS], u)
+            rows[with_model] = sub
+
+    def _blink_in_place(self, agents: np.ndarray) -> np.ndarray:
+        """The blink timers of these agents expired: blink then and draw each one's next spontaneous blink, on
+        their columns of the row matrix. Returns the next blink times."""
+        flat = self._rows.reshape(-1)
+        cells = agents * N_COLUMNS
+        cells += NEXT_BLINK
+        times = flat.take(cells)
+        next_blink = times + self._blink_interval_ns(
+            flat.take(cells + (BLINK_SPREAD_NS - NEXT_BLINK)).view(np.float64),
+            uniform_draws(
+                flat.take(cells + (COUNTER_BLINK - NEXT_BLINK)).view(np.uint64),
+                flat.take(cells + (KEY_BLINK - NEXT_BLINK)).view(np.uint64),
+                1,
+            )[0],
+        )
+        flat[cells] = next_blink  # flat is a view: the matrix is C-contiguous (aligned_rows)
+        cells += COUNTER_BLINK - NEXT_BLINK
+        flat[cells] += 1
+        cells += BLINK_ONSET - COUNTER_BLINK
+        flat[cells] = times
+        self._blink_chunks.append((agents, times))
+        return next_blink
+
+    def _couple_blinks(
+        self,
+        agents: np.ndarray,
+        rows: np.ndarray,
+        times: np.ndarray,
+        amplitude: np.ndarray,
+        u_pull: np.ndarray,
+        u_follow: np.ndarray,
+        head: bool,
+        least_pull: np.ndarray | None = None,
+    ) -> None:
+        """Large saccades and head-led saccades pull the next due blink forward to their onset (blink model
+        agents only), when that blink is due within the pull window; so do turn boundaries (`least_pull`)."""
+        blink = self.params.blink
+        if head:
+            pull = u_pull < blink.head_turn_probability
+        else:
+            chance = evoked_blink_probability(amplitude, blink)
+            if least_pull is not None:
+                np.maximum(chance, least_pull, out=chance)
+            pull = u_pull < chance
+        next_blink = rows[:, NEXT_BLINK]
+        pull &= next_blink - times <= self._pull_window_ns
+        pull &= rows[:, MODE] >= SACCADE_BLINK
+        j = np.flatnonzero(pull)
+        if j.size:  # through 1-D column views: a (rows, column) fancy index takes the slow general path
+            interval = self._blink_interval_ns(rows.view(np.float64)[:, BLINK_SPREAD_NS][j], u_follow[j])
+            next_blink[j] += interval
+            pulled, onset = agents[j], times[j]
+            rows[:, BLINK_ONSET][j] = onset
+            self._blink_chunks.append((pulled, onset))
+
+    def _blink_interval_ns(self, spread_ns: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return blink_interval_ns(spread_ns, u, self.params.blink)
+
+    def _blink_lids(self, t: int, lid: np.ndarray, new: BlinkOnsets) -> None:
+        """Write the lids of the agents whose blink is in progress. Of the blinks started since the last
+        tick (`new`) only each agent's latest joins: an earlier one was cut short by it, or by a switch of
+        mode (which resets the agent's latest blink onset)."""
+        agents, onsets = new.agent, new.onset_ns
+        if agents.size:
+            latest = self._rows.reshape(-1).take(agents * N_COLUMNS + BLINK_ONSET) == onsets
+            if not latest.all():
+                agents, onsets = agents[latest], onsets[latest]
+        self._live_blinks.update(t, lid, agents, onsets)
+
+    # ------------------------------------------------------------------ report
+
+    def _resting(self, agents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the agents' eyes rest once their current saccade has landed (both in one cache line; a
+        whole-row gather would read three)."""
+        return column_pair(self._rows.view(np.float64), agents, TO_YAW, TO_PITCH)
 
     def _noise_position(self, idx: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
@@ -912,21 +931,20 @@ class GazeEngine:
             if members.size:
                 lid[members] = perlin_blink(t * 1e-9, self._seed_perlin_blink, members.astype(np.uint64))
 
-    # ------------------------------------------------------------------ output
-
     def _take_saccades(self) -> SaccadeOnsets:
         chunks = self._saccade_chunks
-        if self._fixating or chunks:
-            chunks.extend(self._fixations.take_onsets())
+        chunks.extend(self._fixations.take_onsets())  # those run before a switch out of the mode too
         if not chunks:
             return SaccadeOnsets.empty()
         if len(chunks) == 1:
             agent, onset, kind, floats = chunks[0]
         else:
-            agent, onset, kind = (np.concatenate(column) for column in list(zip(*chunks, strict=True))[:3])
+            agent = np.concatenate([chunk[0] for chunk in chunks])
+            onset = np.concatenate([chunk[1] for chunk in chunks])
+            kind = np.concatenate([chunk[2] for chunk in chunks])
             floats = np.concatenate([chunk[3] for chunk in chunks], axis=1)
         chunks.clear()
-        order, agent, onset = _sort_onsets(agent, onset, self._n)
+        order, agent, onset = sort_onsets(agent, onset, self._n)
         return SaccadeOnsets.from_columns(
             agent, onset, kind.take(order), floats.take(order, axis=1)
         )  # take: several times faster than fancy indexing, most of all on the 2-D floats
@@ -941,7 +959,7 @@ class GazeEngine:
             agent = np.concatenate([c[0] for c in chunks])
             onset = np.concatenate([c[1] for c in chunks])
         chunks.clear()
-        _, agent, onset = _sort_onsets(agent, onset, self._n)
+        _, agent, onset = sort_onsets(agent, onset, self._n)
         return BlinkOnsets(agent, onset)
 
     def _clip_yaw(self, yaw: np.ndarray) -> np.ndarray:
@@ -953,49 +971,9 @@ class GazeEngine:
         return np.clip(np.asarray(pitch, dtype=np.float64), -limit, limit)
 
 
-def _onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndarray:
-    """The order that sorts onsets by (onset, agent), ties kept in the order given: np.lexsort((agent, onset))."""
-    return _sort_onsets(agent, onset, n_agents)[0]
-
-
-def _sort_onsets(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The order that sorts onsets by (onset, agent), ties kept in the order given (np.lexsort((agent, onset))),
-    and the agents and onsets in that order.
-
-    The three keys packed into the bits of one int64, (onset - first, agent, position), so that a plain
-    sort of the values (several times faster than an argsort, and than the two-key stable sort) leaves
-    the order in the low bits, and the sorted agents and onsets above them (no gathers); used whenever the
-    three fit in 63 bits (a tick's onsets span milliseconds)."""
-    if agent.size >= 512:  # below, a few numpy calls cost more than the sort
-        # The ufuncs' reductions themselves: ndarray.min and .max go through Python wrappers.
-        first = int(np.minimum.reduce(onset))
-        span = int(np.maximum.reduce(onset)) - first
-        agent_bits = max(n_agents - 1, 1).bit_length()
-        position_bits = (agent.size - 1).bit_length()
-        if span.bit_length() + agent_bits + position_bits <= 63:
-            key = onset - first
-            key <<= agent_bits
-            key |= agent
-            key <<= position_bits
-            key |= np.arange(agent.size)
-            key.sort()
-            order = key & ((1 << position_bits) - 1)
-            key >>= position_bits
-            sorted_agent = key & ((1 << agent_bits) - 1)
-            key >>= agent_bits
-            key += first
-            return order, sorted_agent, key
-    order = np.lexsort((agent, onset))
-    return order, agent.take(order), onset.take(order)
-
-
-def _read_only(values: np.ndarray) -> np.ndarray:
-    view = values.view()
-    view.flags.writeable = False
-    return view
-
-
-def _finite_pair(yaw: float | np.ndarray, pitch: float | np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+def _finite_pair(
+    yaw: float | Sequence[float] | np.ndarray, pitch: float | Sequence[float] | np.ndarray, what: str
+) -> tuple[np.ndarray, np.ndarray]:
     yaw_a = np.asarray(yaw, dtype=np.float64)
     pitch_a = np.asarray(pitch, dtype=np.float64)
     if not (np.all(np.isfinite(yaw_a)) and np.all(np.isfinite(pitch_a))):

@@ -21,6 +21,7 @@ its exact trajectory.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from statistics import NormalDist
 
 import numpy as np
@@ -40,7 +41,7 @@ NEVER_NS = 1 << 62
 _NS = 1_000_000_000
 SCAN, MICRO = KINDS.index("scan"), KINDS.index("micro")
 _N_FEATURES = len(FACE_FEATURES)
-_AMPLITUDE_TABLE_INTERVALS = 4096
+AMPLITUDE_TABLE_INTERVALS = 4096  # cells of the microsaccade amplitudes' quantile table
 
 # Columns of the per-agent row (float fields as bit patterns). STATE packs the spread of the exponential
 # part of the interval (ns, upper bits) with the fixation's context (low 8 bits): see _state().
@@ -53,7 +54,7 @@ _STATE_MASK = (1 << _STATE_BITS) - 1
 # heading; the drift's radius and angle.
 _HASHES = 3
 _U_INTERVAL, _U_KIND, _U_AMPLITUDE, _U_JITTER, _U_DRIFT_RADIUS, _U_DRIFT_ANGLE = range(6)
-_ANGLES = 4096  # angle tables: a 32-bit uniform picks one of this many evenly spaced angles
+ANGLES = 4096  # angle tables: a 32-bit uniform picks one of this many evenly spaced angles
 
 
 def _state(role: np.ndarray, mutual: np.ndarray, preferred_eye: np.ndarray, feature: np.ndarray) -> np.ndarray:
@@ -96,12 +97,11 @@ class Fixations:
         # A small saccade is a scan to feature j when its uniform is below p_scan and at or above p_scan times
         # the cumulative chance of the features before j: those products, per context.
         self._scan_edges_0, self._scan_edges_1 = self._p_scan * cumulative[:, 0], self._p_scan * cumulative[:, 1]
-        quantiles = _lognormal_quantiles(fix.microsaccade_median_deg, fix.microsaccade_log_sd,
-                                         fix.microsaccade_max_deg, _AMPLITUDE_TABLE_INTERVALS)
+        quantiles = microsaccade_quantiles(params)
         self._amplitudes, self._amplitude_steps = quantiles[:-1], np.diff(quantiles)
-        angles = (np.arange(_ANGLES) + 0.5) * (2.0 * np.pi / _ANGLES)
+        angles = (np.arange(ANGLES) + 0.5) * (2.0 * np.pi / ANGLES)
         self._cos, self._sin = np.cos(angles), np.sin(angles)
-        jitter = (np.arange(_ANGLES) + 0.5) / _ANGLES * (2.0 * self._correction) - self._correction
+        jitter = (np.arange(ANGLES) + 0.5) / ANGLES * (2.0 * self._correction) - self._correction
         self._jitter_cos, self._jitter_sin = np.cos(jitter), np.sin(jitter)
         self._n = 0
         self._rows = aligned_rows(0, _WIDTH)
@@ -200,7 +200,7 @@ class Fixations:
             radius *= (onset - rows[:, LAST]) * (-2e-9 * self._drift_two_d)
             np.sqrt(radius, out=radius)
             turn = u[_U_DRIFT_ANGLE]
-            turn *= _ANGLES
+            turn *= ANGLES
             turn = turn.astype(np.intp)
             off_yaw = self._cos.take(turn)
             off_yaw *= radius
@@ -217,7 +217,7 @@ class Fixations:
         target += (u_kind >= self._scan_edges_1.take(context)).view(np.int8)
         # A microsaccade heads back toward the point fixated, within the correction spread.
         x = u[_U_AMPLITUDE]
-        x *= _AMPLITUDE_TABLE_INTERVALS
+        x *= AMPLITUDE_TABLE_INTERVALS
         cell = x.astype(np.intp)
         x -= cell
         amplitude = self._amplitude_steps.take(cell)
@@ -236,7 +236,7 @@ class Fixations:
             toward_yaw[on_point], norm[on_point] = 1.0, 1.0
         amplitude /= norm
         jitter = u[_U_JITTER]
-        jitter *= _ANGLES
+        jitter *= ANGLES
         jitter = jitter.astype(np.intp)
         cos_j, sin_j = self._jitter_cos.take(jitter), self._jitter_sin.take(jitter)
         to_off_yaw = toward_yaw * cos_j
@@ -296,11 +296,15 @@ class Fixations:
         self._chunks.append((agents, onset, kind, out))
         return next_onset
 
-    def write_pending(self, eyes: np.ndarray) -> None:
-        """Write the landings of small saccades run between ticks into the eye state."""
+    def write_pending(self, eyes: np.ndarray, landed: Callable[[np.ndarray], np.ndarray]) -> None:
+        """Write the landings of small saccades run between ticks into the eye state, for the agents still in
+        the mode whose Eyes Alive saccade has landed (`landed(agents)`: a mask); an eye in flight shows its
+        flight, and one that has left the mode its new mode's position."""
         if self._unwritten:
             agents = np.unique(np.concatenate(self._unwritten))
             self._unwritten.clear()
+            agents = agents[self.next_ns.take(agents) != NEVER_NS]  # stop() ends an agent's fixations
+            agents = agents[landed(agents)]
             floats = self._rows.view(np.float64)
             rows = floats.take(agents, axis=0)
             _write_eyes(eyes, agents,
@@ -330,6 +334,14 @@ def _write_eyes(eyes: np.ndarray, agents: np.ndarray, yaw: np.ndarray, pitch: np
     cells = agents * 3
     flat[cells] = yaw
     flat[cells + 1] = pitch
+
+
+def microsaccade_quantiles(params: GazeParams) -> np.ndarray:
+    """The microsaccade amplitudes' quantile table: AMPLITUDE_TABLE_INTERVALS + 1 quantiles of the truncated
+    log-normal at evenly spaced probabilities, read between two of them by a uniform."""
+    fix = params.fixation
+    return _lognormal_quantiles(fix.microsaccade_median_deg, fix.microsaccade_log_sd, fix.microsaccade_max_deg,
+                                AMPLITUDE_TABLE_INTERVALS)
 
 
 def _lognormal_quantiles(median: float, log_sd: float, largest: float, intervals: int) -> np.ndarray:

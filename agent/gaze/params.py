@@ -22,6 +22,12 @@ ROLES: tuple[str, ...] = VOCABULARY_ROLES
 MEASURED_ROLES: tuple[str, ...] = ("talking", "listening")
 MODES: tuple[str, ...] = EYE_MODES
 KINDS: tuple[str, ...] = SACCADE_KINDS
+DEFAULT_ROLE = "silence"  # the role agents start in
+# The eye modes as codes, in order: the saccades run from SACCADE on, the statistical blink model from
+# SACCADE_BLINK on, the fixational movements in FIXATIONAL.
+STATIC, NOISE, SACCADE, SACCADE_BLINK, FIXATIONAL = (
+    MODES.index(m) for m in ("static", "noise", "saccade", "saccade+blink", "saccade+noise+blink")
+)
 # What the eyes scan on a partner's face in mutual gaze (the gaze target is between the eyes).
 FACE_FEATURES: tuple[str, ...] = ("right eye", "left eye", "mouth")
 
