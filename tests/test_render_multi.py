@@ -19,11 +19,11 @@ from services.tools.offline_conversation import (
     AGENT_VOICES,
     CONVERSATION_CSV_COLUMNS,
     animate_conversation,
-    panel_widths,
     voice_of,
     write_conversation_csv,
 )
 from services.tools.playback import AGENT_VOICE, PARTNER_VOICE
+from services.tools.video_render import panel_widths
 
 AGENTS = ("ada", "bob", "cy")
 TURN, SAY_AH = FLEXOR_INDEX["turn"], FLEXOR_INDEX["say_ah"]

@@ -8,8 +8,6 @@ picture holds one panel per agent, left to right in seat order, each drawn by th
 
 from __future__ import annotations
 
-import sys
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +30,6 @@ from services.tools.offline import (
     fixed6,
     load_audio,
     mix,
-    mux_audio,
     speech_events,
 )
 from services.tools.playback import AGENT_VOICE, PARTNER_VOICE, VoiceCache
@@ -149,52 +146,12 @@ def write_conversation_csv(path: Path, rendered: RenderedConversation) -> None:
                 fh.write(",".join(fields) + "\n")
 
 
-def panel_widths(width: int, n_agents: int) -> list[int]:
-    """The picture's width split among the agents' panels, left to right (the first ones one pixel wider
-    where it does not divide)."""
-    base, extra = divmod(width, n_agents)
-    if base < 16:
-        raise ValueError(f"--size: {width} pixels are too narrow for {n_agents} faces side by side "
-                         f"(at least {16 * n_agents})")
-    return [base + (1 if k < extra else 0) for k in range(n_agents)]
-
-
 def render_conversation_video(timeline: Timeline, voices: VoiceCache | None, agents: Sequence[str],
                               settings: RenderSettings, output: Path, csv_path: Path | None,
                               label: str = "render") -> RenderedConversation:
     """Render the agents side by side to `output` (MP4 with the mixed voices) and the CSV."""
-    from tqdm import tqdm
+    from services.tools.video_render import render_panels
 
-    from services.processes.renderer.context import create_headless_context, create_offscreen_target, read_rgb
-    from services.processes.renderer.renderer import Renderer
-    from services.processes.renderer.video import VideoWriter
-
-    widths = panel_widths(settings.size[0], len(agents))
-    height = settings.size[1]
-    for folder in {output.parent, *([csv_path.parent] if csv_path is not None else [])}:
-        folder.mkdir(parents=True, exist_ok=True)  # before rendering, so a bad place fails at once
-    ctx = create_headless_context()
-    renderer = Renderer(ctx, (widths[0], height))
-    targets = {w: create_offscreen_target(ctx, (w, height)) for w in set(widths)}
-    with tempfile.TemporaryDirectory(prefix="eca-render-") as tmp:
-        silent = Path(tmp) / "video.mp4"
-        writer = VideoWriter(silent, settings.fps, settings.size)
-        bar = tqdm(desc=label, unit="frame", total=int(timeline.length_s * settings.fps) + 1,
-                   disable=not sys.stderr.isatty(), leave=False)
-
-        def draw(k: int, flexors: list[np.ndarray]) -> None:
-            panels = []
-            for values, width in zip(flexors, widths, strict=True):
-                renderer.render(values, targets[width], view=settings.view)
-                panels.append(read_rgb(targets[width]))
-            writer.write(np.hstack(panels), k)
-            bar.update(1)
-
-        result = animate_conversation(timeline, agents, settings, voices, on_frame=draw)
-        writer.close()
-        bar.close()
-        mux_audio(silent, result.audio, output)
-    if csv_path is not None:
-        write_conversation_csv(csv_path, result)
-    ctx.release()
-    return result
+    return render_panels(lambda draw: animate_conversation(timeline, agents, settings, voices, on_frame=draw),
+                         lambda result: result.audio, len(agents), settings.size, settings.fps, timeline.length_s,
+                         settings.view, output, csv_path, write_conversation_csv, label)

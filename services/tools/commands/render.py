@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -78,37 +77,12 @@ def load_inputs(args: argparse.Namespace, command: str = "render",
 def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings: RenderSettings,
                  output: Path, csv_path: Path | None, label: str = "render") -> Any:
     """Render the timeline to `output` (MP4 with audio) and the CSV; returns the RenderedTimeline."""
-    from tqdm import tqdm
+    from services.tools.offline import animate, write_flexor_csv
+    from services.tools.video_render import render_panels
 
-    from services.processes.renderer.context import create_headless_context, create_offscreen_target, read_rgb
-    from services.processes.renderer.renderer import Renderer
-    from services.processes.renderer.video import VideoWriter
-    from services.tools.offline import animate, mux_audio, write_flexor_csv
-
-    for folder in {output.parent, *([csv_path.parent] if csv_path is not None else [])}:
-        folder.mkdir(parents=True, exist_ok=True)  # before rendering, so a bad place fails at once
-    ctx = create_headless_context()
-    renderer = Renderer(ctx, settings.size)
-    target = create_offscreen_target(ctx, settings.size)
-    with tempfile.TemporaryDirectory(prefix="eca-render-") as tmp:
-        silent = Path(tmp) / "video.mp4"
-        writer = VideoWriter(silent, settings.fps, settings.size)
-        bar = tqdm(desc=label, unit="frame", total=int(timeline.length_s * settings.fps) + 1,
-                   disable=not sys.stderr.isatty(), leave=False)
-
-        def draw(k: int, flexors: Any) -> None:
-            renderer.render(flexors, target, view=settings.view)
-            writer.write(read_rgb(target), k)
-            bar.update(1)
-
-        result = animate(timeline, agent, settings, voices, on_frame=draw)
-        writer.close()
-        bar.close()
-        mux_audio(silent, result.audio, output)
-    if csv_path is not None:
-        write_flexor_csv(csv_path, result)
-    ctx.release()
-    return result
+    return render_panels(lambda draw: animate(timeline, agent, settings, voices, on_frame=lambda k, f: draw(k, (f,))),
+                         lambda result: result.audio, 1, settings.size, settings.fps, timeline.length_s,
+                         settings.view, output, csv_path, write_flexor_csv, label)
 
 
 # What a render can still meet after the scripts loaded: an output it cannot write (OSError), a sound
@@ -133,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.output}: the output must be an .mp4 file")
         loaded, voices = load_inputs(args, several_agents=True)
         if len(loaded.agents) > 1:
-            from services.tools.offline_conversation import default_size, panel_widths
+            from services.tools.offline_conversation import default_size
+            from services.tools.video_render import panel_widths
 
             if args.size is None:
                 settings = replace(settings, size=default_size(len(loaded.agents)))
