@@ -38,6 +38,7 @@ wake it), and it hands back pictures with `call_soon_threadsafe`.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,7 +72,7 @@ MAX_DRAIN_WAIT_S = 60.0  # an EndFrame waits at most this long for the pushed au
 
 
 @dataclass(frozen=True)
-class EcaFaceParams:
+class EcaFaceParams(FaceOptions):
     """How the face is drawn and which eca it talks to.
 
     agent: the eca agent id whose face this is.
@@ -87,18 +88,10 @@ class EcaFaceParams:
     seed: the face's idle motion (every random draw of eca is seeded).
     """
 
-    agent: str = "ada"
     instance: str | None = None
     config_path: str | Path | None = None
     start_eca: bool = False
-    video: bool = True
-    width: int = 640
-    height: int = 480
-    fps: float = 30.0
-    video_lead_s: float = 0.0
     connect_timeout_s: float = 10.0
-    command_timeout_s: float = 5.0
-    seed: int = 0
 
     def check(self) -> EcaFaceParams:
         if not is_agent_id(self.agent) or self.agent == "*":
@@ -120,8 +113,8 @@ class EcaFaceParams:
         return self
 
     def face_options(self) -> FaceOptions:
-        return FaceOptions(agent=self.agent, video=self.video, width=self.width, height=self.height, fps=self.fps,
-                           video_lead_s=self.video_lead_s, command_timeout_s=self.command_timeout_s, seed=self.seed)
+        """What the link needs of these parameters (the face's own, without how eca is reached)."""
+        return FaceOptions(**{f.name: getattr(self, f.name) for f in dataclasses.fields(FaceOptions)})
 
 
 class EcaVideoService(FrameProcessor):
