@@ -165,3 +165,35 @@ def test_a_live_turn_of_unknown_length_looks_back_when_it_ends(params: SituatedP
         talk.start_turn(0, "ada")
         talk.start_turn(S, "bob", duration_s=1.0)
         assert not [a for a in talk.end_turn(2 * S) if a.agent == "ada"]
+
+
+def test_the_floor_follows_the_roles_as_the_dialogue_states_say_them() -> None:
+    from agent.gaze.situated import Floor
+
+    floor = Floor(AGENTS)
+    first = floor.update("ada", "listening", "user", ())
+    assert first.turn == ("user", ()) and first.talking is None
+    assert floor.update("bob", "listening", "user", ()).turn is None  # the same floor: no new turn
+    talk = floor.update("ada", "talking", "ada", ("bob", "zed", "ada"))
+    assert talk.talking is True and talk.turn == ("ada", ("bob",)) and talk.previous_speaker == "user"
+    over = floor.update("bob", "talking", "bob", ())  # bob talks over her: the latest to start holds it
+    assert over.turn == ("bob", ()) and over.previous_speaker == "ada"
+    assert floor.update("ada", "listening", "bob", ()).talking is False  # ada stops: still bob's floor
+    done = floor.update("bob", "silence", "", ())
+    assert done.talking is False and done.turn is None and floor.turn == ("bob", ())  # ada, listening, names bob
+    assert floor.update("ada", "listening", "zed", ()).turn == ("user", ())  # off screen: with the user
+    assert floor.update("ada", "silence", "", ()).turn == (None, ())  # nobody named: a silence
+
+
+def test_a_live_change_of_floor_ends_the_last_speaker_s_turn_first(params: SituatedParams) -> None:
+    from agent.gaze.situated import Floor, take_floor
+
+    backs = 0
+    for k in range(200):
+        talk, floor = Conversation(AGENTS, seed=k, params=params), Floor(AGENTS)
+        take_floor(talk, 0, floor.update("ada", "talking", "ada", ()))
+        ended = take_floor(talk, 5 * S, floor.update("ada", "listening", "user", ()))
+        backs += any(isinstance(a, GazeShift) and a.agent == "ada" and a.toward == "mutual" and a.t_ns == 5 * S
+                     for a in ended)
+        assert take_floor(talk, 6 * S, floor.update("ada", "listening", "user", ())) == []
+    assert 0.55 < backs / 200 < 0.85  # look_back_at_end 0.7

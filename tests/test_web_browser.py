@@ -85,6 +85,14 @@ def video_stats(driver: Any) -> dict[str, Any]:
     return stats["video"][0]
 
 
+def frames_decoded(driver: Any, at_least: int, timeout_s: float = 15.0) -> int:
+    """Poll the page's video stats until `at_least` frames are decoded (or the time is up); the count."""
+    deadline = time.monotonic() + timeout_s
+    while (n := int(video_stats(driver)["framesDecoded"] or 0)) < at_least and time.monotonic() < deadline:
+        time.sleep(0.1)  # polling the page from outside: no event to wait on
+    return n
+
+
 def audio_energy(driver: Any) -> float:
     stats = page_stats(driver)
     assert stats is not None and stats["audio"], stats
@@ -110,7 +118,7 @@ def test_the_page_shows_the_face_at_the_asked_size_and_rate(instance: tuple[BusC
         connect(driver, url + "?mic=0&width=320&height=240&fps=15")
         first = wait_for(driver, "return 1", 1.0, "")  # (a no-op round trip)
         assert first == 1
-        time.sleep(2.0)  # let the first frames and the keyframe pass (pacing, not synchronisation)
+        assert frames_decoded(driver, 15) >= 15  # the first second of frames, the keyframe with them, is past
         before = video_stats(driver)
         time.sleep(3.0)
         after = video_stats(driver)
@@ -185,8 +193,7 @@ def test_a_second_browser_sees_the_same_agent(instance: tuple[BusConfig, str]) -
     with chromium() as first, chromium() as second:
         connect(first, url + "?mic=0&width=160&height=120&fps=10")
         connect(second, url + "?mic=0&width=160&height=120&fps=10")
-        time.sleep(3.0)
-        decoded = [video_stats(d)["framesDecoded"] for d in (first, second)]
+        decoded = [frames_decoded(d, 10) for d in (first, second)]
     assert all(n >= 10 for n in decoded), decoded
 
 

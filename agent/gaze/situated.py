@@ -250,6 +250,62 @@ class Conversation:
         return u
 
 
+@dataclass(frozen=True)
+class FloorChange:
+    """What one agent's new role changed: whether it started (True) or stopped (False) talking, None if
+    neither; and the new turn, (speaker, addressees), when the floor changed hands (else None)."""
+
+    talking: bool | None
+    turn: tuple[str | None, tuple[str, ...]] | None
+    previous_speaker: str | None
+
+
+class Floor:
+    """Who holds the floor live, from each agent's role as the dialogue states say it: the agent that began
+    talking last (to the addressees its role names); else the person the listeners name as speaker (the
+    user, or an agent a dialogue manager named; anyone else sits with the user, in front); else nobody."""
+
+    def __init__(self, agents: Sequence[str]) -> None:
+        self.known = (*agents, USER)
+        self.roles: dict[str, tuple[str, str, tuple[str, ...]]] = {}  # agent -> role, speaker, addressees
+        self.talking: list[str] = []  # agents talking now, the latest to start last
+        self.turn: tuple[str | None, tuple[str, ...]] | None = None
+
+    def update(self, agent: str, role: str, speaker: str, addressees: Sequence[str]) -> FloorChange:
+        self.roles[agent] = (role, speaker, tuple(addressees))
+        talking: bool | None = None
+        if role == "talking" and agent not in self.talking:
+            self.talking.append(agent)
+            talking = True
+        elif role != "talking" and agent in self.talking:
+            self.talking.remove(agent)
+            talking = False
+        previous = self.turn[0] if self.turn is not None else None
+        turn = self._turn()
+        if turn == self.turn:
+            return FloorChange(talking, None, previous)
+        self.turn = turn
+        return FloorChange(talking, turn, previous)
+
+    def _turn(self) -> tuple[str | None, tuple[str, ...]]:
+        if self.talking:
+            speaker = self.talking[-1]
+            return speaker, tuple(p for p in self.roles[speaker][2] if p in self.known and p != speaker)
+        named = [who for role, who, _ in self.roles.values() if role == "listening" and who]
+        if not named:
+            return None, ()
+        return (named[-1] if named[-1] in self.known else USER), ()
+
+
+def take_floor(conversation: Conversation, t_ns: int, change: FloorChange) -> list[Action]:
+    """The actions of a live change of floor: the last speaker's look back as its speech ends (its length
+    was not known), then the new turn's."""
+    if change.turn is None:
+        return []
+    actions = conversation.end_turn(t_ns) if change.previous_speaker in conversation.agents else []
+    return actions + conversation.start_turn(t_ns, *change.turn)
+
+
 def apply(engine: Any, actions: Sequence[Action], index: Mapping[str, int]) -> list[HeadTurn]:
     """Hand gaze actions to a GazeEngine (agent names to indices by `index`); the head turns, which are the
     face's, are returned."""

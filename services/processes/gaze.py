@@ -32,7 +32,7 @@ from agent.gaze.backchannel import Backchannel, ListenerBlink
 from agent.gaze.backchannel import Nod as NodAction
 from agent.gaze.engine import GazeEngine
 from agent.gaze.params import KINDS
-from agent.gaze.situated import USER, Action, Conversation, HeadTurn, apply
+from agent.gaze.situated import USER, Action, Conversation, Floor, HeadTurn, apply, take_floor
 from agent.vocabulary import BACKCHANNEL_MODES
 from protocol.endpoints import BusConfig
 from protocol.messages import (
@@ -65,9 +65,7 @@ class GazeService(Service):
         self.engine = GazeEngine(len(self.agent_ids), seed, start_ns=self.clock.now_ns())
         self.conversation = Conversation(self.agent_ids, seed)
         self.backchannel = Backchannel(self.agent_ids, seed)
-        self.roles: dict[str, RoleState] = {}
-        self.talk_order: list[str] = []  # agents talking now, the latest to start last
-        self.floor: tuple[str | None, tuple[str, ...]] | None = None  # (speaker, addressees) of the turn
+        self.floor = Floor(self.agent_ids)
         self.modes = [self.engine.mode_of(i) for i in range(len(self.agent_ids))]
         # Agents whose message in this batch may have started a saccade: the service ticks right after the
         # batch and sends their eye states then; the others' keep the rate_hz schedule.
@@ -108,42 +106,16 @@ class GazeService(Service):
         now = self._now()
         self.engine.set_role(i, msg.role, now)
         self.touched.add(i)
-        was_talking = msg.agent in self.talk_order
-        self.roles[msg.agent] = msg
-        if msg.role == "talking" and not was_talking:
-            self.talk_order.append(msg.agent)
-            self.backchannel.speaking(now, msg.agent, True)
-        elif msg.role != "talking" and was_talking:
-            self.talk_order.remove(msg.agent)
-            self.backchannel.speaking(now, msg.agent, False)
-        self._follow_floor(now)
+        change = self.floor.update(msg.agent, msg.role, msg.speaker, msg.addressees)
+        if change.talking is not None:
+            self.backchannel.speaking(now, msg.agent, change.talking)
+        actions = take_floor(self.conversation, now, change)
+        self._act(actions)
+        self.touched.update(self.index[a.agent] for a in actions)
 
     def on_user_speech(self, msg: UserSpeech) -> None:
         self._i(msg.agent)
         self.backchannel.speaking(self._now(), USER, msg.speaking)
-
-    def _follow_floor(self, now: int) -> None:
-        """Who speaks to whom, from the roles: the agent that began talking last; else the person the
-        listeners say holds the floor (the user, or an agent a dialogue manager named); else silence."""
-        known = (*self.agent_ids, USER)
-        if self.talk_order:
-            speaker: str | None = self.talk_order[-1]
-            addressees = tuple(p for p in self.roles[self.talk_order[-1]].addressees if p in known and p != speaker)
-        else:
-            named = [r.speaker for r in self.roles.values() if r.role == "listening" and r.speaker]
-            # someone a dialogue manager names who is not on screen sits with the user, in front
-            speaker = (named[-1] if named[-1] in known else USER) if named else None
-            addressees = ()
-        floor = (speaker, addressees)
-        if floor == self.floor:
-            return
-        previous, self.floor = self.floor, floor
-        actions: list[Action] = []
-        if previous is not None and previous[0] in self.agent_ids:
-            actions += self.conversation.end_turn(now)
-        actions += self.conversation.start_turn(now, speaker, addressees)
-        self._act(actions)
-        self.touched.update(self.index[a.agent] for a in actions)
 
     def _act(self, actions: list[Action]) -> None:
         for turn in apply(self.engine, actions, self.index):
