@@ -87,8 +87,12 @@ def video_stats(driver: Any) -> dict[str, Any]:
 
 def frames_decoded(driver: Any, at_least: int, timeout_s: float = 15.0) -> int:
     """Poll the page's video stats until `at_least` frames are decoded (or the time is up); the count."""
+    def decoded() -> int:
+        stats = page_stats(driver)  # no video entry until its first packets arrive
+        return int(stats["video"][0]["framesDecoded"] or 0) if stats and stats["video"] else 0
+
     deadline = time.monotonic() + timeout_s
-    while (n := int(video_stats(driver)["framesDecoded"] or 0)) < at_least and time.monotonic() < deadline:
+    while (n := decoded()) < at_least and time.monotonic() < deadline:
         time.sleep(0.1)  # polling the page from outside: no event to wait on
     return n
 
