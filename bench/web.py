@@ -32,15 +32,17 @@ instance's viewer watchdog waits 30 s instead of 5 s (see instance(): with 5 s i
    source (the mouth keys on the bus), each connection's offset per 10 s since connecting, the
    browser's own estimate (getStats estimatedPlayoutTimestamp), and each path from the master clock to
    heard or shown.
-2. Command -> first frame presented that shows it: `--trials` set_emotion commands (surprised / angry,
-   transition 0) at seeded pauses; the page keeps a small grey thumbnail of every presented frame; the
+2. Command -> first frame presented that shows it, on a fresh page and connection (after the A/V phase,
+   whose load would otherwise linger in the browser's jitter buffers) once it has settled for
+   `--settle-s`: `--trials` set_emotion commands (surprised / angry, transition 0) at seeded pauses;
+   the page keeps a small grey thumbnail of every presented frame; the
    first frame after a command nearer the new expression than the old is the one. The page's clock and
    this host's monotonic clock are tied by GETs of a tiny server of the bench (the browser's time at the
    middle of the fastest round trip; its half-length is the uncertainty). Parts: bus (command -> the
    dialogue's state, its t_ns), state -> frame received by the browser (rVFC receiveTime), received ->
    presented (presentationTime), presented -> displayed (expectedDisplayTime), all measured per command;
-   within them, estimated: draw and VP8 encode per frame (timed in the bench process on the same renderer
-   and aiortc's encoder, before the instance starts), network (half the ICE round trip), jitter buffer and
+   within them, estimated: draw and VP8 encode per frame (timed in the bench process on the service's
+   renderer and encoder, before the instance starts), network (half the ICE round trip), jitter buffer and
    decode (getStats averages over the phase), the wait for the frame slot (the rest). Target p95 <= 100 ms.
 3. Cost per viewer: CPU (share of one core, /proc/<pid>/stat utime+stime over a window) and RSS of the
    web service with 0 viewers, then 1, 2, 4, 8 (`--viewers`) of one agent at 640x480/30 fps: the first is
@@ -56,7 +58,7 @@ With --json the table goes to stderr and one JSON object to stdout. Progress lin
     python bench/web.py [--settle-s 40] [--measure-s 30] [--trials 40] [--viewers 1,2,4,8] [--seed 0]
                         [--skip-av] [--skip-latency] [--skip-viewers] [--json]
 
-A full run takes about 3 minutes on 2 cores (start and baselines 10 s, A/V 75 s, latency 35 s,
+A full run takes about 4 minutes on 2 cores (start and baselines 10 s, A/V 75 s, latency 75 s,
 viewers 60 s).
 """
 
@@ -509,25 +511,26 @@ def video_stats(driver: Any, which: str = "face") -> dict[str, Any]:
     return got or {}
 
 
-# --- in-process baselines: the face drawn once, and one viewer's VP8 encode -----------------------
+# --- in-process baselines: the face drawn once, and its VP8 encode ------------------------------
 
 
 def draw_and_encode_baselines(frames: int = 150) -> dict[str, float]:
-    """Per frame at 640x480, in this process: compose + draw + read-back + yuv (what the service does once
-    per frame slot), and aiortc's VP8 encode of the result (what it does per viewer)."""
-    import fractions
-
-    import av
-    from aiortc.codecs.vpx import Vp8Encoder
-
+    """Per frame at 640x480, in this process, as the service does them: compose + draw + yuv420p on the
+    GPU + read-back (once per frame slot), and the VP8 encode of the result (once per picture for all
+    the viewers of that size and rate)."""
     from agent.face.model import FaceModel
-    from services.processes.renderer import Renderer, create_headless_context, read_rgb
+    from services.processes.renderer import Renderer, create_headless_context
+    from services.processes.renderer.yuv import YuvTarget
+    from services.processes.web.encoding import Vp8Encoder
+    from services.processes.web.feeds import Picture
 
+    os.environ.setdefault("LP_NUM_THREADS", "1")  # as the web service draws (services/processes/web/service.py)
     ctx = create_headless_context()
     try:
         renderer = Renderer(ctx, (WIDTH, HEIGHT))
+        target = YuvTarget(ctx, (WIDTH, HEIGHT))
         model = FaceModel(seed=1)
-        encoder = Vp8Encoder()
+        encoder = Vp8Encoder(WIDTH, HEIGHT, FPS)
         period_ns = round(1e9 / FPS)
         draw_ms: list[float] = []
         encode_ms: list[float] = []
@@ -538,18 +541,15 @@ def draw_and_encode_baselines(frames: int = 150) -> dict[str, float]:
             model.set_eyes(15.0 * math.sin(i * 0.11), 8.0 * math.cos(i * 0.07), 1.0 if i % 90 < 5 else None)
             model.set_mouth({"say_ah": 0.5 + 0.5 * math.sin(i * 0.4)})
             t0 = time.perf_counter()
-            renderer.render(model.frame_at(t_ns).values)
-            rgb = read_rgb(renderer.fbo)
-            yuv = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p").to_ndarray()
+            renderer.render(model.frame_at(t_ns).values, target=target.fbo)
+            yuv = target.read()
             t1 = time.perf_counter()
-            frame = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
-            frame.pts = i * 3000
-            frame.time_base = fractions.Fraction(1, 90_000)
-            encoder.encode(frame)
+            encoder.encode(Picture(t_ns, yuv, WIDTH, HEIGHT), keyframe=False)
             t2 = time.perf_counter()
             if i >= 20:
                 draw_ms.append(1e3 * (t1 - t0))
                 encode_ms.append(1e3 * (t2 - t1))
+        target.release()
     finally:
         ctx.release()
     return {"draw_ms": statistics.median(draw_ms), "draw_p95_ms": percentile(draw_ms, 0.95),
@@ -795,13 +795,12 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
                        "identical streams, separate connections: beyond the target, the row above is not decidable")
         if lipsync:
             lag = statistics.median(lipsync)
-            quantum = 1e3 / FPS / 2
+            # no frame quantization: each frame is composed for the middle of its time on screen, so the
+            # mouth shows at the nearest frame (half a frame early or late, 0 on average), as a flash does
             report.add("  of which lip-sync at the source", round(-lag, 1), "-", None, "ms",
                        f"measured: the jaw half open {lag:+.1f} ms from the burst's onset (mouth keys on the bus)")
-            report.add("  of which frame quantization", round(-quantum, 1), "-", None, "ms",
-                       "estimated: the mouth shows at the first frame after it opens, half a frame later on average")
-            report.add("  rest (drawing, sending, the browser)", round(diff + lag + quantum, 1), "-", None, "ms",
-                       "face - reference less the two above")
+            report.add("  rest (drawing, sending, the browser)", round(diff + lag, 1), "-", None, "ms",
+                       "face - reference less the lip-sync")
     for name in names:
         polled = [o for t, o in sync[name] if in_window(t)]
         if polled:
@@ -933,7 +932,7 @@ def latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, server:
         ("state_to_received_ms", "state -> frame received", [
             ("slot_wait_ms", "wait for the frame slot", "the part less the three below"),
             ("draw_ms", "draw", "the face drawn in the bench, same renderer and size"),
-            ("encode_ms", "VP8 encode", "aiortc's encoder in the bench"),
+            ("encode_ms", "VP8 encode", "the service's encoder, in the bench"),
             ("network_ms", "network", "ICE round trip / 2, getStats")]),
         ("received_to_presented_ms", "received -> presented", [
             ("jitter_buffer_ms", "jitter buffer", "getStats mean per frame: held to play with the audio"),
@@ -1285,9 +1284,9 @@ def run(args: argparse.Namespace, report: Report) -> None:
         baselines = draw_and_encode_baselines()
         report.details["baselines"] = baselines
         report.add("baseline: face draw per frame (bench)", round(baselines["draw_ms"], 2), "-", None, "ms",
-                   f"compose + draw + read-back + yuv, {WIDTH}x{HEIGHT}; p95 {baselines['draw_p95_ms']:.2f}")
+                   f"compose + draw + yuv on the GPU + read-back, {WIDTH}x{HEIGHT}; p95 {baselines['draw_p95_ms']:.2f}")
         report.add("baseline: VP8 encode per frame (bench)", round(baselines["encode_ms"], 2), "-", None, "ms",
-                   f"aiortc's encoder, {WIDTH}x{HEIGHT}; p95 {baselines['encode_p95_ms']:.2f}")
+                   f"the service's encoder, {WIDTH}x{HEIGHT}; p95 {baselines['encode_p95_ms']:.2f}")
     with instance() as inst, TimeServer() as server, chromium() as driver:
         report.details["web_pid"] = inst.web_pid
         report.details["rss_at_start_mib"] = rss_mib(inst.web_pid)
@@ -1297,6 +1296,14 @@ def run(args: argparse.Namespace, report: Report) -> None:
         if not args.skip_av:
             guarded("A/V offset", report, lambda: av_phase(args, inst, driver, server, report, rng))
         if not args.skip_latency:
+            if not args.skip_av:
+                # a fresh connection, as a viewer has: the A/V phase's three streams and per-frame measuring
+                # load both machine and browser, and the jitter buffers they grew would outlast the phase
+                progress("latency: a fresh page and connection")
+                disconnect_page(driver)
+                open_page(driver, inst.url)
+                connected_ns = time.monotonic_ns()
+                driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S])
             guarded("command -> frame", report,
                     lambda: latency_phase(args, inst, driver, server, report, rng, baselines, connected_ns))
         if not args.skip_viewers:

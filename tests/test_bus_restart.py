@@ -134,12 +134,13 @@ def test_the_dialogue_state_is_back_in_a_new_brokers_cache(config: BusConfig) ->
         first_broker.__exit__(None, None, None)
         with BrokerThread(config):  # the old broker is gone with its cache; the service lives on
             deadline = time.monotonic() + 10.0
-            emotion = None
-            while time.monotonic() < deadline and emotion is None:
-                with AgentClient(config) as fresh:
-                    emotion = fresh.state.get("emotion")
+            state: dict[str, object] = {}
+            while time.monotonic() < deadline and not {"emotion", "head"} <= state.keys():
+                with AgentClient(config) as fresh:  # the service sends its states again, one topic at a time
+                    state = dict(fresh.state)
+            emotion, head = state.get("emotion"), state.get("head")
             assert isinstance(emotion, EmotionState) and (emotion.name, emotion.intensity) == ("disappointed", 0.4)
-            assert fresh.state["head"].turn == 0.3
+            assert isinstance(head, HeadState) and head.turn == 0.3
 
 
 def test_a_dialogue_service_restarted_with_the_broker_keeps_the_state(config: BusConfig) -> None:

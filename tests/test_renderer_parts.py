@@ -69,6 +69,29 @@ def test_a_slot_the_loop_could_not_reach_in_time_is_skipped_and_counted() -> Non
     assert (schedule.slot, schedule.dropped, moved) == (4, 1, [1, 2, 1])
 
 
+def test_a_slot_drawn_early_for_a_change_keeps_the_schedules_rate() -> None:
+    clock = VirtualClock()
+    schedule = FrameSchedule(clock, 30.0)  # slots at 0, 33.3, 66.7, ... ms
+    period = schedule.period_ns
+    clock.set_ns(schedule.due_ns)
+    schedule.advance()  # slot 0 drawn on time
+    # a change 2 ms after a frame waits for a quarter period after it; one at 20 ms is drawn at once
+    assert schedule.early_due_ns(0, 0.25) == period // 4
+    assert max(20_000_000, schedule.early_due_ns(0, 0.25)) == 20_000_000
+    # the slot is never later than its own time, whatever the gap asked
+    assert schedule.early_due_ns(0, 2.0) == schedule.due_ns
+    # a flood of changes: every slot drawn as early as allowed
+    frames = [0]
+    while len(frames) < 31:
+        clock.set_ns(max(clock.now_ns(), schedule.early_due_ns(frames[-1], 0.25)))
+        frames.append(clock.now_ns())
+        assert schedule.advance() == 0  # drawing early skips nothing
+    assert np.diff(frames).min() >= period // 4
+    # slot k drawn no sooner than slot k - 1's time: one frame a period, 31 frames in (almost) a second
+    assert frames[-1] >= schedule.slot_ns(29)
+    assert schedule.slot == 31 and schedule.dropped == 0
+
+
 def test_a_total_number_of_slots_ends_the_schedule() -> None:
     clock = VirtualClock()
     moved: list[int] = []
@@ -299,3 +322,50 @@ def test_the_parts_draw_a_face_for_a_service_of_their_own(egl: None, tmp_path: P
     left, right = img[:, :64], img[:, 64:]
     assert left.std() > 10 and right.std() > 10  # a face in each half
     assert np.abs(left - right[:, ::-1]).mean() > 1  # two agents, each its own expression
+
+
+@pytest.mark.gl
+def test_the_face_as_yuv420p_from_the_gpu_matches_swscale_and_its_layout(egl: None) -> None:
+    import av
+    import moderngl
+
+    from agent.face.model import FaceModel
+    from services.processes.renderer import create_headless_context, read_rgb
+    from services.processes.renderer.renderer import Renderer
+    from services.processes.renderer.yuv import YuvTarget
+
+    ctx = create_headless_context()
+    try:
+        target = YuvTarget(ctx, (160, 120))
+        model = FaceModel(seed=3)
+        model.set_emotion("surprised", 1.0, t_ns=0)
+        Renderer(ctx, (160, 120)).render(model.frame_at(S).values, target=target.fbo)
+        face = target.read()
+        rgb = read_rgb(target.fbo)
+        # a picture of known colours: the top half red, the bottom left quarter blue, the rest white
+        target.fbo.use()
+        target.fbo.clear(1.0, 1.0, 1.0, 1.0)
+        target.fbo.scissor = (0, 0, 80, 60)  # GL rows run bottom up: the bottom left quarter
+        target.fbo.clear(0.0, 0.0, 1.0, 1.0)
+        target.fbo.scissor = (0, 60, 160, 60)
+        target.fbo.clear(1.0, 0.0, 0.0, 1.0)
+        target.fbo.scissor = None
+        ctx.disable(moderngl.BLEND)
+        blocks = target.read()
+        with pytest.raises(ValueError, match="even width and height"):
+            YuvTarget(ctx, (161, 120))
+        target.release()
+    finally:
+        ctx.release()
+    assert face.shape == (180, 160) and face.dtype == np.uint8
+    sws = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p").to_ndarray()
+    diff = np.abs(face.astype(int) - sws.astype(int))
+    assert diff[:120].max() <= 1  # luma: the same BT.601 limited-range values
+    assert diff[120:].mean() < 0.5 and diff[120:].max() <= 12  # chroma: both 2x2 means, filters differ at edges
+    y = blocks[:120]
+    u = blocks[120:150].reshape(60, 80)  # each chroma plane (h/2, w/2), packed two rows to a row
+    v = blocks[150:].reshape(60, 80)
+    assert (y[:60] == 81).all() and (y[60:, 80:] == 235).all() and (y[60:, :80] == 41).all()  # red, white, blue
+    assert (u[:30] == 90).all() and (v[:30] == 240).all()  # red
+    assert (u[30:, 40:] == 128).all() and (v[30:, 40:] == 128).all()  # white
+    assert (u[30:, :40] == 240).all() and (v[30:, :40] == 110).all()  # blue

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from agent.clock import NS_PER_S, VirtualClock
-from services.processes.web.calibration import CLICK_S, ClickFeed, FlashFeed, click_track, flash_track
+from services.processes.web.calibration import CLICK_S, ClickFeed, FlashFeed, click_track
+from services.processes.web.encoding import VIDEO_RATE
 from services.processes.web.options import WebOptions
 from services.processes.web.service import WebService
-from services.processes.web.tracks import VIDEO_RATE
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post
 
@@ -23,22 +23,19 @@ RATE = 48_000
 FRAME_NS = 20_000_000  # the voice track's 20 ms
 
 
-def is_white(frame: Any) -> bool:
-    return float(frame.to_ndarray(format="gray").mean()) > 128
-
-
 def video_frames(clock: VirtualClock, fps: float, seconds: float, start_ns: int) -> list[tuple[int, bool]]:
-    """(slot time, white) of each frame a flash track sends for `seconds` from `start_ns`, the clock moved
-    on a frame at a time so that each is due when asked for."""
+    """(slot time, white) of each picture a flash feed gives a stream for `seconds` from `start_ns`, the
+    clock moved on a frame at a time so that each is due when asked for."""
     clock.set_ns(start_ns)
-    track = flash_track(clock, 64, 48, fps, epoch_ns=start_ns)
+    feed = FlashFeed(clock, 64, 48, fps)
 
     async def main() -> list[tuple[int, bool]]:
         out = []
+        last_ns = start_ns - round(NS_PER_S / fps) * 3 // 4  # as a stream asks: most of a period after the last
         for i in range(1, round(seconds * fps) + 1):
-            frame = await track.recv()
-            slot_ns = start_ns + -(-frame.pts * NS_PER_S // VIDEO_RATE)  # pts was floored from the slot time
-            out.append((slot_ns, is_white(frame)))
+            picture = await feed.next_after("calibration", last_ns + round(NS_PER_S / fps) * 3 // 4)
+            last_ns = picture.frame_ns
+            out.append((picture.frame_ns, bool(picture.yuv[0, 0] > 128)))
             clock.set_ns(start_ns + round(i * NS_PER_S / fps))
         return out
 
@@ -52,7 +49,7 @@ def test_the_flash_is_white_exactly_at_each_whole_second_and_black_between() -> 
     assert white == [7 * NS_PER_S, 8 * NS_PER_S, 9 * NS_PER_S]
     assert len(frames) == 90 and sum(1 for _, w in frames if not w) == 87
     slots = [t for t, _ in frames]
-    assert all(abs(b - a - 33_333_333) < 20_000 for a, b in zip(slots, slots[1:], strict=False))  # each slot once
+    assert all(abs(b - a - 33_333_333) <= 1 for a, b in zip(slots, slots[1:], strict=False))  # each slot once
 
 
 def test_at_a_rate_that_misses_the_second_the_nearest_slot_flashes_once_a_second() -> None:
@@ -64,7 +61,7 @@ def test_at_a_rate_that_misses_the_second_the_nearest_slot_flashes_once_a_second
     half_period = NS_PER_S / fps / 2
     for second, t in zip(range(3, 7), white, strict=True):
         # within half a frame; at 3 and 5 s two slots are equally near: the earlier flashes
-        assert -half_period - 20_000 <= t - second * NS_PER_S < half_period  # (pts: 11 us steps)
+        assert -half_period - 1 <= t - second * NS_PER_S < half_period  # (slot times floored to the ns)
 
 
 def test_a_track_that_falls_behind_skips_to_the_current_slot() -> None:
@@ -126,6 +123,10 @@ def web() -> Iterator[WebService]:
         service = WebService(config, WebOptions(port=0, **SMALL))
         with ServiceThread(service):
             yield service
+
+
+def is_white(frame: Any) -> bool:
+    return float(frame.to_ndarray(format="gray").mean()) > 128
 
 
 def base(service: WebService) -> str:

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import asyncio
-import threading
 
 import numpy as np
 import pytest
 
 from agent.clock import VirtualClock
-from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
-from services.processes.web.tracks import FaceTrack, VoiceTrack
+from services.processes.web.feeds import VoiceFeed
+from services.processes.web.tracks import VoiceTrack
 
 RATE = 48_000
 BLOCK = 480  # 10 ms
@@ -52,40 +51,6 @@ def test_the_feed_holds_a_bounded_span_and_lets_go_of_what_was_taken() -> None:
 def test_a_block_at_another_rate_is_refused() -> None:
     with pytest.raises(ValueError, match="16000 Hz"):
         VoiceFeed(RATE).add(0, np.zeros(160, np.int16), 16_000)
-
-
-def test_a_waiting_track_wakes_when_the_drawing_thread_puts_a_picture() -> None:
-    feed = FrameFeed()
-    yuv = np.zeros((72, 64), np.uint8)
-
-    async def main() -> tuple[int, int]:
-        track = FaceTrack(feed, "ada", 64, 48, 30.0, epoch_ns=1_000_000_000)
-        threading.Timer(0.05, lambda: feed.put("ada", Picture(1_100_000_000, yuv, 64, 48))).start()
-        frame = await asyncio.wait_for(track.recv(), 5.0)
-        return frame.pts, (frame.width, frame.height)
-
-    pts, size = asyncio.run(main())
-    assert pts == 9000 and size == (64, 48)  # 100 ms after the epoch on RTP's 90 kHz clock
-
-
-def test_a_track_at_a_lower_rate_skips_pictures_and_scales() -> None:
-    feed = FrameFeed()
-    yuv = np.zeros((144, 128), np.uint8)  # a 128x96 picture
-
-    async def main() -> list[int]:
-        track = FaceTrack(feed, "ada", 64, 48, 10.0, epoch_ns=0)
-        times = []
-        for k in range(1, 13):  # drawn at 30 fps
-            feed.put("ada", Picture(k * 33_333_333, yuv, 128, 96))
-            try:
-                frame = await asyncio.wait_for(track.recv(), 0.01)
-            except TimeoutError:
-                continue
-            assert (frame.width, frame.height) == (64, 48)
-            times.append(k)
-        return times
-
-    assert asyncio.run(main()) == [1, 4, 7, 10]  # one in three
 
 
 def test_the_voice_track_sends_each_frame_when_it_is_due_with_the_samples_of_then() -> None:

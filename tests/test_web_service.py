@@ -20,16 +20,20 @@ import pytest
 import zmq
 from aiortc.contrib.media import MediaPlayer
 
+from agent.clock import VirtualClock
 from protocol.bus import Publisher, Subscriber
 from protocol.endpoints import BusConfig
-from protocol.messages import UserAudio, UserSpeech, VoiceBlock
+from protocol.messages import EmotionState, UserAudio, UserSpeech, VoiceBlock
 from services.processes.runtime import wait_until
+from services.processes.web.feeds import Picture
 from services.processes.web.options import WebOptions
 from services.processes.web.service import WebService
+from services.processes.web.viewers import ViewRequest
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post, user_speech_wav
 
 pytestmark = pytest.mark.gl
+S = 1_000_000_000
 
 
 @pytest.fixture
@@ -232,3 +236,42 @@ def test_garbage_bodies_and_commands_are_refused(web: tuple[BusConfig, WebServic
     answers = asyncio.run(main())
     assert [s for s, _ in answers] == [400, 400, 400, 400, 400, 400, 202]
     assert "intensity" in answers[3][1]["error"] and "set_emotion" in answers[4][1]["error"]
+
+
+def test_a_commanded_change_is_drawn_at_once_without_raising_the_frame_rate() -> None:
+    """On a virtual clock: an emotion that arrives between two slots is drawn early (a quarter period
+    after the last frame at the soonest), as the next slot; that slot is not drawn again at its time."""
+    clock = VirtualClock(1_000 * S)
+    with private_bus_config() as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, **SMALL), clock=clock)
+        pictures: list[Picture] = []
+        put = service.frames.put
+        service.frames.put = lambda agent, picture: (pictures.append(picture), put(agent, picture))  # type: ignore[method-assign]
+        ctx = zmq.Context()
+        pub = Publisher(ctx, config, "dialogue", now_ns=clock.now_ns)
+        try:
+            with ServiceThread(service):
+                pub.wait_ready()
+                service.watch(1, ViewRequest(("ada",), 160, 120, 15.0, (), None))
+                assert wait_until(lambda: len(pictures) == 1, 10.0)  # slot 0, at once
+                period = 1_000_000_000 // 15
+                t0 = pictures[0].frame_ns
+                assert t0 == 1_000 * S and not pictures[0].early
+                clock.set_ns(t0 + 2_000_000)
+                pub.publish(EmotionState(agent="ada", name="surprised", transition_s=0.0))
+                scene = service.scenes.by_agent["ada"].scene
+                assert wait_until(lambda: scene.emotion[0] == "surprised", 10.0)
+                clock.set_ns(t0 + 30_000_000)  # past a quarter period after slot 0: drawn now, not at slot 1
+                assert wait_until(lambda: len(pictures) == 2, 10.0)
+                early = pictures[1]
+                assert early.early and early.frame_ns == t0 + 30_000_000
+                changed = np.abs(early.yuv.astype(int) - pictures[0].yuv.astype(int)).mean()
+                clock.set_ns(t0 + period + 1_000_000)  # slot 1's time: it was drawn early, nothing now
+                clock.set_ns(t0 + 2 * period + 1)  # slot 2
+                assert wait_until(lambda: len(pictures) >= 3, 10.0)
+        finally:
+            pub.close()
+            ctx.term()
+    assert [p.frame_ns - t0 for p in pictures[:3]] == [0, 30_000_000, (2 * S) // 15]
+    assert not pictures[2].early
+    assert changed > 1.0, f"the early picture shows the new expression: mean change {changed:.2f} levels"

@@ -62,6 +62,9 @@ class BusScenes:
         self.service = service
         self.views = [AgentView(a, LiveScene(seed=seed + i, idle_noise=idle_noise)) for i, a in enumerate(agents)]
         self.by_agent = {v.agent: v for v in self.views}
+        # a commanded state (role, emotion, head, eye mode) changed since the drawer last cleared this: one
+        # that can draw between its frame slots shows it at once instead of at the next slot
+        self.commanded = False
         handlers: tuple[tuple[type[Any], Callable[[Any], None]], ...] = (
             (RoleState, self.on_role),
             (EmotionState, self.on_emotion),
@@ -144,12 +147,15 @@ class BusScenes:
 
     def on_role(self, m: RoleState) -> None:
         self._guard(self._scene(m).set_role, m.role, m.t_ns, m.speaker)
+        self.commanded = True
 
     def on_emotion(self, m: EmotionState) -> None:
         self._guard(self._scene(m).set_emotion, m.name, m.intensity, m.transition_s, m.t_ns)
+        self.commanded = True
 
     def on_head(self, m: HeadState) -> None:
         self._guard(self._scene(m).move_head, m.turn, m.nod, m.tilt, m.duration_s, m.t_ns)
+        self.commanded = True
 
     def on_attention(self, m: AttentionState) -> None:
         self._guard(self._scene(m).attend, m.yaw_deg, m.pitch_deg, m.duration_s, m.t_ns)
@@ -159,6 +165,7 @@ class BusScenes:
 
     def on_eyes(self, m: EyesState) -> None:
         self._guard(self._scene(m).set_eye_mode, m.mode)
+        self.commanded = True
 
     def on_saccade(self, m: Saccade) -> None:
         self._guard(

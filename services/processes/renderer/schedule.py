@@ -3,7 +3,8 @@
 Slot k is due at t0 + k / fps and composed for that time plus a display lead (a window shows a frame
 some time after it is drawn). A slot the loop could not reach in time is skipped rather than delaying
 every later frame, so the face stays on time when drawing falls behind; skipped slots are counted in
-`dropped`. An optional total number of slots ends the schedule (the length of a video).
+`dropped`. An optional total number of slots ends the schedule (the length of a video). A drawer that
+must show a change at once may draw the next slot early (`early_due_ns`).
 """
 
 from __future__ import annotations
@@ -36,6 +37,11 @@ class FrameSchedule:
         return self.t0_ns + (k * NS_PER_S * 1000) // self._mfps
 
     @property
+    def period_ns(self) -> int:
+        """One frame period (rounded to the ns)."""
+        return (NS_PER_S * 1000) // self._mfps
+
+    @property
     def due_ns(self) -> int:
         """When the next slot is due."""
         return self.slot_ns(self.slot)
@@ -44,6 +50,14 @@ class FrameSchedule:
     def display_ns(self) -> int:
         """The display time the next slot's frame is composed for."""
         return self.due_ns + self.lead_ns
+
+    def early_due_ns(self, last_frame_ns: int, min_gap: float) -> int:
+        """When the next slot may be drawn ahead of its time, to show a change at once: once the slot
+        before it is due, `min_gap` of a period after the last frame drawn (`last_frame_ns`), and never
+        later than the slot itself. The slot drawn early is that slot (`advance` moves on to the next
+        one), so however often this is used, no more than one frame comes per period."""
+        earliest = max(self.slot_ns(self.slot - 1), last_frame_ns + round(min_gap * self.period_ns))
+        return min(self.due_ns, earliest)
 
     @property
     def finished(self) -> bool:

@@ -11,23 +11,26 @@ one of these synthetic tracks instead of the agent's face or voice:
 - audio: silence with a click (a 10 ms burst of a 1 kHz tone, starting at phase zero) at each whole
   second.
 
-They are the face's and the voice's own track classes (services/processes/web/tracks.py) reading synthetic feeds,
-so the reference is timed, stamped, encoded and sent exactly as the agent is: the video track gets each
-picture when its slot comes (the face gets its picture as soon as it is drawn for its slot), the voice
-track takes 20 ms of samples when the first of them is due at the output. Whatever the reference's
-offset is in the browser, the server, encoders, network and browser made it; the face's offset beyond
-that is the face's own, to within what separate connections differ by (a browser settles each one's
-A/V sync on its own: bench/web.py runs two references to see how far). The service still draws the
-agent for such a viewer, so the reference is measured under the face's load.
+They are the face's and the voice's own track classes (services/processes/web/tracks.py) reading synthetic
+feeds, so the reference is timed, stamped, encoded and sent as the agent is: each picture is handed to
+its encoder so that it leaves when its slot comes (the face's pictures are stamped with the time they
+will leave, drawn and encoded), and the voice track takes 20 ms of samples when the first of them is due
+at the output. Whatever the reference's offset is in the browser, the server, encoders, network and
+browser made it; the face's offset beyond that is the face's own, to within what separate connections
+differ by (a browser settles each one's A/V sync on its own: bench/web.py runs two references to see how
+far). The service still draws the agent for such a viewer, so the reference is measured under the face's
+load. A reference's video is encoded for its viewer alone.
 """
 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 import numpy as np
 
 from agent.clock import NS_PER_S, Clock
+from services.processes.web.encoding import EncodedStream
 from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
 from services.processes.web.tracks import FaceTrack, VoiceTrack
 
@@ -59,6 +62,7 @@ class FlashFeed(FrameFeed):
         self._mfps = round(fps * 1000)
         self._white = solid_yuv(width, height, WHITE_LUMA)
         self._black = solid_yuv(width, height, BLACK_LUMA)
+        self.lead_ns: Callable[[], int] = lambda: 0  # how long before its slot a picture is given out
 
     def slot_ns(self, k: int) -> int:
         return k * NS_PER_S * 1000 // self._mfps
@@ -79,13 +83,14 @@ class FlashFeed(FrameFeed):
     def picture(self, k: int) -> Picture:
         return Picture(self.slot_ns(k), self._white if self.is_flash(k) else self._black, self.width, self.height)
 
-    async def next_after(self, agent: str, frame_ns: int) -> Picture:
-        """The newest slot's picture once its time has come, like a face drawn for that slot: the
-        current slot if it is after `frame_ns` (a track that fell behind skips to it), else the next
-        slot after `frame_ns`, when it is due."""
+    async def next_after(self, agent: str, frame_ns: int, early_after_ns: int | None = None) -> Picture:
+        """The newest slot's picture once its time has come (less the lead), like a face drawn for that
+        slot: the current slot if it is after `frame_ns` (a stream that fell behind skips to it), else
+        the next slot after `frame_ns`, when it is due."""
+        lead = self.lead_ns()
         now = self.clock.now_ns()
-        k = max(self.slot_at_or_before(now), self.slot_at_or_before(frame_ns) + 1)
-        wait_ns = self.slot_ns(k) - now
+        k = max(self.slot_at_or_before(now + lead), self.slot_at_or_before(frame_ns) + 1)
+        wait_ns = self.slot_ns(k) - lead - now
         if wait_ns > 0:
             await asyncio.sleep(wait_ns / 1e9)  # pacing to the master clock, not synchronisation
         return self.picture(k)
@@ -119,9 +124,13 @@ class ClickFeed(VoiceFeed):
         return out
 
 
-def flash_track(clock: Clock, width: int, height: int, fps: float, epoch_ns: int) -> FaceTrack:
-    """The reference's video: a face track reading flashes instead of the drawn face."""
-    return FaceTrack(FlashFeed(clock, width, height, fps), "calibration", width, height, fps, epoch_ns)
+def flash_track(clock: Clock, width: int, height: int, fps: float) -> FaceTrack:
+    """The reference's video: flashes instead of the drawn face, encoded for this viewer alone."""
+    feed = FlashFeed(clock, width, height, fps)
+    stream = EncodedStream(feed.next_after, "calibration", width, height, fps, clock)
+    feed.lead_ns = lambda: stream.encode_ns  # a picture leaves when its slot comes, as the face's do
+    stream.start()
+    return FaceTrack(stream, on_stop=stream.stop)
 
 
 def click_track(clock: Clock) -> VoiceTrack:

@@ -24,6 +24,7 @@ class Picture:
     yuv: np.ndarray  # yuv420p planes stacked as av.VideoFrame.from_ndarray(format="yuv420p") takes them
     width: int
     height: int
+    early: bool = False  # drawn ahead of its slot to show a commanded change at once: every viewer takes it
 
 
 class FrameFeed:
@@ -42,13 +43,16 @@ class FrameFeed:
         for loop, event in waiters:
             loop.call_soon_threadsafe(event.set)
 
-    async def next_after(self, agent: str, frame_ns: int) -> Picture:
-        """On the event loop: the agent's newest picture composed after `frame_ns` (waits for one)."""
+    async def next_after(self, agent: str, frame_ns: int, early_after_ns: int | None = None) -> Picture:
+        """On the event loop: the agent's newest picture for a time after `frame_ns`, or an early one
+        after `early_after_ns` (waits for one)."""
         loop = asyncio.get_running_loop()
+        early_after = frame_ns if early_after_ns is None else min(frame_ns, early_after_ns)
         while True:
             with self._lock:
                 picture = self._latest.get(agent)
-                if picture is not None and picture.frame_ns > frame_ns:
+                if picture is not None and (picture.frame_ns > frame_ns
+                                            or picture.early and picture.frame_ns > early_after):
                     return picture
                 event = asyncio.Event()
                 self._waiters.setdefault(agent, []).append((loop, event))

@@ -14,26 +14,28 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import queue
 import shlex
 import sys
 import threading
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-import av
 import numpy as np
 from aiohttp import web
 
 from protocol.endpoints import BusConfig
 from protocol.messages import Message, VoiceBlock
 from services.processes.renderer.bus_scene import BusScenes
-from services.processes.renderer.context import read_rgb
 from services.processes.renderer.outputs import OffscreenCanvas
 from services.processes.renderer.renderer import Renderer
 from services.processes.renderer.schedule import FrameSchedule
 from services.processes.renderer.stage import Stage
+from services.processes.renderer.yuv import YuvTarget
 from services.processes.runtime import CannotStart, Rejected, Service
+from services.processes.web.encoding import EncodedStreams
 from services.processes.web.event_loop import EventLoopThread
 from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
 from services.processes.web.options import WebOptions, WebOptionsError, add_arguments, options_from
@@ -42,6 +44,10 @@ from services.processes.web.viewers import Viewers, ViewRequest
 
 MAX_SUBMITTED = 10_000  # messages from the pages waiting for the bus loop; past that they are dropped
 _WAIT_S = 0.01  # the loop's longest wait while viewers watch: how soon a page's command goes out
+# A commanded change (emotion, head, role, eye mode) is drawn at once rather than at the next frame slot,
+# by drawing that slot early, but never sooner than this share of a frame period after the last frame:
+# the frame rate stays the schedule's, however fast commands come.
+EARLY_GAP = 0.25
 
 
 @dataclass(frozen=True)
@@ -67,6 +73,7 @@ class WebService(Service):
             raise WebOptionsError(f"[web] agents {unknown} are not agents of this instance "
                                   f"({', '.join(instance_agents)})")
         self.frames = FrameFeed()
+        self.encoded = EncodedStreams(self.frames.next_after, self.clock)
         self.voices = {a: VoiceFeed() for a in self.agent_ids}
         self.scenes = BusScenes(self, self.agent_ids)
         self.handle(VoiceBlock, self.on_voice)
@@ -75,7 +82,10 @@ class WebService(Service):
         self._watching: dict[int, ViewRequest] = {}
         self._plan: DrawPlan | None = None
         self._schedule: FrameSchedule | None = None
+        self._last_frame_ns = -(1 << 62)  # the slot time of the last frame drawn
+        self._draw_times: deque[int] = deque(maxlen=31)
         self._canvas: OffscreenCanvas | None = None
+        self._yuv: YuvTarget | None = None
         self._renderer: Renderer | None = None
         self._stages: dict[str, Stage] = {}
         self._events: EventLoopThread | None = None
@@ -86,6 +96,11 @@ class WebService(Service):
 
     @classmethod
     def from_args(cls, config: BusConfig, argv: list[str], **kwargs: Any) -> WebService:
+        # Software GL (Mesa's llvmpipe) rasterizes on a thread per core by default; at a web face's
+        # size that costs more CPU than it saves time (measured: 6.1 -> 3.9 ms of CPU a frame at
+        # 640x480, the same wall time), CPU the encoders and a browser on the same machine need. A
+        # GPU driver ignores this, and a user's own setting wins.
+        os.environ.setdefault("LP_NUM_THREADS", "1")
         parser = argparse.ArgumentParser(prog="python -m services.processes.run web", add_help=False,
                                          exit_on_error=False)
         add_arguments(parser)
@@ -182,16 +197,24 @@ class WebService(Service):
         if plan != self._plan:
             self._replan(plan)
         schedule = self._schedule
-        if schedule is not None and now >= schedule.due_ns:
+        if schedule is not None and now >= self._next_draw_ns(schedule):
             self.scenes.drain()
-            self._draw(schedule.display_ns)
+            self.scenes.commanded = False  # this frame shows it
+            early = now < schedule.due_ns
+            self._draw(now if early else schedule.due_ns, early)
             schedule.advance()
         else:
-            due = schedule.due_ns if schedule is not None else now + int(0.1e9)
+            due = self._next_draw_ns(schedule) if schedule is not None else now + int(0.1e9)
             wait_s = max(0.0, min(_WAIT_S if schedule is not None else 0.1, (due - now) / 1e9))
             if self.sub.socket.poll(math.ceil(wait_s * 1000)):
                 self.scenes.drain()  # voice blocks must reach the tracks before their time
         self._check_parent()
+
+    def _next_draw_ns(self, schedule: FrameSchedule) -> int:
+        """The next slot's time, or sooner when a commanded change waits to be shown."""
+        if not self.scenes.commanded:
+            return schedule.due_ns
+        return schedule.early_due_ns(self._last_frame_ns, EARLY_GAP)
 
     def _publish_submitted(self) -> None:
         while True:
@@ -222,6 +245,7 @@ class WebService(Service):
             self._release_drawing()
             self._canvas = OffscreenCanvas((plan.width, plan.height))
             self._renderer = Renderer(self._canvas.ctx, size=(plan.width, plan.height))
+            self._yuv = YuvTarget(self._canvas.ctx, (plan.width, plan.height))
         if old is None or old.fps != plan.fps:
             self._schedule = FrameSchedule(self.clock, plan.fps)
         assert self._renderer is not None
@@ -232,18 +256,33 @@ class WebService(Service):
     def _release_drawing(self) -> None:
         self._stages = {}
         self._renderer = None
+        if self._yuv is not None:
+            self._yuv.release()
+            self._yuv = None
         if self._canvas is not None:
             self._canvas.close()
             self._canvas = None
         for agent in self.agent_ids:
             self.frames.forget(agent)
 
-    def _draw(self, display_ns: int) -> None:
-        assert self._canvas is not None and self._plan is not None
-        target = self._canvas.screen
+    def _draw(self, slot_ns: int, early: bool = False) -> None:
+        """Each watched agent's face for the frame slot at `slot_ns` (or drawn early, now).
+
+        A frame's time is when it will leave, drawn and encoded: the browser takes the time a picture is
+        sent as the time it shows (the sender's reports), as it does for the voice, sent at its output
+        time. It is composed for the middle of its time on screen (half a period later): a change shows
+        at the nearest frame, not the next one."""
+        assert self._yuv is not None and self._plan is not None and self._schedule is not None
         width, height = self._plan.width, self._plan.height
+        began = self.clock.now_ns()
+        frame_ns = slot_ns + self._typical_draw_ns() + self.encoded.encode_ns
+        composed_ns = frame_ns + self._schedule.period_ns // 2
         for agent, stage in self._stages.items():
-            stage.draw(stage.compose(display_ns), target)
-            rgb = read_rgb(target)
-            yuv = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p").to_ndarray()
-            self.frames.put(agent, Picture(display_ns, yuv, width, height))
+            stage.draw(stage.compose(composed_ns), self._yuv.fbo)
+            self.frames.put(agent, Picture(frame_ns, self._yuv.read(), width, height, early))
+        self._draw_times.append(self.clock.now_ns() - began)
+        self._last_frame_ns = slot_ns
+
+    def _typical_draw_ns(self) -> int:
+        times = sorted(self._draw_times)
+        return times[len(times) // 2] if times else 0

@@ -2,7 +2,7 @@
 
 A browser lines video and audio up by each stream's sender reports, which map a frame's RTP timestamp
 to the time the sender sent it. So both tracks send each frame at the time it is meant for: the face
-track a picture as soon as it is drawn (composed for that very frame slot), the voice track 20 ms of
+track a picture as soon as it is drawn and encoded (stamped with that time), the voice track 20 ms of
 samples when the first of them reaches the output (their DAC time on the master clock, which the audio
 service stamps ahead of time, as a sound card's output buffer does). Timestamps (`pts`) are that same
 clock, so the browser's own A/V synchronisation does the rest.
@@ -12,42 +12,57 @@ from __future__ import annotations
 
 import asyncio
 import fractions
+from collections.abc import Callable
 
+import av
 from aiortc import MediaStreamTrack
-from av import AudioFrame, VideoFrame
+from av import AudioFrame
 
 from agent.clock import Clock
-from services.processes.web.feeds import FrameFeed, VoiceFeed
+from services.processes.web.encoding import VIDEO_RATE, EncodedStream
+from services.processes.web.feeds import VoiceFeed
 
-VIDEO_RATE = 90_000  # RTP's video clock
 AUDIO_FRAME_S = 0.020  # Opus' packet time: one frame per packet
 
 
 class FaceTrack(MediaStreamTrack):
-    """One agent's face at `fps` at most, at `width` x `height` (scaled if drawn at another size)."""
+    """One viewer's copy of an encoded face stream: each encoded picture as it comes, stamped from the
+    first one this track sent. A picture that cannot be decoded after what this track sent (it missed
+    one) is not sent: the track asks the stream for a keyframe and sends from there."""
 
     kind = "video"
 
-    def __init__(self, feed: FrameFeed, agent: str, width: int, height: int, fps: float, epoch_ns: int) -> None:
+    def __init__(self, stream: EncodedStream, on_stop: Callable[[], None] | None = None) -> None:
         super().__init__()
-        self.feed, self.agent = feed, agent
-        self.width, self.height = width, height
-        self.period_ns = round(1e9 / fps)
-        self.epoch_ns = epoch_ns
-        self._last_ns = epoch_ns - self.period_ns * 3 // 4  # the first picture is at the epoch or later: pts >= 0
+        self.stream = stream
+        self._on_stop = on_stop
+        self._sent_seq = -1
+        self._first_ns: int | None = None
         self.sent = 0
 
-    async def recv(self) -> VideoFrame:
-        # a picture at least most of a period after the last one: a lower rate than the drawing's skips
-        picture = await self.feed.next_after(self.agent, self._last_ns + self.period_ns * 3 // 4)
-        self._last_ns = picture.frame_ns
-        frame = VideoFrame.from_ndarray(picture.yuv, format="yuv420p")
-        if (picture.width, picture.height) != (self.width, self.height):
-            frame = frame.reformat(width=self.width, height=self.height)
-        frame.pts = (picture.frame_ns - self.epoch_ns) * VIDEO_RATE // 1_000_000_000
-        frame.time_base = fractions.Fraction(1, VIDEO_RATE)
+    async def recv(self) -> av.Packet:
+        seen = self._sent_seq
+        while True:
+            picture = await self.stream.next_after(seen)
+            if picture.keyframe or (self._sent_seq >= 0 and picture.seq == self._sent_seq + 1):
+                break
+            self.stream.request_keyframe()
+            seen = picture.seq
+        self._sent_seq = picture.seq
+        if self._first_ns is None:
+            self._first_ns = picture.frame_ns
+        packet = av.Packet(picture.data)
+        packet.is_keyframe = picture.keyframe
+        packet.pts = (picture.frame_ns - self._first_ns) * VIDEO_RATE // 1_000_000_000
+        packet.time_base = fractions.Fraction(1, VIDEO_RATE)
         self.sent += 1
-        return frame
+        return packet
+
+    def stop(self) -> None:
+        super().stop()
+        if self._on_stop is not None:
+            on_stop, self._on_stop = self._on_stop, None
+            on_stop()
 
 
 class VoiceTrack(MediaStreamTrack):

@@ -1,8 +1,9 @@
 """The browsers watching: one WebRTC peer connection each, with its face and voice tracks and, when the
 page sends one, its microphone.
 
-A viewer's tracks take from the service's shared feeds (the face is drawn once per frame whatever the
-number of viewers; each viewer's encoder then encodes it). A viewer that leaves, fails, does not
+A viewer's tracks take from the service's shared feeds: the face is drawn once per frame, and encoded
+once for all the viewers who asked the same size and rate (services/processes/web/encoding.py), whatever
+their number; each viewer's own encoder encodes the voice. A viewer that leaves, fails, does not
 connect within `connect_timeout_s`, or stops answering (no receiver report for `silent_timeout_s`:
 a browser that vanished mid-call, which ICE itself notices only after about 30 s) is closed and
 forgotten: its peer connection, its encoders, its microphone and its place in what the service draws.
@@ -17,14 +18,15 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Protocol
 
-from aiortc import MediaStreamTrack, RTCPeerConnection, RTCSessionDescription
+from aiortc import MediaStreamTrack, RTCPeerConnection, RTCRtpSender, RTCSessionDescription
 from aiortc.mediastreams import MediaStreamError
 from aiortc.rtcpeerconnection import or_direction
 
 from agent.clock import Clock
 from protocol.messages import Message, UserAudio, UserSpeech
 from services.processes.web.calibration import click_track, flash_track
-from services.processes.web.feeds import FrameFeed, VoiceFeed
+from services.processes.web.encoding import EncodedStreams
+from services.processes.web.feeds import VoiceFeed
 from services.processes.web.microphone import MicBlock, Microphone
 from services.processes.web.options import VadSettings
 from services.processes.web.tracks import FaceTrack, VoiceTrack
@@ -49,7 +51,7 @@ class Backend(Protocol):
     """What the viewers need of the service (called from the event loop; thread-safe)."""
 
     clock: Clock
-    frames: FrameFeed
+    encoded: EncodedStreams
 
     def voice(self, agent: str) -> VoiceFeed: ...
 
@@ -93,6 +95,7 @@ class Viewers:
         viewer = Viewer(number, RTCPeerConnection(), request)
         self.open[number] = viewer
         try:
+            _offer_vp8_only(viewer.pc, sum(kind == "video" for _, _, kind in request.streams))
             await viewer.pc.setRemoteDescription(RTCSessionDescription(sdp=offer_sdp, type="offer"))
             self._attach(viewer)
             await viewer.pc.setLocalDescription(await viewer.pc.createAnswer())
@@ -109,19 +112,19 @@ class Viewers:
 
     def _attach(self, viewer: Viewer) -> None:
         request, backend = viewer.request, self.backend
-        epoch_ns = backend.clock.now_ns()
         by_mid = {t.mid: t for t in viewer.pc.getTransceivers()}
         for mid, agent, kind in request.streams:
             transceiver = by_mid.get(mid)
             if transceiver is None or transceiver.kind != kind:
                 raise ValueError(f"the offer has no {kind} section with mid {mid!r}")
             track: MediaStreamTrack
-            if request.calibration:
-                track = (flash_track(backend.clock, request.width, request.height, request.fps, epoch_ns)
-                         if kind == "video" else click_track(backend.clock))
+            if kind == "video":
+                track = (flash_track(backend.clock, request.width, request.height, request.fps)
+                         if request.calibration else self._face_track(agent, request))
+                _forward_keyframe_requests(transceiver.sender, track)
             else:
-                track = (FaceTrack(backend.frames, agent, request.width, request.height, request.fps, epoch_ns)
-                         if kind == "video" else VoiceTrack(backend.voice(agent), backend.clock))
+                track = click_track(backend.clock) if request.calibration else VoiceTrack(backend.voice(agent),
+                                                                                          backend.clock)
             transceiver.sender.replaceTrack(track)
             transceiver.direction = or_direction(transceiver.direction, "sendonly")
             # one media stream per agent (its msid): the browser lines up the voice with the face it
@@ -133,6 +136,13 @@ class Viewers:
             if transceiver is None or transceiver.kind != "audio":
                 raise ValueError(f"the offer has no audio section with mid {request.mic_mid!r} for the microphone")
             viewer.mic_task = asyncio.ensure_future(self._listen(viewer, transceiver.receiver.track))
+
+    def _face_track(self, agent: str, request: ViewRequest) -> FaceTrack:
+        """A track of the agent's face stream at the asked size and rate, shared with the other viewers
+        who asked the same; the stream goes when the last of its tracks stops."""
+        encoded = self.backend.encoded
+        stream = encoded.use(agent, request.width, request.height, request.fps)
+        return FaceTrack(stream, on_stop=lambda: encoded.release(stream))
 
     async def _listen(self, viewer: Viewer, track: MediaStreamTrack) -> None:
         """The viewer's microphone: blocks and turns onto the bus, for the agents it watches."""
@@ -211,6 +221,27 @@ class Viewers:
     async def close_all(self) -> None:
         for viewer in list(self.open.values()):
             await self.close(viewer)
+
+
+def _offer_vp8_only(pc: RTCPeerConnection, video_sections: int) -> None:
+    """Make the answer send VP8 in each video section: the face streams are VP8, encoded once for every
+    viewer. aiortc gives a browser's offer the transceivers that already exist (in order) before it
+    makes new ones, so the video sections get these, whose codecs are set before the offer is read."""
+    vp8 = [c for c in RTCRtpSender.getCapabilities("video").codecs if c.mimeType.lower() in ("video/vp8", "video/rtx")]
+    for _ in range(video_sections):
+        pc.addTransceiver("video", direction="sendonly").setCodecPreferences(vp8)
+
+
+def _forward_keyframe_requests(sender: RTCRtpSender, track: FaceTrack) -> None:
+    """A browser's request for a keyframe (PLI, FIR) reaches aiortc's sender, which would have its own
+    encoder make one; the face's encoder is the shared stream's, so the request goes on to it."""
+    ask_encoder = sender._send_keyframe
+
+    def send_keyframe() -> None:
+        ask_encoder()
+        track.stream.request_keyframe()
+
+    sender._send_keyframe = send_keyframe  # type: ignore[method-assign]
 
 
 def _plain(exc: BaseException) -> str:

@@ -1,0 +1,183 @@
+"""The face encoded once per picture for every viewer of the same size and rate: what each viewer's track
+sends, when it asks for a keyframe, and how long a stream lives."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Awaitable, Callable
+from typing import TypeVar
+
+import av
+import numpy as np
+
+from agent.clock import VirtualClock
+from services.processes.web.encoding import EncodedStream, EncodedStreams
+from services.processes.web.feeds import FrameFeed, Picture
+from services.processes.web.tracks import FaceTrack
+
+PERIOD = 33_333_333  # 30 fps
+T = TypeVar("T")
+
+
+def picture(k: int, width: int = 64, height: int = 48) -> Picture:
+    """Picture k of a moving gradient (every picture differs), at k periods of the clock."""
+    y, x = np.mgrid[0:height, 0:width]
+    yuv = np.full((height * 3 // 2, width), 128, np.uint8)
+    yuv[:height] = (16 + (x * 3 + y * 2 + k * 9) % 200).astype(np.uint8)
+    return Picture(k * PERIOD, yuv, width, height)
+
+
+def run(main: Callable[[FrameFeed, VirtualClock], Awaitable[T]]) -> T:
+    async def wrapped() -> T:
+        return await asyncio.wait_for(main(FrameFeed(), VirtualClock(0)), 20.0)
+    return asyncio.run(wrapped())
+
+
+async def put(feed: FrameFeed, k: int, stream: EncodedStream, **size: int) -> None:
+    """At picture k's time, put it and wait until the stream has encoded it."""
+    assert isinstance(stream.clock, VirtualClock)
+    stream.clock.set_ns(max(stream.clock.now_ns(), k * PERIOD))
+    before = stream.encoded
+    feed.put("ada", picture(k, **size))
+    while stream.encoded == before:
+        await asyncio.sleep(0.001)  # the encoder runs on an executor thread: poll its count
+
+
+def decode(packets: list[av.Packet]) -> list[av.VideoFrame]:
+    decoder = av.CodecContext.create("libvpx", "r")
+    return [f for p in packets for f in decoder.decode(p)]
+
+
+def test_every_track_sends_each_picture_encoded_once() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> tuple[list[list[av.Packet]], int]:
+        stream = EncodedStream(feed.next_after, "ada", 64, 48, 30.0, clock)
+        stream.start()
+        tracks = [FaceTrack(stream), FaceTrack(stream)]
+        got: list[list[av.Packet]] = [[], []]
+        for k in range(1, 7):
+            await put(feed, k, stream)
+            for track, packets in zip(tracks, got, strict=True):
+                packets.append(await track.recv())
+        stream.stop()
+        return got, stream.encoded
+
+    got, encoded = run(main)
+    assert encoded == 6  # six pictures, two viewers: six encodes
+    assert [bytes(p) for p in got[0]] == [bytes(p) for p in got[1]]
+    assert [p.pts for p in got[0]] == [(k - 1) * PERIOD * 90_000 // 10**9 for k in range(1, 7)]  # from the first
+    frames = decode(got[0])
+    assert len(frames) == 6 and {(f.width, f.height) for f in frames} == {(64, 48)}
+    shown = frames[-1].to_ndarray(format="yuv420p")[:48].astype(int)
+    assert np.abs(shown - picture(6).yuv[:48].astype(int)).mean() < 6  # the picture, not another
+
+
+def test_a_stream_at_a_lower_rate_skips_pictures_and_scales() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> list[int]:
+        stream = EncodedStream(feed.next_after, "ada", 64, 48, 10.0, clock)
+        stream.start()
+        for k in range(1, 13):  # drawn at 30 fps, twice the size
+            feed.put("ada", picture(k, 128, 96))
+            await asyncio.sleep(0.02)  # the stream's turn on the loop (it takes what it wants, or not)
+        stream.stop()
+        assert stream.latest is not None
+        return [stream.latest.seq, stream.latest.frame_ns // PERIOD, stream.encoder.width]
+
+    seq, last_k, width = run(main)
+    assert (seq, last_k, width) == (4, 10, 64)  # pictures 1, 4, 7, 10: one in three, at 64x48
+
+
+def test_a_track_that_missed_a_picture_asks_for_a_keyframe_and_sends_from_it() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> tuple[list[bool], list[int], int]:
+        stream = EncodedStream(feed.next_after, "ada", 64, 48, 30.0, clock)
+        stream.start()
+        track = FaceTrack(stream)
+        sent: list[av.Packet] = []
+        await put(feed, 1, stream)
+        sent.append(await track.recv())  # picture 1: the stream's first, a keyframe
+        await put(feed, 2, stream)
+        await put(feed, 3, stream)  # the track did not send 2: 3 cannot be decoded after 1
+        waiting = asyncio.ensure_future(track.recv())
+        await put(feed, 31, stream)  # asked for (and a second after the last keyframe): a keyframe
+        sent.append(await waiting)
+        await put(feed, 32, stream)
+        sent.append(await track.recv())
+        stream.stop()
+        return [p.is_keyframe for p in sent], [round(p.pts / 3000) for p in sent], stream.keyframes
+
+    keyframes, slots, count = run(main)
+    assert slots == [0, 30, 31]  # pictures 1, 31 and 32
+    assert keyframes == [True, True, False] and count == 2
+
+
+def test_a_track_that_joins_a_running_stream_starts_at_a_keyframe() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> tuple[list[bool], int]:
+        stream = EncodedStream(feed.next_after, "ada", 64, 48, 30.0, clock)
+        stream.start()
+        first = FaceTrack(stream)
+        for k in range(1, 4):
+            await put(feed, k, stream)
+            await first.recv()
+        late = FaceTrack(stream)
+        waiting = asyncio.ensure_future(late.recv())  # picture 3 is no keyframe: the late track asks for one
+        await asyncio.sleep(0.01)
+        await put(feed, 31, stream)
+        packets = [await waiting]
+        await put(feed, 32, stream)
+        packets.append(await late.recv())
+        stream.stop()
+        return [p.is_keyframe for p in packets], len(decode(packets))
+
+    keyframes, decoded = run(main)
+    assert keyframes == [True, False] and decoded == 2
+
+
+def test_a_stream_lives_while_tracks_use_it() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> list[int]:
+        streams = EncodedStreams(feed.next_after, clock)
+        a = streams.use("ada", 64, 48, 30.0)
+        b = streams.use("ada", 64, 48, 30.0)
+        other = streams.use("ada", 32, 24, 30.0)
+        counts = [len(streams.streams), a is b]
+        tracks = [FaceTrack(s, on_stop=lambda s=s: streams.release(s)) for s in (a, b, other)]
+        tracks[0].stop()
+        tracks[0].stop()  # a second stop releases nothing more
+        counts.append(len(streams.streams))
+        tracks[1].stop()
+        counts.append(len(streams.streams))
+        tracks[2].stop()
+        counts.append(len(streams.streams))
+        await asyncio.sleep(0)
+        return counts
+
+    assert run(main) == [2, True, 2, 1, 0]
+
+
+def test_the_drawing_thread_wakes_a_waiting_stream() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> int:
+        stream = EncodedStream(feed.next_after, "ada", 64, 48, 30.0, clock)
+        stream.start()
+        track = FaceTrack(stream)
+        threading.Timer(0.05, lambda: feed.put("ada", picture(3))).start()
+        packet = await track.recv()
+        stream.stop()
+        return packet.size
+
+    assert run(main) > 0
+
+
+def test_keyframe_requests_flooding_in_get_one_keyframe_a_quarter_second() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> list[int]:
+        stream = EncodedStream(feed.next_after, "ada", 64, 48, 30.0, clock)
+        stream.start()
+        keyframes_at = []
+        for k in range(1, 31):  # a second of pictures, a keyframe asked for before each
+            stream.request_keyframe()
+            await put(feed, k, stream)
+            assert stream.latest is not None
+            if stream.latest.keyframe:
+                keyframes_at.append(k)
+        stream.stop()
+        return keyframes_at
+
+    assert run(main) == [1, 9, 17, 25]  # 0.25 s apart: one in 7.5 pictures, the rest not
