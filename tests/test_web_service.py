@@ -275,3 +275,29 @@ def test_a_commanded_change_is_drawn_at_once_without_raising_the_frame_rate() ->
     assert [p.frame_ns - t0 for p in pictures[:3]] == [0, 30_000_000, (2 * S) // 15]
     assert not pictures[2].early
     assert changed > 1.0, f"the early picture shows the new expression: mean change {changed:.2f} levels"
+
+
+def test_a_browsers_request_for_a_keyframe_reaches_the_shared_encoder(web: tuple[BusConfig, WebService]) -> None:
+    """A picture-loss report (PLI) goes to aiortc's sender, whose own encoder is not used: it must reach
+    the face's shared stream, which then makes a keyframe for everyone."""
+    config, service = web
+
+    async def main() -> tuple[int, int, int]:
+        client = Client(base(service), ["ada"])
+        await client.connect()
+        try:
+            await client.frames("ada", "video", 1.0)
+            stream = service.encoded.streams[("ada", SMALL["width"], SMALL["height"], SMALL["fps"])]
+            assert wait_until(stream._keyframe_allowed, 5.0)  # past the least time between keyframes
+            before = stream.keyframes
+            receiver = next(t.receiver for t in client.pc.getTransceivers() if t.kind == "video")
+            await receiver._send_rtcp_pli(receiver.getSynchronizationSources()[0].source)
+            deadline = time.monotonic() + 3.0
+            while stream.keyframes == before and time.monotonic() < deadline:
+                await asyncio.sleep(0.02)  # polling the stream's count
+            return before, stream.keyframes, stream.encoded
+        finally:
+            await client.pc.close()
+
+    before, after, encoded = asyncio.run(main())
+    assert after == before + 1, f"{before} keyframes before the request, {after} after ({encoded} pictures)"
