@@ -10,6 +10,7 @@ from typing import TypeVar
 
 import av
 import numpy as np
+from aiortc.mediastreams import MediaStreamError
 
 from agent.clock import VirtualClock
 from services.processes.web.encoding import EncodedStream, EncodedStreams
@@ -181,3 +182,19 @@ def test_keyframe_requests_flooding_in_get_one_keyframe_a_quarter_second() -> No
         return keyframes_at
 
     assert run(main) == [1, 9, 17, 25]  # 0.25 s apart: one in 7.5 pictures, the rest not
+
+
+def test_a_track_waiting_on_a_stream_that_stops_ends_instead_of_waiting_for_ever() -> None:
+    async def main(feed: FrameFeed, clock: VirtualClock) -> bool:
+        stream = EncodedStream(feed.next_after, "ada", 64, 48, 30.0, clock)
+        stream.start()
+        waiting = asyncio.ensure_future(FaceTrack(stream).recv())
+        await asyncio.sleep(0.01)
+        stream.stop()  # no picture ever came
+        try:
+            await waiting
+        except MediaStreamError:
+            return True
+        return False
+
+    assert run(main)

@@ -106,12 +106,16 @@ class EncodedStream:
         self._changed = asyncio.Event()
         self._lock = threading.Lock()  # the encoder runs on an executor thread, one picture at a time
         self._task: asyncio.Task[None] | None = None
+        self.stopped = False
 
     def start(self) -> None:
         if self._task is None:
             self._task = asyncio.ensure_future(self._run())
 
     def stop(self) -> None:
+        """Stop encoding; tracks waiting on this stream are told (they may have been moved to another)."""
+        self.stopped = True
+        self._changed.set()
         if self._task is not None:
             self._task.cancel()
             self._task = None
@@ -125,12 +129,12 @@ class EncodedStream:
     def request_keyframe(self) -> None:
         self._keyframe_wanted = True
 
-    async def next_after(self, seq: int) -> EncodedPicture:
-        """The newest encoded picture after number `seq` (waits for one)."""
-        while self.latest is None or self.latest.seq <= seq:
+    async def next_after(self, seq: int) -> EncodedPicture | None:
+        """The newest encoded picture after number `seq` (waits for one); None once the stream stopped."""
+        while not self.stopped and (self.latest is None or self.latest.seq <= seq):
             self._changed.clear()
             await self._changed.wait()
-        return self.latest
+        return None if self.stopped else self.latest
 
     async def _run(self) -> None:
         loop = asyncio.get_running_loop()

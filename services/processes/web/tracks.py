@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 import av
 from aiortc import MediaStreamTrack
+from aiortc.mediastreams import MediaStreamError
 from av import AudioFrame
 
 from agent.clock import Clock
@@ -44,6 +45,8 @@ class FaceTrack(MediaStreamTrack):
         seen = self._sent_seq
         while True:
             picture = await self.stream.next_after(seen)
+            if picture is None:
+                raise MediaStreamError("the face's stream stopped")
             if picture.keyframe or (self._sent_seq >= 0 and picture.seq == self._sent_seq + 1):
                 break
             self.stream.request_keyframe()
