@@ -184,12 +184,15 @@ def test_the_users_speech_reaches_the_bus_and_interrupts_the_agent(instance: tup
     finally:
         bus.close()
         ctx.term()
-    assert isinstance(ended, SpeechInterrupted) and ended.reason == "the user started speaking", ended
-    assert 8.0 < ended.played_s < 30.0  # cut short by the user's speech, which starts 8 s into the microphone
     turns = [m for m in heard if isinstance(m, UserSpeech)]
+    blocks = [m for m in heard if isinstance(m, UserAudio)]
+    levels = [round(float(np.sqrt(np.mean(np.frombuffer(b.pcm, "<i2").astype(float) ** 2)))) for b in blocks[:60]]
+    what = f"turns {[(m.speaking, m.source, m.t_ns) for m in turns[:4]]}; first blocks' RMS {levels}"
+    assert isinstance(ended, SpeechInterrupted) and ended.reason == "the user started speaking", (ended, what)
+    # cut short by the user's speech, which starts 8 s into the microphone
+    assert 8.0 < ended.played_s < 30.0, (ended, what)
     assert [m.speaking for m in turns[:1]] == [True]
     assert turns[0].t_ns <= ended.t_ns  # the user spoke, then the agent stopped
-    blocks = [m for m in heard if isinstance(m, UserAudio)]
     assert len(blocks) > 100 and any(b.speaking for b in blocks)
     assert all(b.sample_rate == 16_000 and len(b.pcm) == 640 for b in blocks)
 

@@ -83,3 +83,10 @@ def test_settings_out_of_range_are_refused(bad: VadSettings) -> None:
     with pytest.raises(ValueError):
         bad.check()
 
+
+
+@pytest.mark.parametrize("rms", [20, 50, 100, 200])  # -64 .. -44 dBFS
+def test_a_hissing_microphone_starts_no_turn(rms: int) -> None:
+    noise = (np.random.default_rng(rms).standard_normal(3 * RATE) * rms).astype(np.int16)
+    turns, blocks = run(noise)
+    assert turns == [] and not any(b.speaking for b in blocks)
