@@ -7,7 +7,7 @@ what needs files: the voices, the mixed audio track, the CSV and the MP4 mux.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -74,23 +74,26 @@ def speech_events(lines: list[tuple[Utterance, str]], min_pause_s: float) -> lis
     return events
 
 
-def _lines(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[tuple[Utterance, str]]:
-    out = []
+def said_lines(timeline: Timeline, voices: VoiceCache | None,
+               voice_for: Callable[[str], str]) -> Iterator[tuple[SayCue, np.ndarray]]:
+    """Each say on the timeline that has a sound, with its samples: its own audio file, or its text spoken
+    in the voice `voice_for(agent)` when there is a voice cache."""
     for cue in timeline.cues:
         if not isinstance(cue, SayCue):
             continue
         if cue.audio_path is not None:
-            path: Path | None = Path(cue.audio_path)
+            path = Path(cue.audio_path)
         elif voices is not None and cue.text:
-            path = voices.path_for(cue.text, AGENT_VOICE if cue.agent == agent else PARTNER_VOICE)
+            path = voices.path_for(cue.text, voice_for(cue.agent))
         else:
-            path = None
-        if path is None:
             continue
-        samples = load_audio(path)
-        track = mouth_track(samples, AUDIO_RATE) if cue.agent == agent else None
-        out.append((Utterance(cue.t_s, samples, track), cue.agent))
-    return out
+        yield cue, load_audio(path)
+
+
+def _lines(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[tuple[Utterance, str]]:
+    voice_for = lambda speaker: AGENT_VOICE if speaker == agent else PARTNER_VOICE  # noqa: E731
+    return [(Utterance(cue.t_s, samples, mouth_track(samples, AUDIO_RATE) if cue.agent == agent else None),
+             cue.agent) for cue, samples in said_lines(timeline, voices, voice_for)]
 
 
 def mix(utterances: list[Utterance], length_s: float) -> np.ndarray:

@@ -20,7 +20,7 @@ from agent.face.flexors import FLEXOR_NAMES
 from agent.gaze.backchannel import BackchannelParams
 from agent.gaze.situated import SituatedParams
 from agent.lipsync.estimator import mouth_track
-from agent.script import SayCue, Timeline
+from agent.script import Timeline
 from services.tools.offline import (
     AUDIO_RATE,
     CSV_STATE_COLUMNS,
@@ -28,8 +28,8 @@ from services.tools.offline import (
     RenderSettings,
     agent_fields,
     fixed6,
-    load_audio,
     mix,
+    said_lines,
     speech_events,
 )
 from services.tools.playback import AGENT_VOICE, PARTNER_VOICE, VoiceCache
@@ -73,18 +73,7 @@ def gather_lines(timeline: Timeline, agents: Sequence[str], voices: VoiceCache |
     heard: list[Utterance] = []
     spoken: dict[str, list[Utterance]] = {agent: [] for agent in agents}
     voiced: list[tuple[Utterance, str]] = []
-    for cue in timeline.cues:
-        if not isinstance(cue, SayCue):
-            continue
-        if cue.audio_path is not None:
-            path: Path | None = Path(cue.audio_path)
-        elif voices is not None and cue.text:
-            path = voices.path_for(cue.text, voice_of(cue.agent, agents))
-        else:
-            path = None
-        if path is None:
-            continue
-        samples = load_audio(path)
+    for cue, samples in said_lines(timeline, voices, lambda speaker: voice_of(speaker, agents)):
         own = cue.agent in spoken
         line = Utterance(cue.t_s, samples, mouth_track(samples, AUDIO_RATE) if own else None)
         heard.append(line)
