@@ -45,6 +45,12 @@ async def put(feed: FrameFeed, k: int, stream: EncodedStream, **size: int) -> No
         await asyncio.sleep(0.001)  # the encoder runs on an executor thread: poll its count
 
 
+async def until(condition: Callable[[], bool], what: str) -> None:
+    """Poll the stream's state (it moves on the loop and its executor thread) until `condition` holds."""
+    while not condition():
+        await asyncio.sleep(0.001)  # polling, bounded by run()'s timeout; `what` says what was awaited
+
+
 def decode(packets: list[av.Packet]) -> list[av.VideoFrame]:
     decoder = av.CodecContext.create("libvpx", "r")
     return [f for p in packets for f in decoder.decode(p)]
@@ -79,7 +85,8 @@ def test_a_stream_at_a_lower_rate_skips_pictures_and_scales() -> None:
         stream.start()
         for k in range(1, 13):  # drawn at 30 fps, twice the size
             feed.put("ada", picture(k, 128, 96))
-            await asyncio.sleep(0.02)  # the stream's turn on the loop (it takes what it wants, or not)
+            # the stream has taken the picture (and encoded it) or let it pass: it waits on the feed again
+            await until(lambda: "ada" in feed._waiters, f"the stream done with picture {k}")
         stream.stop()
         assert stream.latest is not None
         return [stream.latest.seq, stream.latest.frame_ns // PERIOD, stream.encoder.width]
@@ -121,7 +128,7 @@ def test_a_track_that_joins_a_running_stream_starts_at_a_keyframe() -> None:
             await first.recv()
         late = FaceTrack(stream)
         waiting = asyncio.ensure_future(late.recv())  # picture 3 is no keyframe: the late track asks for one
-        await asyncio.sleep(0.01)
+        await until(lambda: stream._keyframe_wanted, "the late track's request for a keyframe")
         await put(feed, 31, stream)
         packets = [await waiting]
         await put(feed, 32, stream)
@@ -189,7 +196,7 @@ def test_a_track_waiting_on_a_stream_that_stops_ends_instead_of_waiting_for_ever
         stream = EncodedStream(feed.next_after, "ada", 64, 48, 30.0, clock)
         stream.start()
         waiting = asyncio.ensure_future(FaceTrack(stream).recv())
-        await asyncio.sleep(0.01)
+        await asyncio.sleep(0)  # one turn of the loop: the track runs until it waits on the stream
         stream.stop()  # no picture ever came
         try:
             await waiting
