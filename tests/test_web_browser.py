@@ -31,6 +31,13 @@ from tests.support.web_client import user_speech_wav
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
                                                    reason=str(browser_available()))]
 RATE = 16_000
+LOGS: dict[str, LineReader] = {}  # what each instance printed, by its page's address: for failure messages
+
+
+def said(url: str, count: int = 30) -> str:
+    """The instance's last lines from the web service and the supervisor."""
+    lines = [line for line in LOGS[url].lines if line.startswith(("[web]", "[up]"))]
+    return "\n".join(lines[-count:])
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +55,9 @@ def instance() -> Iterator[tuple[BusConfig, str]]:
                            "--web", "--web-port", "0")
         with running(argv) as (proc, reader):
             reader.wait_for("[up] ready in", 90.0)
-            yield config, served_url(reader)
+            url = served_url(reader)
+            LOGS[url] = reader
+            yield config, url
 
 
 def test_a_healthy_page_stays_connected_past_the_watchdog(instance: tuple[BusConfig, str]) -> None:
@@ -122,7 +131,8 @@ def test_the_page_shows_the_face_at_the_asked_size_and_rate(instance: tuple[BusC
         connect(driver, url + "?mic=0&width=320&height=240&fps=15")
         first = wait_for(driver, "return 1", 1.0, "")  # (a no-op round trip)
         assert first == 1
-        assert frames_decoded(driver, 15) >= 15  # the first second of frames, the keyframe with them, is past
+        # the first second of frames, the keyframe with them, is past
+        assert frames_decoded(driver, 15) >= 15, said(url)
         before = video_stats(driver)
         time.sleep(3.0)
         after = video_stats(driver)
@@ -203,7 +213,7 @@ def test_a_second_browser_sees_the_same_agent(instance: tuple[BusConfig, str]) -
         connect(first, url + "?mic=0&width=160&height=120&fps=10")
         connect(second, url + "?mic=0&width=160&height=120&fps=10")
         decoded = [frames_decoded(d, 10) for d in (first, second)]
-    assert all(n >= 10 for n in decoded), decoded
+    assert all(n >= 10 for n in decoded), f"{decoded}\n{said(url)}"
 
 
 def test_without_the_token_nothing_happens_and_with_it_the_page_connects() -> None:
