@@ -301,3 +301,20 @@ def test_a_browsers_request_for_a_keyframe_reaches_the_shared_encoder(web: tuple
 
     before, after, encoded = asyncio.run(main())
     assert after == before + 1, f"{before} keyframes before the request, {after} after ({encoded} pictures)"
+
+
+def test_the_drawing_is_ready_before_the_first_viewer_and_kept_between_viewers(
+        web: tuple[BusConfig, WebService]) -> None:
+    """Making the GL context and compiling the shaders takes the loop a second or more on a loaded machine:
+    it is done before the service is ready, not when the first viewer comes, and kept while no one watches."""
+    config, service = web
+    prepared = service._yuv
+    assert prepared is not None and prepared.size == (SMALL["width"], SMALL["height"])
+    service.watch(1, ViewRequest(("ada",), SMALL["width"], SMALL["height"], SMALL["fps"], (), None))
+    assert wait_until(lambda: service._plan is not None, 10.0)
+    service.unwatch(1)
+    assert wait_until(lambda: service._plan is None, 10.0)
+    assert service._yuv is prepared
+    service.watch(2, ViewRequest(("ada",), 2 * SMALL["width"], 2 * SMALL["height"], SMALL["fps"], (), None))
+    assert wait_until(lambda: service._yuv is not None and service._yuv is not prepared, 10.0)  # another size
+    service.unwatch(2)

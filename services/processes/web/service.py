@@ -29,6 +29,7 @@ from aiohttp import web
 from protocol.endpoints import BusConfig
 from protocol.messages import Message, VoiceBlock
 from services.processes.renderer.bus_scene import BusScenes
+from services.processes.renderer.context import HeadlessContextError
 from services.processes.renderer.outputs import OffscreenCanvas
 from services.processes.renderer.renderer import Renderer
 from services.processes.renderer.schedule import FrameSchedule
@@ -141,6 +142,10 @@ class WebService(Service):
         logging.getLogger("aioice").setLevel(logging.WARNING)  # every ICE check at INFO drowns the service's lines
         self.viewers = Viewers(self, self.options.max_viewers, self.options.vad, self.options.connect_timeout_s,
                                self.options.silent_timeout_s)
+        try:
+            self._prepare_drawing((self.options.width, self.options.height))  # before ready: see _prepare_drawing
+        except HeadlessContextError as exc:
+            raise CannotStart(str(exc)) from None
         self._events = EventLoopThread().start()
         app = make_app(self, self.viewers, self.options, self.agent_ids)
         try:
@@ -238,20 +243,32 @@ class WebService(Service):
         self._plan = plan
         if plan is None:
             self._schedule = None
-            self._release_drawing()
+            self._stages = {}
+            for agent in self.agent_ids:
+                self.frames.forget(agent)
             self.log.info("no one watching: drawing stopped")
             return
-        if old is None or (old.width, old.height) != (plan.width, plan.height):
-            self._release_drawing()
-            self._canvas = OffscreenCanvas((plan.width, plan.height))
-            self._renderer = Renderer(self._canvas.ctx, size=(plan.width, plan.height))
-            self._yuv = YuvTarget(self._canvas.ctx, (plan.width, plan.height))
+        self._prepare_drawing((plan.width, plan.height))
         if old is None or old.fps != plan.fps:
             self._schedule = FrameSchedule(self.clock, plan.fps)
         assert self._renderer is not None
         self._stages = {v.agent: Stage(self._renderer, [v], fps=plan.fps) for v in self.scenes.views
                         if v.agent in plan.agents}
         self.log.info("drawing %s at %dx%d, %g fps", ", ".join(plan.agents), plan.width, plan.height, plan.fps)
+
+    def _prepare_drawing(self, size: tuple[int, int]) -> None:
+        """A GL context, renderer and yuv target of `size`, kept while the size stays (also while no one
+        watches): making them (the context, the shaders' compilation, the first frame's compiled code)
+        takes a second or more on a loaded machine, which the loop must not spend when a viewer comes."""
+        if self._yuv is not None and self._yuv.size == size:
+            return
+        self._release_drawing()
+        self._canvas = OffscreenCanvas(size)
+        self._renderer = Renderer(self._canvas.ctx, size=size)
+        self._yuv = YuvTarget(self._canvas.ctx, size)
+        warm_up = Stage(self._renderer, self.scenes.views[:1], fps=self.options.fps)
+        warm_up.draw(warm_up.compose(self.clock.now_ns()), self._yuv.fbo)
+        self._yuv.read()
 
     def _release_drawing(self) -> None:
         self._stages = {}
