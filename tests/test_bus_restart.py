@@ -22,7 +22,7 @@ from protocol.messages import ALL_AGENTS, EmotionState, HeadState, Heartbeat, Sa
 from services.processes import broker as broker_module
 from services.processes.broker import Broker
 from services.processes.dialogue import DialogueService
-from services.processes.runtime import wait_until
+from services.processes.runtime import Service, wait_until
 from services.processes.state_snapshot import StateSnapshot, snapshot_path
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
@@ -202,3 +202,29 @@ def test_what_a_publisher_remembers_per_topic_is_bounded(monkeypatch: pytest.Mon
     for topic in ("error.a.error", "error.b.error", "error.a.error", "error.c.error", "error.d.error"):
         counts.sent(topic, counts.next(topic))
     assert len(counts._counts) == 3 and counts.next("error.a.error") == 1 and counts.next("error.d.error") == 2
+
+
+def test_after_a_broker_restart_a_service_publishes_its_states_again_before_a_new_one(config: BusConfig) -> None:
+    """A new broker's cache must get the older states first: a client that finds the newest there would
+    otherwise find the others missing, until the service's loop came round to publishing them again."""
+    order: list[str] = []
+
+    class Remembering(Service):
+        name = "remembering"
+
+        def on_new_broker(self) -> None:
+            order.append("the states again")
+
+    service = Remembering(config)
+    try:
+        with BrokerThread(config):
+            service.connect()
+        with BrokerThread(config):
+            assert service.pub is not None
+            # the new broker's subscription waits, unread, at the publisher
+            assert wait_until(lambda: service.pub is not None and service.pub.socket.poll(0) != 0, 10.0)
+            service.publish(EmotionState(agent="ada", name="happy"))
+            order.append("the new state")
+    finally:
+        service.close()
+    assert order == ["the states again", "the new state"]

@@ -197,6 +197,9 @@ class Service:
             self.beat()
             self._next_beat_ns = now + int(self.config.heartbeat_interval_s * 1e9)
             trim()  # what a burst of messages left free in the heap goes back to the system
+        self._check_broker()
+
+    def _check_broker(self) -> None:
         assert self.pub is not None
         if self.pub.new_broker():
             self.log.info("the broker restarted")
@@ -296,6 +299,9 @@ class Service:
                                kind=kind[:64], topic=topic[:256], request_id=request_id[:64], service=self.name))
 
     def publish(self, msg: Message, category: str | None = None) -> Message:
+        # A new broker's cache gets the states published before this one first: a client that finds
+        # the newest state there finds the older ones beside it, not a cache that lacks them.
+        self._check_broker()
         assert self.pub is not None
         return self.pub.publish(msg, category)
 
