@@ -91,7 +91,8 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
-from services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
+from services.processes.web.calibration import PATCH  # noqa: E402 (after the path is set)
+from services.tools.child_processes import subprocess_env  # noqa: E402
 
 AGENT = "ada"
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
@@ -106,6 +107,8 @@ ONSET_LEVEL = 0.05  # of full scale: the first sample over it after ONSET_QUIET_
 ONSET_QUIET_S = 0.3
 PAIR_WINDOW_MS = 300.0  # an audio onset and a mouth opening (flash) this close belong together
 MOUTH_BOX = (0.34, 0.58, 0.66, 0.92)  # x0, y0, x1, y1 of the picture, around the mouth at 640x480
+# inside a reference's flashing patch, clear of its edges (which the encoder blurs into the face)
+PATCH_BOX = tuple(a + (b - a) * f for a, b, f in zip(PATCH[:2] * 2, PATCH[2:] * 2, (0.2, 0.2, 0.8, 0.8), strict=True))
 MAX_SAY_S = 100.0  # the say's inline PCM (16 kHz, 16 bit) stays well under the bus's 4 MiB message cap
 TRAJECTORY_WINDOW_S = 10.0
 REFERENCES = ("reference A", "reference B")  # two: how far apart two identical connections settle
@@ -147,7 +150,7 @@ PAGE_JS = """
 if (!window.ecaBench) {
   const B = window.ecaBench = {frames: {}, onsets: {}, ctx: null, references: {}, signature: false,
                                paused: false, mouthBox: arguments[0], signatureSize: arguments[1],
-                               onset: arguments[2]};
+                               onset: arguments[2], patchBox: arguments[3]};
   const canvases = {};
   function pixels(purpose, video, x0, y0, x1, y1, w, h) {
     // the part [x0, x1) x [y0, y1) of the frame (fractions of the picture), drawn at w x h
@@ -175,8 +178,9 @@ if (!window.ecaBench) {
     }
     return n;
   }
-  function centreLuma(video) {
-    const d = pixels("centre", video, 0.45, 0.45, 0.55, 0.55);
+  function patchLuma(video) {  // the reference's flashing patch
+    const [x0, y0, x1, y1] = B.patchBox;
+    const d = pixels("patch", video, x0, y0, x1, y1);
     let s = 0;
     for (let i = 0; i < d.length; i += 4) s += d[i] + d[i + 1] + d[i + 2];
     return s / (3 * d.length / 4);
@@ -198,7 +202,7 @@ if (!window.ecaBench) {
           f.mouth = openMouth(video);
           if (B.signature) f.sig = thumbnail(video);
         } else {
-          f.luma = centreLuma(video);
+          f.luma = patchLuma(video);
         }
         B.frames[name].push(f);
       }
@@ -842,7 +846,8 @@ def latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, server:
     details: dict[str, Any] = {}
     report.details["latency"] = details
     if driver.execute_script("return Boolean(window.ecaBench && window.ecaBench.frames.face)") is not True:
-        driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S])
+        driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S],
+                              list(PATCH_BOX))
         driver.execute_script("window.ecaBench.watch('face', window.eca.faces[arguments[0]], 'face')", AGENT)
     driver.execute_script("window.ecaBench.signature = true")
     settled_ns = connected_ns + int(args.settle_s * 1e9)
@@ -1292,7 +1297,8 @@ def run(args: argparse.Namespace, report: Report) -> None:
         report.details["rss_at_start_mib"] = rss_mib(inst.web_pid)
         open_page(driver, inst.url)
         connected_ns = time.monotonic_ns()
-        driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S])
+        driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S],
+                              list(PATCH_BOX))
         if not args.skip_av:
             guarded("A/V offset", report, lambda: av_phase(args, inst, driver, server, report, rng))
         if not args.skip_latency:
@@ -1303,7 +1309,8 @@ def run(args: argparse.Namespace, report: Report) -> None:
                 disconnect_page(driver)
                 open_page(driver, inst.url)
                 connected_ns = time.monotonic_ns()
-                driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S])
+                driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S],
+                              list(PATCH_BOX))
             guarded("command -> frame", report,
                     lambda: latency_phase(args, inst, driver, server, report, rng, baselines, connected_ns))
         if not args.skip_viewers:

@@ -1,5 +1,6 @@
-"""The web service's calibration mode (services/processes/web/calibration.py): flashes and clicks at the whole seconds
-of the master clock, sent by the face's and the voice's own tracks, and the offer flag that asks for them.
+"""The web service's calibration mode (services/processes/web/calibration.py): flashes (a patch over the drawn
+face) and clicks at the whole seconds of the master clock, sent by the face's and the voice's own tracks,
+and the offer flag that asks for them.
 """
 
 from __future__ import annotations
@@ -12,8 +13,18 @@ import numpy as np
 import pytest
 
 from agent.clock import NS_PER_S, VirtualClock
-from services.processes.web.calibration import CLICK_S, ClickFeed, FlashFeed, click_track
+from services.processes.web.calibration import (
+    BLACK_LUMA,
+    CLICK_S,
+    NEUTRAL_CHROMA,
+    PATCH,
+    WHITE_LUMA,
+    ClickFeed,
+    FlashFeed,
+    click_track,
+)
 from services.processes.web.encoding import VIDEO_RATE
+from services.processes.web.feeds import Picture
 from services.processes.web.options import WebOptions
 from services.processes.web.service import WebService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
@@ -72,6 +83,43 @@ def test_a_track_that_falls_behind_skips_to_the_current_slot() -> None:
     assert picture.frame_ns == 6 * NS_PER_S and picture.yuv[0, 0] > 128
 
 
+def planes(yuv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    flat = yuv.reshape(-1)
+    chroma = (width // 2) * (height // 2)
+    return (flat[:width * height].reshape(height, width),
+            flat[width * height:width * height + chroma].reshape(height // 2, width // 2),
+            flat[width * height + chroma:].reshape(height // 2, width // 2))
+
+
+@pytest.mark.parametrize("flash", [True, False])
+def test_the_patch_lies_over_the_face_as_last_drawn_and_leaves_the_rest_of_it_alone(flash: bool) -> None:
+    width, height = 64, 54  # a height that is not a multiple of 4: the chroma planes do not fill whole rows
+    rng = np.random.default_rng(7)
+    yuv = rng.integers(30, 200, (height * 3 // 2, width), dtype=np.uint8)  # neither white nor black anywhere
+    face = Picture(123, yuv, width, height)
+    kept = face.yuv.copy()
+    slot_ns = 5 * NS_PER_S + (0 if flash else NS_PER_S // 25)  # at 25 fps: the whole second's slot, the next
+    feed = FlashFeed(VirtualClock(slot_ns), 320, 240, 25.0, backdrop=lambda: face)  # face drawn at another size
+    picture = asyncio.run(feed.next_after("calibration", 4 * NS_PER_S))
+    assert (picture.width, picture.height) == (width, height)  # the encoder scales it to the stream's
+    assert picture.frame_ns == slot_ns
+    inside = planes(picture.yuv, width, height)[0] == (WHITE_LUMA if flash else BLACK_LUMA)
+    rows, cols = np.nonzero(inside.any(axis=1))[0], np.nonzero(inside.any(axis=0))[0]
+    # one rectangle at PATCH, in whole chroma samples (even bounds), to within a sample
+    assert inside[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1].all() and inside.sum() == len(rows) * len(cols)
+    for first, last, f0, f1, size in ((rows[0], rows[-1], PATCH[1], PATCH[3], height),
+                                      (cols[0], cols[-1], PATCH[0], PATCH[2], width)):
+        assert first % 2 == 0 and (last + 1) % 2 == 0
+        assert abs(first - f0 * size) <= 1 and abs(last + 1 - f1 * size) <= 1
+    y, u, v = planes(picture.yuv, width, height)
+    face_y, face_u, face_v = planes(face.yuv, width, height)
+    assert np.array_equal(y[~inside], face_y[~inside])
+    for plane, original in ((u, face_u), (v, face_v)):
+        assert np.all(plane[inside[::2, ::2]] == NEUTRAL_CHROMA)
+        assert np.array_equal(plane[~inside[::2, ::2]], original[~inside[::2, ::2]])
+    assert np.array_equal(face.yuv, kept)  # the face's own picture, which its viewers are sent, is untouched
+
+
 def click_samples(clock: VirtualClock, start_ns: int, frames: int) -> np.ndarray:
     """The samples a click track sends in `frames` 20 ms frames from `start_ns`, each asked for when due."""
     clock.set_ns(start_ns)
@@ -125,8 +173,20 @@ def web() -> Iterator[WebService]:
             yield service
 
 
+def patch_of(frame: Any) -> np.ndarray:
+    gray = frame.to_ndarray(format="gray")
+    h, w = gray.shape
+    return gray[round(PATCH[1] * h) + 2:round(PATCH[3] * h) - 2, round(PATCH[0] * w) + 2:round(PATCH[2] * w) - 2]
+
+
+def rest_of(frame: Any) -> np.ndarray:
+    gray = frame.to_ndarray(format="gray")
+    h, w = gray.shape
+    return gray[round(PATCH[3] * h):, :]  # below the patch
+
+
 def is_white(frame: Any) -> bool:
-    return float(frame.to_ndarray(format="gray").mean()) > 128
+    return float(patch_of(frame).mean()) > 128
 
 
 def base(service: WebService) -> str:
@@ -153,7 +213,8 @@ def test_an_offer_asking_for_calibration_gets_flashes_and_clicks_a_second_apart(
     flashes = [f.pts for f in video if is_white(f)]
     assert len(flashes) >= 2 and len(video) - len(flashes) > 20
     assert all(abs(b - a - VIDEO_RATE) <= 1 for a, b in zip(flashes, flashes[1:], strict=False))  # 1 s of RTP clock
-    assert all(float(f.to_ndarray(format="gray").std()) < 10 for f in video)  # no face: one flat picture each
+    # under the patch, the agent's face as drawn for the service's own viewers: far from flat
+    assert all(float(rest_of(f).std()) > 10 for f in video[len(video) // 2:])
     loud = [f.pts for f in audio if np.abs(f.to_ndarray()).max() > 3_000]
     clicks = [b for a, b in zip([None, *loud], loud, strict=False) if a is None or b - a > 960 * 5]
     assert len(clicks) >= 2

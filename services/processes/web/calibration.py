@@ -6,8 +6,9 @@ time of a click in the audio. An offer with `"calibration": true` gets, for each
 one of these synthetic tracks instead of the agent's face or voice:
 
 - video: a picture for every frame slot of the master clock (slot k at k/fps s; at a whole-number rate
-  every whole second is a slot), white for the slot nearest each whole second (the one at it; of two
-  equally near, the earlier), black for the others;
+  every whole second is a slot): the agent's face as last drawn, with a patch in its top left corner
+  (`PATCH`) that is white for the slot nearest each whole second (the one at it; of two equally near,
+  the earlier) and black for the others;
 - audio: silence with a click (a 10 ms burst of a 1 kHz tone, starting at phase zero) at each whole
   second.
 
@@ -20,6 +21,12 @@ browser made it; the face's offset beyond that is the face's own, to within what
 differ by (a browser settles each one's A/V sync on its own: bench/web.py runs two references to see how
 far). The service still draws the agent for such a viewer, so the reference is measured under the face's
 load. A reference's video is encoded for its viewer alone.
+
+The patch is on the moving face rather than on a flat picture because a browser treats the two unlike:
+it holds the pictures of a stream whose frames are large and slow to decode longer before showing them
+(its jitter estimate grows with frame size, its render delay with decode time), and its A/V sync leaves
+differences under about 30 ms alone. Flat flashes were shown 20-30 ms sooner after leaving the server
+than the face's pictures, which made the reference unlike what it stands beside.
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ CLICK_HZ = 1_000.0
 CLICK_LEVEL = 0.5  # of full scale: loud, never clipped by Opus
 # video range (BT.601) luma and neutral chroma: what a browser shows as full white and full black
 WHITE_LUMA, BLACK_LUMA, NEUTRAL_CHROMA = 235, 16, 128
+PATCH = (0.0, 0.0, 0.25, 0.25)  # x0, y0, x1, y1 of the picture: the flashing patch, over the background
 
 
 def solid_yuv(width: int, height: int, luma: int) -> np.ndarray:
@@ -48,20 +56,36 @@ def solid_yuv(width: int, height: int, luma: int) -> np.ndarray:
     return yuv
 
 
+def with_patch(picture: Picture, luma: int) -> np.ndarray:
+    """A copy of the picture's yuv420p planes with the `PATCH` part grey at `luma` (even pixel bounds,
+    so the patch covers whole chroma samples)."""
+    width, height = picture.width, picture.height
+    x0, y0, x1, y1 = (2 * round(f * n / 2) for f, n in zip(PATCH, (width, height, width, height), strict=True))
+    yuv = picture.yuv.copy()
+    flat = yuv.reshape(-1)
+    flat[:width * height].reshape(height, width)[y0:y1, x0:x1] = luma
+    chroma = (width // 2) * (height // 2)
+    for first in (width * height, width * height + chroma):  # the U plane, then the V plane
+        flat[first:first + chroma].reshape(height // 2, width // 2)[y0 // 2:y1 // 2, x0 // 2:x1 // 2] = NEUTRAL_CHROMA
+    return yuv
+
+
 class FlashFeed(FrameFeed):
-    """A picture per frame slot of the master clock, white at the whole seconds, black otherwise.
+    """A picture per frame slot of the master clock, its patch white at the whole seconds, black otherwise.
 
-    Slot k is at k·1000/(1000·fps) s of the clock, in integer milli-frames per second as the service's
-    own frame schedule counts them (services/processes/renderer/schedule.py), so at a whole-number rate every
-    whole second is exactly a slot."""
+    The picture under the patch is `backdrop()`'s (the agent's face as last drawn), or black while there
+    is none. Slot k is at k·1000/(1000·fps) s of the clock, in integer milli-frames per second as the
+    service's own frame schedule counts them (services/processes/renderer/schedule.py), so at a
+    whole-number rate every whole second is exactly a slot."""
 
-    def __init__(self, clock: Clock, width: int, height: int, fps: float) -> None:
+    def __init__(self, clock: Clock, width: int, height: int, fps: float,
+                 backdrop: Callable[[], Picture | None] = lambda: None) -> None:
         super().__init__()
         self.clock = clock
         self.width, self.height = width, height
+        self.backdrop = backdrop
         self._mfps = round(fps * 1000)
-        self._white = solid_yuv(width, height, WHITE_LUMA)
-        self._black = solid_yuv(width, height, BLACK_LUMA)
+        self._black = Picture(0, solid_yuv(width, height, BLACK_LUMA), width, height)
         self.lead_ns: Callable[[], int] = lambda: 0  # how long before its slot a picture is given out
 
     def slot_ns(self, k: int) -> int:
@@ -81,7 +105,10 @@ class FlashFeed(FrameFeed):
         return slot - second * per_second < half_period
 
     def picture(self, k: int) -> Picture:
-        return Picture(self.slot_ns(k), self._white if self.is_flash(k) else self._black, self.width, self.height)
+        """Slot k's picture, at the backdrop's size (the encoder scales it to the stream's)."""
+        under = self.backdrop() or self._black
+        luma = WHITE_LUMA if self.is_flash(k) else BLACK_LUMA
+        return Picture(self.slot_ns(k), with_patch(under, luma), under.width, under.height)
 
     async def next_after(self, agent: str, frame_ns: int, early_after_ns: int | None = None) -> Picture:
         """The newest slot's picture once its time has come (less the lead), like a face drawn for that
@@ -124,9 +151,11 @@ class ClickFeed(VoiceFeed):
         return out
 
 
-def flash_track(clock: Clock, width: int, height: int, fps: float) -> FaceTrack:
-    """The reference's video: flashes instead of the drawn face, encoded for this viewer alone."""
-    feed = FlashFeed(clock, width, height, fps)
+def flash_track(clock: Clock, width: int, height: int, fps: float,
+                backdrop: Callable[[], Picture | None] = lambda: None) -> FaceTrack:
+    """The reference's video: the flashing patch over `backdrop()` (the agent's face as last drawn),
+    encoded for this viewer alone."""
+    feed = FlashFeed(clock, width, height, fps, backdrop)
     stream = EncodedStream(feed.next_after, "calibration", width, height, fps, clock)
     feed.lead_ns = lambda: stream.encode_ns  # a picture leaves when its slot comes, as the face's do
     stream.start()

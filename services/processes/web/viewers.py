@@ -16,6 +16,7 @@ import itertools
 import logging
 from dataclasses import dataclass, field
 from datetime import datetime
+from functools import partial
 from typing import Protocol
 
 from aiortc import MediaStreamTrack, RTCPeerConnection, RTCRtpSender, RTCSessionDescription
@@ -26,7 +27,7 @@ from agent.clock import Clock
 from protocol.messages import Message, UserAudio, UserSpeech
 from services.processes.web.calibration import click_track, flash_track
 from services.processes.web.encoding import EncodedStreams
-from services.processes.web.feeds import VoiceFeed
+from services.processes.web.feeds import FrameFeed, VoiceFeed
 from services.processes.web.microphone import MicBlock, Microphone
 from services.processes.web.options import VadSettings
 from services.processes.web.tracks import FaceTrack, VoiceTrack
@@ -52,6 +53,7 @@ class Backend(Protocol):
 
     clock: Clock
     encoded: EncodedStreams
+    frames: FrameFeed
 
     def voice(self, agent: str) -> VoiceFeed: ...
 
@@ -119,7 +121,8 @@ class Viewers:
                 raise ValueError(f"the offer has no {kind} section with mid {mid!r}")
             track: MediaStreamTrack
             if kind == "video":
-                track = (flash_track(backend.clock, request.width, request.height, request.fps)
+                track = (flash_track(backend.clock, request.width, request.height, request.fps,
+                                     partial(backend.frames.latest, agent))
                          if request.calibration else self._face_track(agent, request))
                 _forward_keyframe_requests(transceiver.sender, track)
             else:
