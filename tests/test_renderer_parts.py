@@ -54,6 +54,16 @@ def test_slot_k_is_due_at_t0_plus_k_over_fps_and_composed_a_lead_later() -> None
     assert FrameSchedule(VirtualClock(), 29.97).slot_ns(2997) == 100 * S
 
 
+def test_slots_on_the_clocks_own_grid_start_at_the_first_at_or_after_now() -> None:
+    clock = VirtualClock(7 * S + 10_000_000)  # between two slots of a 30 fps grid from 0
+    schedule = FrameSchedule(clock, 30.0, t0_ns=0)
+    assert schedule.due_ns == 7 * S + 33_333_333 and schedule.slot == 211
+    clock.set_ns(8 * S - 5_000_000)
+    assert schedule.advance() == 27  # skipped 212..238, on to slot 239: the one at or before now (8 s is 240)
+    assert schedule.due_ns == schedule.slot_ns(239) and schedule.slot_ns(240) == 8 * S  # whole seconds are slots
+    assert FrameSchedule(VirtualClock(4 * S), 30.0, t0_ns=0).due_ns == 4 * S  # on a slot: that one
+
+
 def test_a_slot_the_loop_could_not_reach_in_time_is_skipped_and_counted() -> None:
     clock = VirtualClock()
     moved: list[int] = []

@@ -15,21 +15,23 @@ from agent.clock import NS_PER_S, Clock
 
 
 class FrameSchedule:
-    """Frame slots at `fps` from the clock's time at construction.
+    """Frame slots at `fps` from the clock's time at construction, or from `t0_ns` (the first slot then
+    the first at or after the clock's time: t0_ns=0 puts the slots on a grid of the clock itself).
 
     `on_advance(n)` is told each time the schedule moves on by n slots (drawn and skipped together),
     for a progress bar."""
 
     def __init__(self, clock: Clock, fps: float, *, lead_s: float = 0.0, total: int | None = None,
-                 on_advance: Callable[[int], None] | None = None) -> None:
+                 on_advance: Callable[[int], None] | None = None, t0_ns: int | None = None) -> None:
         self.clock = clock
         self.total = total
         self.on_advance = on_advance
-        self.t0_ns = clock.now_ns()
+        now = clock.now_ns()
+        self.t0_ns = now if t0_ns is None else t0_ns
         self.lead_ns = round(lead_s * 1e9)
         # Slot times in integer milli-frames per second: exact at fractional rates (29.97), no drift.
         self._mfps = round(fps * 1000)
-        self.slot = 0  # the next slot to draw
+        self.slot = max(0, -(-(now - self.t0_ns) * self._mfps // (NS_PER_S * 1000)))  # the next slot to draw
         self.dropped = 0  # slots skipped because drawing fell behind
 
     def slot_ns(self, k: int) -> int:

@@ -83,7 +83,7 @@ class WebService(Service):
         self._watching: dict[int, ViewRequest] = {}
         self._plan: DrawPlan | None = None
         self._schedule: FrameSchedule | None = None
-        self._last_frame_ns = -(1 << 62)  # the slot time of the last frame drawn
+        self._last_frame_ns = -(1 << 62)  # the time the last frame drawn is shown
         self._draw_times: deque[int] = deque(maxlen=31)
         self._canvas: OffscreenCanvas | None = None
         self._yuv: YuvTarget | None = None
@@ -205,8 +205,9 @@ class WebService(Service):
         if schedule is not None and now >= self._next_draw_ns(schedule):
             self.scenes.drain()
             self.scenes.commanded = False  # this frame shows it
-            early = now < schedule.due_ns
-            self._draw(now if early else schedule.due_ns, early)
+            shown_ns = now + self._lead_ns()
+            early = shown_ns < schedule.due_ns
+            self._draw(shown_ns if early else schedule.due_ns, early)
             schedule.advance()
         else:
             due = self._next_draw_ns(schedule) if schedule is not None else now + int(0.1e9)
@@ -215,11 +216,15 @@ class WebService(Service):
                 self.scenes.drain()  # voice blocks must reach the tracks before their time
         self._check_parent()
 
+    def _lead_ns(self) -> int:
+        """How long before its time a frame is drawn: it is shown (sent) once drawn and encoded."""
+        return self._typical_draw_ns() + self.encoded.encode_ns
+
     def _next_draw_ns(self, schedule: FrameSchedule) -> int:
-        """The next slot's time, or sooner when a commanded change waits to be shown."""
-        if not self.scenes.commanded:
-            return schedule.due_ns
-        return schedule.early_due_ns(self._last_frame_ns, EARLY_GAP)
+        """When to draw the next slot (its time less the lead), or sooner when a commanded change waits
+        to be shown."""
+        shown_ns = schedule.early_due_ns(self._last_frame_ns, EARLY_GAP) if self.scenes.commanded else schedule.due_ns
+        return shown_ns - self._lead_ns()
 
     def _publish_submitted(self) -> None:
         while True:
@@ -250,7 +255,9 @@ class WebService(Service):
             return
         self._prepare_drawing((plan.width, plan.height))
         if old is None or old.fps != plan.fps:
-            self._schedule = FrameSchedule(self.clock, plan.fps)
+            # frames at k / fps of the master clock, whoever watches: at a whole-number rate every whole
+            # second is a frame's time (the calibration markers, web/calibration.py, rely on it)
+            self._schedule = FrameSchedule(self.clock, plan.fps, t0_ns=0)
         assert self._renderer is not None
         self._stages = {v.agent: Stage(self._renderer, [v], fps=plan.fps) for v in self.scenes.views
                         if v.agent in plan.agents}
@@ -282,8 +289,9 @@ class WebService(Service):
         for agent in self.agent_ids:
             self.frames.forget(agent)
 
-    def _draw(self, slot_ns: int, early: bool = False) -> None:
-        """Each watched agent's face for the frame slot at `slot_ns` (or drawn early, now).
+    def _draw(self, frame_ns: int, early: bool = False) -> None:
+        """Each watched agent's face for the frame shown at `frame_ns`: a slot's time, drawn that long
+        before it as drawing and encoding take, or drawn now (early) to show a commanded change at once.
 
         A frame's time is when it will leave, drawn and encoded: the browser takes the time a picture is
         sent as the time it shows (the sender's reports), as it does for the voice, sent at its output
@@ -292,13 +300,12 @@ class WebService(Service):
         assert self._yuv is not None and self._plan is not None and self._schedule is not None
         width, height = self._plan.width, self._plan.height
         began = self.clock.now_ns()
-        frame_ns = slot_ns + self._typical_draw_ns() + self.encoded.encode_ns
         composed_ns = frame_ns + self._schedule.period_ns // 2
         for agent, stage in self._stages.items():
             stage.draw(stage.compose(composed_ns), self._yuv.fbo)
             self.frames.put(agent, Picture(frame_ns, self._yuv.read(), width, height, early))
         self._draw_times.append(self.clock.now_ns() - began)
-        self._last_frame_ns = slot_ns
+        self._last_frame_ns = frame_ns
 
     def _typical_draw_ns(self) -> int:
         times = sorted(self._draw_times)
