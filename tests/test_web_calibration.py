@@ -1,6 +1,6 @@
-"""The web service's calibration mode (services/processes/web/calibration.py): flashes (a patch over the drawn
-face) and clicks at the whole seconds of the master clock, sent by the face's and the voice's own tracks,
-and the offer flag that asks for them.
+"""The web service's calibration mode (services/processes/web/calibration.py): a patch on the agent's own
+pictures that flashes white on the one for each whole second, a click added to the agent's voice at each
+whole second, and the offer flag that asks for them.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from agent.clock import NS_PER_S, VirtualClock
+from services.processes.renderer.schedule import FrameSchedule
 from services.processes.web.calibration import (
     BLACK_LUMA,
     CLICK_S,
@@ -21,66 +22,69 @@ from services.processes.web.calibration import (
     WHITE_LUMA,
     ClickFeed,
     FlashFeed,
-    click_track,
 )
 from services.processes.web.encoding import VIDEO_RATE
-from services.processes.web.feeds import Picture
+from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
 from services.processes.web.options import WebOptions
 from services.processes.web.service import WebService
+from services.processes.web.tracks import VoiceTrack
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post
 
 RATE = 48_000
 FRAME_NS = 20_000_000  # the voice track's 20 ms
+W, H = 64, 48
 
 
-def video_frames(clock: VirtualClock, fps: float, seconds: float, start_ns: int) -> list[tuple[int, bool]]:
-    """(slot time, white) of each picture a flash feed gives a stream for `seconds` from `start_ns`, the
-    clock moved on a frame at a time so that each is due when asked for."""
-    clock.set_ns(start_ns)
-    feed = FlashFeed(clock, 64, 48, fps)
+def face_picture(frame_ns: int, early: bool = False, seed: int = 0) -> Picture:
+    """A stand-in for a drawn face: noise that is neither white nor black anywhere."""
+    yuv = np.random.default_rng(seed).integers(30, 200, (H * 3 // 2, W), dtype=np.uint8)
+    return Picture(frame_ns, yuv, W, H, early)
 
-    async def main() -> list[tuple[int, bool]]:
+
+def marked(times: list[tuple[int, bool]], fps: float) -> list[Picture]:
+    """What a flash feed makes of faces drawn at `times` ((frame time, drawn early)), taken as a stream
+    takes them."""
+    faces = FrameFeed()
+    feed = FlashFeed(faces)
+    period_ns = round(NS_PER_S / fps)
+
+    async def main() -> list[Picture]:
         out = []
-        last_ns = start_ns - round(NS_PER_S / fps) * 3 // 4  # as a stream asks: most of a period after the last
-        for i in range(1, round(seconds * fps) + 1):
-            picture = await feed.next_after("calibration", last_ns + round(NS_PER_S / fps) * 3 // 4)
+        last_ns = times[0][0] - period_ns
+        for i, (t_ns, early) in enumerate(times):
+            faces.put("ada", face_picture(t_ns, early, seed=i))
+            picture = await asyncio.wait_for(feed.next_after("ada", last_ns + period_ns * 3 // 4, last_ns), 1.0)
             last_ns = picture.frame_ns
-            out.append((picture.frame_ns, bool(picture.yuv[0, 0] > 128)))
-            clock.set_ns(start_ns + round(i * NS_PER_S / fps))
+            out.append(picture)
         return out
 
     return asyncio.run(main())
 
 
-def test_the_flash_is_white_exactly_at_each_whole_second_and_black_between() -> None:
-    clock = VirtualClock()
-    frames = video_frames(clock, 30.0, 3.0, start_ns=7 * NS_PER_S - 100_000_000)
-    white = [t for t, w in frames if w]
-    assert white == [7 * NS_PER_S, 8 * NS_PER_S, 9 * NS_PER_S]
-    assert len(frames) == 90 and sum(1 for _, w in frames if not w) == 87
-    slots = [t for t, _ in frames]
-    assert all(abs(b - a - 33_333_333) <= 1 for a, b in zip(slots, slots[1:], strict=False))  # each slot once
+def is_white_picture(picture: Picture) -> bool:
+    return bool(picture.yuv[0, 0] == WHITE_LUMA)
 
 
-def test_at_a_rate_that_misses_the_second_the_nearest_slot_flashes_once_a_second() -> None:
-    clock = VirtualClock()
-    fps = 24.5  # slots at k / 24.5 s: most whole seconds fall between two
-    frames = video_frames(clock, fps, 4.0, start_ns=3 * NS_PER_S - 50_000_000)
-    white = [t for t, w in frames if w]
-    assert len(white) == 4
-    half_period = NS_PER_S / fps / 2
-    for second, t in zip(range(3, 7), white, strict=True):
-        # within half a frame; at 3 and 5 s two slots are equally near: the earlier flashes
-        assert -half_period - 1 <= t - second * NS_PER_S < half_period  # (slot times floored to the ns)
+@pytest.mark.parametrize("fps", [30.0, 25.0, 15.0])
+def test_the_picture_for_each_whole_second_flashes_and_the_others_do_not(fps: float) -> None:
+    clock = VirtualClock(7 * NS_PER_S - 200_000_000)
+    schedule = FrameSchedule(clock, fps, t0_ns=0)  # the web service's frames: on the master clock's grid
+    times = [(schedule.slot_ns(schedule.slot + k), False) for k in range(round(3.0 * fps))]
+    out = marked(times, fps)
+    assert [p.frame_ns for p in out] == [t for t, _ in times]  # the face's pictures, at the face's times
+    assert [p.frame_ns for p in out if is_white_picture(p)] == [7 * NS_PER_S, 8 * NS_PER_S, 9 * NS_PER_S]
+    assert all(p.yuv[0, 0] == BLACK_LUMA for p in out if not is_white_picture(p))
 
 
-def test_a_track_that_falls_behind_skips_to_the_current_slot() -> None:
-    clock = VirtualClock(5 * NS_PER_S)
-    feed = FlashFeed(clock, 64, 48, 30.0)
-    clock.advance_ns(NS_PER_S + 10_000_000)  # a second late: the slot at 6 s has passed 10 ms ago
-    picture = asyncio.run(feed.next_after("calibration", 5 * NS_PER_S))
-    assert picture.frame_ns == 6 * NS_PER_S and picture.yuv[0, 0] > 128
+def test_a_picture_drawn_early_does_not_flash_and_a_second_without_its_picture_has_none() -> None:
+    times = [(5 * NS_PER_S, False), (5 * NS_PER_S + 21_000_000, True),  # a command, drawn early
+             (5 * NS_PER_S + 66_666_666, False), (5 * NS_PER_S + 966_666_666, False),
+             (6 * NS_PER_S + 5_000_000, True),  # 6 s drawn early: no flash for it
+             (6 * NS_PER_S + 33_333_333, False), (7 * NS_PER_S, False)]
+    out = marked(times, 30.0)
+    assert [is_white_picture(p) for p in out] == [True, False, False, False, False, False, True]
+    assert out[1].early and not out[0].early  # an early picture stays one: every viewer takes it
 
 
 def planes(yuv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -92,17 +96,17 @@ def planes(yuv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.nda
 
 
 @pytest.mark.parametrize("flash", [True, False])
-def test_the_patch_lies_over_the_face_as_last_drawn_and_leaves_the_rest_of_it_alone(flash: bool) -> None:
+def test_the_patch_lies_over_the_face_and_leaves_the_rest_of_it_and_the_face_itself_alone(flash: bool) -> None:
     width, height = 64, 54  # a height that is not a multiple of 4: the chroma planes do not fill whole rows
     rng = np.random.default_rng(7)
     yuv = rng.integers(30, 200, (height * 3 // 2, width), dtype=np.uint8)  # neither white nor black anywhere
-    face = Picture(123, yuv, width, height)
+    t_ns = 5 * NS_PER_S + (0 if flash else NS_PER_S // 2)
+    face = Picture(t_ns, yuv, width, height)
     kept = face.yuv.copy()
-    slot_ns = 5 * NS_PER_S + (0 if flash else NS_PER_S // 25)  # at 25 fps: the whole second's slot, the next
-    feed = FlashFeed(VirtualClock(slot_ns), 320, 240, 25.0, backdrop=lambda: face)  # face drawn at another size
-    picture = asyncio.run(feed.next_after("calibration", 4 * NS_PER_S))
-    assert (picture.width, picture.height) == (width, height)  # the encoder scales it to the stream's
-    assert picture.frame_ns == slot_ns
+    faces = FrameFeed()
+    faces.put("ada", face)
+    picture = asyncio.run(FlashFeed(faces).next_after("ada", t_ns - NS_PER_S // 25))
+    assert (picture.width, picture.height, picture.frame_ns) == (width, height, t_ns)
     inside = planes(picture.yuv, width, height)[0] == (WHITE_LUMA if flash else BLACK_LUMA)
     rows, cols = np.nonzero(inside.any(axis=1))[0], np.nonzero(inside.any(axis=0))[0]
     # one rectangle at PATCH, in whole chroma samples (even bounds), to within a sample
@@ -120,10 +124,10 @@ def test_the_patch_lies_over_the_face_as_last_drawn_and_leaves_the_rest_of_it_al
     assert np.array_equal(face.yuv, kept)  # the face's own picture, which its viewers are sent, is untouched
 
 
-def click_samples(clock: VirtualClock, start_ns: int, frames: int) -> np.ndarray:
-    """The samples a click track sends in `frames` 20 ms frames from `start_ns`, each asked for when due."""
+def track_samples(feed: VoiceFeed, clock: VirtualClock, start_ns: int, frames: int) -> np.ndarray:
+    """The samples a voice track on `feed` sends in `frames` 20 ms frames from `start_ns`, each asked for when due."""
     clock.set_ns(start_ns)
-    track = click_track(clock)
+    track = VoiceTrack(feed, clock)
 
     async def main() -> np.ndarray:
         out = []
@@ -139,9 +143,9 @@ def click_samples(clock: VirtualClock, start_ns: int, frames: int) -> np.ndarray
 
 @pytest.mark.parametrize("start_ns", [1_980_000_007, 1_995_000_000, 2_000_000_000])
 def test_the_click_starts_at_the_sample_of_each_whole_second(start_ns: int) -> None:
-    clock = VirtualClock()
-    samples = click_samples(clock, start_ns, frames=60)  # 1.2 s: one whole second, maybe two
-    click = ClickFeed(RATE).click
+    feed = ClickFeed(sample_rate=RATE)
+    samples = track_samples(feed, VirtualClock(), start_ns, frames=60)  # 1.2 s: one whole second, maybe two
+    click = feed.click
     seconds = [s for s in range(1, 5) if start_ns <= s * NS_PER_S < start_ns + 60 * FRAME_NS]
     expected = np.zeros_like(samples)
     for second in seconds:
@@ -151,15 +155,32 @@ def test_the_click_starts_at_the_sample_of_each_whole_second(start_ns: int) -> N
     assert len(click) == round(CLICK_S * RATE) and np.abs(click).max() > 10_000
 
 
+def test_the_clicks_are_added_to_the_agents_voice_and_a_loud_sum_is_clipped() -> None:
+    voice = VoiceFeed(RATE)
+    start_ns = 3 * NS_PER_S - 5_000_000  # a span with the click at 3 s, 5 ms (240 samples) in
+    count = 2 * 960
+    tone = np.round(20_000 * np.sin(np.arange(count) * 0.05)).astype(np.int16)
+    voice.add(start_ns, tone, RATE)
+    clicks = ClickFeed(None, RATE).take(start_ns, count)
+    mixed = ClickFeed(voice, RATE).take(start_ns, count)
+    expected = np.clip(tone.astype(np.int32) + clicks, -32768, 32767)
+    assert np.array_equal(mixed, expected) and mixed.dtype == np.int16
+    assert np.count_nonzero(clicks[:240]) == 0 and np.count_nonzero(clicks[241:720])  # the click is there
+    assert mixed.max() == 32767 or mixed.min() == -32768  # 20 000 + 16 383 would wrap without the clip
+    with pytest.raises(ValueError, match="16000 Hz"):
+        ClickFeed(VoiceFeed(16_000), RATE)
+
+
 def test_a_flash_and_its_click_are_at_the_same_master_clock_time() -> None:
-    clock = VirtualClock()
+    faces = FrameFeed()
+    faces.put("ada", face_picture(11 * NS_PER_S))
+    picture = asyncio.run(FlashFeed(faces).next_after("ada", 11 * NS_PER_S - 30_000_000))
+    assert is_white_picture(picture)
     start_ns = 11 * NS_PER_S - 40_000_000
-    white = [t for t, w in video_frames(clock, 30.0, 0.1, start_ns) if w]
-    samples = click_samples(VirtualClock(), start_ns, frames=5)
+    samples = track_samples(ClickFeed(sample_rate=RATE), VirtualClock(), start_ns, frames=5)
     first_click_ns = start_ns + int(np.nonzero(samples)[0][0]) * NS_PER_S // RATE
-    assert white == [11 * NS_PER_S]
-    # the click's first sample is the first at or after the second (the sine starts at zero: sample 1)
-    assert 0 < first_click_ns - white[0] <= 2 * NS_PER_S // RATE
+    # the click's first sample is the first at or after the picture's time (the sine starts at zero: sample 1)
+    assert 0 < first_click_ns - picture.frame_ns <= 2 * NS_PER_S // RATE
 
 
 # --- the offer flag, end to end ------------------------------------------------------------------
@@ -194,7 +215,9 @@ def base(service: WebService) -> str:
 
 
 @pytest.mark.gl
-def test_an_offer_asking_for_calibration_gets_flashes_and_clicks_a_second_apart(web: WebService) -> None:
+def test_an_offer_asking_for_calibration_gets_the_agent_with_flashes_and_clicks_a_second_apart(web: WebService) -> None:
+    hum = np.round(2_000 * np.sin(2 * np.pi * 300 * np.arange(RATE) / RATE)).astype(np.int16)  # 1 s, under a click
+
     async def main() -> tuple[list[Any], list[Any]]:
         client = Client(base(web), ["ada"])
         body = await client.offer_body()
@@ -202,6 +225,7 @@ def test_an_offer_asking_for_calibration_gets_flashes_and_clicks_a_second_apart(
         status, answer = await post(base(web) + "offer", body)
         assert status == 200, answer
         await client.accept(answer)
+        web.voices["ada"].add(web.clock.now_ns() + 1_000_000_000, hum, RATE)  # the agent's voice, as played
         try:
             video, audio = await asyncio.gather(client.frames("ada", "video", 3.5),
                                                 client.frames("ada", "audio", 3.5))
@@ -215,10 +239,13 @@ def test_an_offer_asking_for_calibration_gets_flashes_and_clicks_a_second_apart(
     assert all(abs(b - a - VIDEO_RATE) <= 1 for a, b in zip(flashes, flashes[1:], strict=False))  # 1 s of RTP clock
     # under the patch, the agent's face as drawn for the service's own viewers: far from flat
     assert all(float(rest_of(f).std()) > 10 for f in video[len(video) // 2:])
-    loud = [f.pts for f in audio if np.abs(f.to_ndarray()).max() > 3_000]
+    peaks = [int(np.abs(f.to_ndarray()).max()) for f in audio]
+    loud = [f.pts for f, p in zip(audio, peaks, strict=True) if p > 3_000]
     clicks = [b for a, b in zip([None, *loud], loud, strict=False) if a is None or b - a > 960 * 5]
     assert len(clicks) >= 2
     assert all(abs(b - a - RATE) <= 960 for a, b in zip(clicks, clicks[1:], strict=False))  # a second apart
+    humming = sum(1 for p in peaks if 1_000 < p <= 3_000)  # the voice, in the frames without a click
+    assert 40 <= humming <= 52  # its second is 50 frames of 20 ms, a click's frame or two louder
 
 
 @pytest.mark.gl

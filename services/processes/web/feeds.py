@@ -58,11 +58,6 @@ class FrameFeed:
                 self._waiters.setdefault(agent, []).append((loop, event))
             await event.wait()
 
-    def latest(self, agent: str) -> Picture | None:
-        """The agent's newest picture now, if any (does not wait)."""
-        with self._lock:
-            return self._latest.get(agent)
-
     def forget(self, agent: str) -> None:
         with self._lock:
             self._latest.pop(agent, None)

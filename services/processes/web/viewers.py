@@ -16,7 +16,6 @@ import itertools
 import logging
 from dataclasses import dataclass, field
 from datetime import datetime
-from functools import partial
 from typing import Protocol
 
 from aiortc import MediaStreamTrack, RTCPeerConnection, RTCRtpSender, RTCSessionDescription
@@ -25,7 +24,7 @@ from aiortc.rtcpeerconnection import or_direction
 
 from agent.clock import Clock
 from protocol.messages import Message, UserAudio, UserSpeech
-from services.processes.web.calibration import click_track, flash_track
+from services.processes.web.calibration import Markers
 from services.processes.web.encoding import EncodedStreams
 from services.processes.web.feeds import FrameFeed, VoiceFeed
 from services.processes.web.microphone import MicBlock, Microphone
@@ -45,7 +44,7 @@ class ViewRequest:
     fps: float
     streams: tuple[tuple[str, str, str], ...]  # (mid, agent, "video" | "audio") for each media section it receives
     mic_mid: str | None  # the section its microphone comes in, if it sends one
-    calibration: bool = False  # synthetic flashes and clicks instead of the agents (web/calibration.py)
+    calibration: bool = False  # the agents with flashes and clicks on them (web/calibration.py)
 
 
 class Backend(Protocol):
@@ -109,25 +108,27 @@ class Viewers:
         asyncio.get_running_loop().call_later(self.connect_timeout_s, self._check_connected, viewer)
         log.info("viewer %d: %s at %dx%d, %g fps%s%s", number, ", ".join(request.agents), request.width,
                  request.height, request.fps, ", with a microphone" if request.mic_mid else "",
-                 ", calibration flashes and clicks" if request.calibration else "")
+                 ", with calibration flashes and clicks" if request.calibration else "")
         return viewer.pc.localDescription.sdp
 
     def _attach(self, viewer: Viewer) -> None:
         request, backend = viewer.request, self.backend
         by_mid = {t.mid: t for t in viewer.pc.getTransceivers()}
+        markers: dict[str, Markers] = {}  # per agent, for a calibration viewer: its face and voice share clicks
         for mid, agent, kind in request.streams:
             transceiver = by_mid.get(mid)
             if transceiver is None or transceiver.kind != kind:
                 raise ValueError(f"the offer has no {kind} section with mid {mid!r}")
+            if request.calibration and agent not in markers:
+                markers[agent] = Markers(backend.clock, backend.frames, backend.voice(agent))
             track: MediaStreamTrack
             if kind == "video":
-                track = (flash_track(backend.clock, request.width, request.height, request.fps,
-                                     partial(backend.frames.latest, agent))
+                track = (markers[agent].face_track(agent, request.width, request.height, request.fps)
                          if request.calibration else self._face_track(agent, request))
                 _forward_keyframe_requests(transceiver.sender, track)
             else:
-                track = click_track(backend.clock) if request.calibration else VoiceTrack(backend.voice(agent),
-                                                                                          backend.clock)
+                track = (markers[agent].voice_track() if request.calibration
+                         else VoiceTrack(backend.voice(agent), backend.clock))
             transceiver.sender.replaceTrack(track)
             transceiver.direction = or_direction(transceiver.direction, "sendonly")
             # one media stream per agent (its msid): the browser lines up the voice with the face it
