@@ -5,33 +5,44 @@ a free port, and drives a real headless Chromium (tests/support/browser.py) on t
 bench measures in the page it injects (selenium's execute_script); the page itself is not changed. The
 instance's viewer watchdog waits 30 s instead of 5 s (see instance(): with 5 s it drops healthy pages).
 
-1. A/V offset as the browser presents it. One page receives three streams at once: the agent (the
-   page's own connection, 640x480 at 30 fps) and two references, peer connections whose offers ask for
-   the web service's calibration mode (services/processes/web/calibration.py): a white flash at each whole second
-   of the master clock and a click in the audio at exactly that time, sent by the face's and voice's own
-   track classes, so they go through the same server, encoders, network and browser. The agent says
-   loud vowel bursts (250 ms of /a/, gaps drawn from the seeded generator, 0.9-1.2 s, so the onsets fall
-   at every phase of the frame slots); the lip-sync opens the mouth on each.
+1. A/V offset as the browser presents it. One page receives the agent twice: on the page's own
+   connection (640x480 at 30 fps), and on a second connection whose offer asks for the web service's
+   calibration mode (services/processes/web/calibration.py): the same face and voice with markers on them, a
+   patch on the picture that flashes white on the frame for each whole second of the master clock and a
+   click added to the audio at exactly that time. The markers are the source-aligned reference, and they
+   travel with the face on one connection: a browser settles each connection's A/V sync on its own and
+   leaves differences under about 30 ms alone (libwebrtc's stream synchronization), so a reference on a
+   connection of its own, as this bench once had, settled up to 33 ms away from the face's for reasons of
+   its own. The agent says loud vowel bursts (250 ms of /a/), one a second, each onset drawn from the
+   seeded generator 0.36-0.40 s after a whole second: between the clicks, and at every phase of the frame
+   slots (a full-size silent say, interrupted once it starts, tells ahead when the say's first sample
+   reaches the output). The lip-sync opens the mouth on each.
    Video: `requestVideoFrameCallback` on each <video>; each presented frame is drawn into a canvas and
-   measured (the agent: the dark red pixels of the open mouth in a box around it; a reference: the
-   luma of the picture's centre); its time is the callback's `expectedDisplayTime`. The mouth opens at
-   the first frame whose count crosses half-way between the closed and open levels.
+   measured (the dark red pixels of the open mouth in a box around it; on the marked connection also the
+   luma of the patch); its time is the callback's `expectedDisplayTime`. The mouth opens at the first
+   frame whose jaw is half its peak in the burst (the peak from the mouth keys on the bus), found by its
+   count: the count is no linear measure of the jaw (none shows until the lips part, about a quarter
+   open), so the bench draws the face in its own process at jaw weights 0..1 with the service's renderer
+   and sets the threshold where the count of half the peak lies between the page's closed and open
+   levels.
    Audio: each stream goes into one AudioContext (MediaStreamAudioSourceNode) and an AudioWorklet that
-   finds onsets sample-exactly (the first sample over 0.05 of full scale after 0.3 s below it; an
-   AnalyserNode shows only the newest window when polled, so an onset's sample is lost). The onset's
-   context time is mapped to the page's clock with `AudioContext.getOutputTimestamp()` (the context
-   time now at the output, and the `performance.now()` when it is there): when the onset is heard.
+   finds onsets sample-exactly (the first sample over 0.05 of full scale after 0.2 s below it; an
+   AnalyserNode shows only the newest window when polled, so an onset's sample is lost); on the marked
+   connection each onset is the burst's or the click's, whichever left the source last before it. The
+   onset's context time is mapped to the page's clock with `AudioContext.getOutputTimestamp()` (the
+   context time now at the output, and the `performance.now()` when it is there): when the onset is heard.
+   The context and its taps are made afresh half a second before measuring: a tap's buffer grows by a
+   block at each glitch of a loaded machine and never shrinks (seen as every connection's offset stepping
+   +10 ms at once), a delay of the measuring tap, not of what the browser plays.
    Offset = audio onset - mouth opening (flash), ms; positive = audio late. The browser aligns each
    connection's streams in steps during the first 20-40 s: the figures come from `--measure-s` after
-   `--settle-s`. Targets: the face's offset within +-15 ms of the references' (their mean), and the
-   face's offset within ATSC IS-191 (audio at most 15 ms early, 45 ms late). The WebAudio path of the
-   page can differ from the <video> element's own audio output by a constant, which the difference
-   cancels. The browser leaves each connection off by a different amount (its sync corrects only
-   differences over about 30 ms): how far apart the two identical references settle says whether the
-   face - reference figure is decidable in this run. Also shown: the lip-sync's own timing at the
-   source (the mouth keys on the bus), each connection's offset per 10 s since connecting, the
-   browser's own estimate (getStats estimatedPlayoutTimestamp), and each path from the master clock to
-   heard or shown.
+   `--settle-s`. Targets: the face's offset within +-15 ms of the markers' on the same connection, and
+   the face's offset on the page's own connection within ATSC IS-191 (audio at most 15 ms early, 45 ms
+   late). The WebAudio path of the page can differ from the <video> element's own audio output by a
+   constant, which the difference cancels. Also shown: the lip-sync's own timing at the source (the mouth
+   keys on the bus), how far apart the browser left the face on its two connections, each offset per 10 s
+   since connecting, the browser's own estimate (getStats estimatedPlayoutTimestamp), and each path from
+   the master clock to heard or shown.
 2. Command -> first frame presented that shows it, on a fresh page and connection (after the A/V phase,
    whose load would otherwise linger in the browser's jitter buffers) once it has settled for
    `--settle-s`: `--trials` set_emotion commands (surprised / angry, transition 0) at seeded pauses;
@@ -101,17 +112,20 @@ CONNECT_TIMEOUT_S = 30.0
 
 # A/V
 BURST_S = 0.25
-BURST_GAP_S = (0.9, 1.2)  # onset to onset, drawn per burst: onsets at every phase of the frame slots
+# a burst a second, its onset drawn from this span after the whole second of the master clock (a frame
+# slot): onsets at every phase of the slots, and each burst and click with ONSET_QUIET_S of quiet before it
+BURST_AFTER_SECOND_S = (0.36, 0.40)
+CLEAR_AFTER_CLICK_S = (0.22, 0.54)  # a burst whose onset falls outside this (a say that started late) is left out
 SAY_RATE_HZ = 16_000
 ONSET_LEVEL = 0.05  # of full scale: the first sample over it after ONSET_QUIET_S below it is an onset
-ONSET_QUIET_S = 0.3
+ONSET_QUIET_S = 0.2
 PAIR_WINDOW_MS = 300.0  # an audio onset and a mouth opening (flash) this close belong together
 MOUTH_BOX = (0.34, 0.58, 0.66, 0.92)  # x0, y0, x1, y1 of the picture, around the mouth at 640x480
 # inside a reference's flashing patch, clear of its edges (which the encoder blurs into the face)
 PATCH_BOX = tuple(a + (b - a) * f for a, b, f in zip(PATCH[:2] * 2, PATCH[2:] * 2, (0.2, 0.2, 0.8, 0.8), strict=True))
 MAX_SAY_S = 100.0  # the say's inline PCM (16 kHz, 16 bit) stays well under the bus's 4 MiB message cap
 TRAJECTORY_WINDOW_S = 10.0
-REFERENCES = ("reference A", "reference B")  # two: how far apart two identical connections settle
+MARKED = "marked"  # the connection of the agent with the calibration markers on it (flashes and clicks)
 
 # latency
 EMOTIONS = ("surprised", "angry")  # brows, eyes and mouth all move: far apart in a thumbnail
@@ -148,7 +162,7 @@ def spread(values: list[float]) -> dict[str, float]:
 
 PAGE_JS = """
 if (!window.ecaBench) {
-  const B = window.ecaBench = {frames: {}, onsets: {}, ctx: null, references: {}, signature: false,
+  const B = window.ecaBench = {frames: {}, onsets: {}, ctx: null, marked: {}, signature: false,
                                paused: false, mouthBox: arguments[0], signatureSize: arguments[1],
                                onset: arguments[2], patchBox: arguments[3]};
   const canvases = {};
@@ -198,12 +212,9 @@ if (!window.ecaBench) {
       if (!B.paused && video.videoWidth) {
         const f = {e: m.expectedDisplayTime, p: m.presentationTime, r: m.receiveTime ?? null,
                    rtp: m.rtpTimestamp ?? null, w: m.width, h: m.height};
-        if (kind === "face") {
-          f.mouth = openMouth(video);
-          if (B.signature) f.sig = thumbnail(video);
-        } else {
-          f.luma = patchLuma(video);
-        }
+        f.mouth = openMouth(video);
+        if (kind === "face" && B.signature) f.sig = thumbnail(video);
+        if (kind === "marked") f.luma = patchLuma(video);
         B.frames[name].push(f);
       }
       video.requestVideoFrameCallback(onFrame);
@@ -243,9 +254,11 @@ if (!window.ecaBench) {
     B.silent.connect(ctx.destination);
     B.ctx = ctx;
   };
+  B.listened = {};
   B.listen = (name, stream) => {
     const ctx = B.ctx;
-    B.onsets[name] = [];
+    B.listened[name] = stream;
+    if (!B.onsets[name]) B.onsets[name] = [];
     const node = new AudioWorkletNode(ctx, "eca-onsets", {processorOptions: {level: B.onset[0], quietS: B.onset[1]}});
     node.port.onmessage = (event) => {
       // when the onset's sample is at the output, on the page's clock
@@ -255,6 +268,15 @@ if (!window.ecaBench) {
     };
     ctx.createMediaStreamSource(stream).connect(node);
     node.connect(B.silent);
+  };
+  B.restartAudio = async () => {  // a fresh context and taps: whatever the old ones had buffered is gone
+    const listened = B.listened;
+    const old = B.ctx;
+    B.ctx = null;
+    await B.startAudio();
+    B.listened = {};
+    for (const [name, stream] of Object.entries(listened)) B.listen(name, stream);
+    await old.close();
   };
 }
 """
@@ -298,7 +320,7 @@ const [name, slot, agent, width, height, fps, done] = arguments;
   const answer = await response.json();
   if (!response.ok) throw new Error(answer.error || `the server answered ${response.status}`);
   await pc.setRemoteDescription({type: "answer", sdp: answer.sdp});
-  B.references[name] = {pc, element, stream};
+  B.marked[name] = {pc, element, stream};
   return "ok";
 })().then(done, (error) => done(`error: ${error.message || error}`));
 """
@@ -306,9 +328,9 @@ const [name, slot, agent, width, height, fps, done] = arguments;
 STREAMS_READY_JS = """
 const B = window.ecaBench, face = window.eca && window.eca.faces[AGENT];
 const ready = (s) => s && s.getVideoTracks().length > 0 && s.getAudioTracks().length > 0;
-const references = Object.values(B.references);
-return Boolean(window.eca.state === "connected" && face && ready(face.srcObject) && references.length
-               && references.every((r) => r.pc.connectionState === "connected" && ready(r.stream)));
+const marked = Object.values(B.marked);
+return Boolean(window.eca.state === "connected" && face && ready(face.srcObject) && marked.length
+               && marked.every((r) => r.pc.connectionState === "connected" && ready(r.stream)));
 """
 
 # each connection's A/V offset as the browser reckons it: what video and audio play out now, in the
@@ -317,7 +339,7 @@ SYNC_JS = """
 const done = arguments[arguments.length - 1];
 const B = window.ecaBench;
 const pcs = {face: window.eca.pc};
-for (const [name, r] of Object.entries(B.references)) pcs[name] = r.pc;
+for (const [name, r] of Object.entries(B.marked)) pcs[name] = r.pc;
 Promise.all(Object.entries(pcs).map(async ([name, pc]) => {
   if (!pc || pc.connectionState !== "connected") return [name, null];
   const playout = {};
@@ -328,11 +350,16 @@ Promise.all(Object.entries(pcs).map(async ([name, pc]) => {
 })).then((pairs) => done(Object.fromEntries(pairs)), () => done({}));
 """
 
+RESTART_AUDIO_JS = """
+const done = arguments[arguments.length - 1];
+window.ecaBench.restartAudio().then(() => done(true), (error) => done(String(error.message || error)));
+"""
+
 CLOSE_CALIBRATION_JS = """
 const B = window.ecaBench;
 if (B) {
-  for (const r of Object.values(B.references)) { r.pc.close(); r.element.remove(); }
-  B.references = {};
+  for (const r of Object.values(B.marked)) { r.pc.close(); r.element.remove(); }
+  B.marked = {};
 }
 """
 
@@ -341,8 +368,8 @@ const [agent, done] = arguments;
 const B = window.ecaBench, face = window.eca.faces[agent];
 B.startAudio().then(() => {
   B.watch("face", face, "face");
-  for (const [name, r] of Object.entries(B.references)) {
-    B.watch(name, r.element, "reference");
+  for (const [name, r] of Object.entries(B.marked)) {
+    B.watch(name, r.element, "marked");
     B.listen(name, r.stream);
   }
   B.listen("face", face.srcObject);
@@ -353,7 +380,7 @@ B.startAudio().then(() => {
 # inbound video of one peer connection (the page's, or the reference's), and the ICE round trip
 VIDEO_STATS_JS = """
 const [which, done] = arguments;
-const pc = which === "face" ? window.eca.pc : window.ecaBench.references[which] && window.ecaBench.references[which].pc;
+const pc = which === "face" ? window.eca.pc : window.ecaBench.marked[which] && window.ecaBench.marked[which].pc;
 if (!pc) { done(null); return; }
 pc.getStats().then((report) => {
   const out = {at: performance.now()};
@@ -564,8 +591,10 @@ def draw_and_encode_baselines(frames: int = 150) -> dict[str, float]:
 # --- 1. A/V offset ---------------------------------------------------------------------------------
 
 
-def vowel_bursts(rng: random.Random, seconds: float) -> tuple[bytes, list[float]]:
-    """PCM (16-bit, SAY_RATE_HZ) of loud /a/ bursts with seeded gaps, and each burst's onset (s)."""
+def vowel_bursts(rng: random.Random, seconds: float, first_sample_ns: int) -> tuple[bytes, list[float]]:
+    """PCM (16-bit, SAY_RATE_HZ) of loud /a/ bursts, one a second, and each burst's onset (s into the say):
+    for a say whose first sample is at the output at `first_sample_ns` (master clock), each onset falls
+    BURST_AFTER_SECOND_S (drawn per burst) after a whole second, between the markers' clicks."""
     rate = SAY_RATE_HZ
     t = np.arange(round(BURST_S * rate)) / rate
     f0 = 140.0
@@ -581,10 +610,14 @@ def vowel_bursts(rng: random.Random, seconds: float) -> tuple[bytes, list[float]
     envelope[-ramp:] = np.linspace(1, 0, ramp)
     vowel = 0.5 * vowel / np.abs(vowel).max() * envelope
     onsets: list[float] = []
-    at = 0.5
-    while at + BURST_S < seconds:
-        onsets.append(at)
-        at += rng.uniform(*BURST_GAP_S)
+    second_ns = -(-first_sample_ns // 1_000_000_000) * 1_000_000_000  # the first whole second in the say
+    while True:
+        at = (second_ns - first_sample_ns) / 1e9 + rng.uniform(*BURST_AFTER_SECOND_S)
+        if at + BURST_S >= seconds:
+            break
+        if at >= 0.5:
+            onsets.append(at)
+        second_ns += 1_000_000_000
     pcm = np.zeros(round(seconds * rate))
     for onset in onsets:
         i = round(onset * rate)
@@ -592,14 +625,54 @@ def vowel_bursts(rng: random.Random, seconds: float) -> tuple[bytes, list[float]
     return (pcm * 32767).astype("<i2").tobytes(), onsets
 
 
-def mouth_openings(frames: list[dict[str, Any]]) -> tuple[list[float], dict[str, float]]:
-    """Display times (page ms) of the frames where the open-mouth count crosses half-way up."""
+def open_mouth_pixels(rgb: np.ndarray) -> int:
+    """The page's count of the open mouth's dark red (PAGE_JS openMouth), of an RGB picture's mouth box."""
+    h, w = rgb.shape[:2]
+    x0, y0, x1, y1 = MOUTH_BOX
+    box = rgb[round(y0 * h):round(y1 * h), round(x0 * w):round(x1 * w)].astype(int)
+    r, g, b = box[..., 0], box[..., 1], box[..., 2]
+    return int(((r > 60) & (r < 200) & (g < 70) & (b < 90) & (r - g > 50)).sum())
+
+
+def mouth_curve(steps: int = 20) -> dict[str, list[float]]:
+    """The open-mouth count at jaw (say_ah) weights 0..1, the face drawn at 640x480 by the service's renderer
+    in this process (neutral, eyes ahead)."""
+    from agent.face.model import FaceModel
+    from services.processes.renderer import Renderer, create_headless_context
+
+    ctx = create_headless_context()
+    try:
+        renderer = Renderer(ctx, (WIDTH, HEIGHT))
+        fbo = ctx.simple_framebuffer((WIDTH, HEIGHT))
+        model = FaceModel(seed=1)
+        weights = [i / steps for i in range(steps + 1)]
+        counts = []
+        for weight in weights:
+            model.set_mouth({"say_ah": weight})
+            renderer.render(model.frame_at(0).values, target=fbo)
+            rgb = np.frombuffer(fbo.read(components=3), np.uint8).reshape(HEIGHT, WIDTH, 3)[::-1]
+            counts.append(float(open_mouth_pixels(rgb)))
+        fbo.release()
+    finally:
+        ctx.release()
+    return {"jaw": weights, "px": counts}
+
+
+def half_jaw_share(curve: dict[str, list[float]], peak_jaw: float) -> float:
+    """Where the count at half the jaw's peak lies between the counts closed and at the peak (0..1)."""
+    closed, half, peak = (float(np.interp(w, curve["jaw"], curve["px"])) for w in (0.0, peak_jaw / 2, peak_jaw))
+    return (half - closed) / (peak - closed) if peak > closed else 0.5
+
+
+def mouth_openings(frames: list[dict[str, Any]], share: float = 0.5) -> tuple[list[float], dict[str, float]]:
+    """Display times (page ms) of the frames where the open-mouth count crosses `share` of the way from the
+    closed level to the open one."""
     counts = [f["mouth"] for f in frames]
     if len(counts) < 10:
         return [], {}
     closed, open_ = percentile(counts, 0.1), percentile(counts, 0.95)
-    threshold = (closed + open_) / 2
-    levels = {"closed_px": closed, "open_px": open_, "threshold_px": threshold}
+    threshold = closed + share * (open_ - closed)
+    levels = {"closed_px": closed, "open_px": open_, "threshold_px": threshold, "share": share}
     if open_ - closed < 200:  # the mouth never opened: no bursts seen
         return [], levels
     out = [b["e"] for a, b in zip(frames, frames[1:], strict=False) if a["mouth"] < threshold <= b["mouth"]]
@@ -633,32 +706,62 @@ def by_window(pairs: list[tuple[float, float]], tie: ClockTie, start_ms: float, 
     return out
 
 
-def jaw_crossings(keys: list[Any], dac0_ms: float, onsets_ms: list[float]) -> list[float]:
+def jaw_crossings(keys: list[Any], dac0_ms: float, onsets_ms: list[float]) -> tuple[list[float], list[float]]:
     """Per burst (its onset on the master clock, ms): when the lip-sync's jaw (say_ah) first reaches half
-    its peak in the burst, minus the onset (ms), with the keys interpolated linearly as the face does."""
+    its peak in the burst, minus the onset (ms), with the keys interpolated linearly as the face does;
+    and the peaks."""
     times: list[float] = []
     jaw: list[float] = []
     for k in keys:
         times += [dac0_ms + 1e3 * i / k.sample_rate for i in k.sample_index]
         jaw += k.weights.get("say_ah", [0.0] * len(k.sample_index))
     t, w = np.asarray(times), np.asarray(jaw)
-    out = []
+    out: list[float] = []
+    peaks: list[float] = []
     for onset in onsets_ms:
         near = (t >= onset - 50) & (t <= onset + 1e3 * BURST_S)
         if not near.any() or w[near].max() <= 0:
             continue
-        half = w[near].max() / 2
+        peaks.append(float(w[near].max()))
+        half = peaks[-1] / 2
         idx = np.nonzero(near & (w >= half))[0][0]
         if idx == 0 or w[idx - 1] >= half:
             out.append(float(t[idx] - onset))
             continue
         frac = (half - w[idx - 1]) / (w[idx] - w[idx - 1])
         out.append(float(t[idx - 1] + frac * (t[idx] - t[idx - 1]) - onset))
-    return out
+    return out, peaks
+
+
+def say_latency_ns(client: Any, rid: str, seconds: float) -> int:
+    """How long a say of `seconds` takes from sent to its first sample at the output (a silent one of that
+    size, interrupted once it starts: a long say takes longer to arrive and prepare than a short one)."""
+    from protocol.messages import Interrupt, Say, SpeechInterrupted, SpeechStarted
+
+    sent_ns = time.monotonic_ns()
+    client.send(Say(agent=AGENT, request_id=rid, pcm=bytes(2 * round(seconds * SAY_RATE_HZ)),
+                    sample_rate=SAY_RATE_HZ, text="latency probe"))
+    started = client.wait_for(lambda m: isinstance(m, SpeechStarted) and m.request_id == rid, 10.0)
+    client.send(Interrupt(agent=AGENT, request_id=rid, reason="latency probe"))
+    client.wait_for(lambda m: isinstance(m, SpeechInterrupted) and m.request_id == rid, 10.0)
+    return int(started.dac_time_ns - sent_ns)
+
+
+def split_onsets(onsets: list[float], tie: ClockTie, bursts_ms: list[float]) -> tuple[list[float], list[float]]:
+    """The marked connection's audio onsets (page ms) as the voice's bursts and the markers' clicks: each is
+    whichever left the source last before it was heard (a burst at its time on the master clock, a click at
+    a whole second)."""
+    voice: list[float] = []
+    clicks: list[float] = []
+    for t in onsets:
+        host = tie.host_ms(t)
+        burst = max((b for b in bursts_ms if b <= host), default=-math.inf)
+        (voice if burst > math.floor(host / 1e3) * 1e3 else clicks).append(t)
+    return voice, clicks
 
 
 def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: TimeServer, report: Report,
-             rng: random.Random) -> None:
+             rng: random.Random, curve: dict[str, list[float]]) -> None:
     import zmq
 
     from protocol.bus import Subscriber
@@ -668,15 +771,14 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
 
     details: dict[str, Any] = {}
     report.details["av"] = details
-    for slot, name in enumerate(REFERENCES):
-        answer = driver.execute_async_script(CALIBRATION_JS, name, slot, AGENT, WIDTH, HEIGHT, FPS)
-        if answer != "ok":
-            raise RuntimeError(f"{name} did not connect: {answer}")
+    answer = driver.execute_async_script(CALIBRATION_JS, MARKED, 0, AGENT, WIDTH, HEIGHT, FPS)
+    if answer != "ok":
+        raise RuntimeError(f"the {MARKED} connection did not connect: {answer}")
     wait_for(driver, STREAMS_READY_JS.replace("AGENT", json.dumps(AGENT)), CONNECT_TIMEOUT_S,
              "every stream with its tracks", bool)
     details["audio_context"] = driver.execute_async_script(START_MEASURING_JS, AGENT)
     connected_ns = time.monotonic_ns()
-    names = ("face", *REFERENCES)
+    names = ("face", MARKED)
     frames: dict[str, list[dict[str, Any]]] = {n: [] for n in names}
     onsets: dict[str, list[float]] = {n: [] for n in names}
     # the browser's own A/V offset per connection: (page ms, estimatedPlayoutTimestamp video - audio)
@@ -693,12 +795,6 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
 
     measure_start_ns = connected_ns + int(args.settle_s * 1e9)
     measure_end_ns = measure_start_ns + int(args.measure_s * 1e9)
-    # bursts from the start when the say fits the bus's message cap (the face settles in view), else only
-    # while measuring; the say is sent a little before the first window it covers, its first burst 0.5 s in
-    say_lead_s = 0.3
-    whole = args.settle_s + args.measure_s <= MAX_SAY_S
-    say_at_ns = connected_ns if whole else measure_start_ns - int(say_lead_s * 1e9)
-    pcm, burst_onsets = vowel_bursts(rng, (measure_end_ns - say_at_ns) / 1e9 + 0.5)
     keys: list[MouthKeys] = []
     rid = "bench-web-bursts"
     ctx = zmq.Context()
@@ -714,23 +810,40 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
     try:
         mouth_sub.wait_ready()
         with AgentClient(inst.config, agent=AGENT, source="bench-web", ctx=ctx) as client:
-            progress(f"A/V: settling {args.settle_s:g} s, then measuring {args.measure_s:g} s "
-                     f"({len(burst_onsets)} vowel bursts; {len(REFERENCES)} references, a flash and a click a "
-                     "second)")
+            # bursts from the start when the say fits the bus's message cap (the face settles in view),
+            # else only while measuring; the say is sent a little before the first window it covers
+            whole = args.settle_s + args.measure_s <= MAX_SAY_S
+            # the bursts go between the markers' clicks, so the say's first sample must be known ahead
+            latency_ns = say_latency_ns(client, "bench-web-latency-probe",
+                                        (measure_end_ns - (connected_ns if whole else measure_start_ns)) / 1e9)
+            say_at_ns = max(time.monotonic_ns() + 200_000_000,
+                            connected_ns if whole else measure_start_ns - 300_000_000)
+            pcm, burst_onsets = vowel_bursts(rng, (measure_end_ns - say_at_ns) / 1e9 + 0.5, say_at_ns + latency_ns)
+            progress(f"A/V: settling {args.settle_s:g} s, then measuring {args.measure_s:g} s (a vowel burst a "
+                     f"second between the markers' clicks; a say reaches the output {latency_ns / 1e6:.0f} ms "
+                     "after it is sent)")
             ties = [tie_clocks(driver, server)]
-            wait_until_ns(say_at_ns, pull_while_waiting)
+            wait_until_ns(say_at_ns - 300_000_000, pull_while_waiting)
+            wait_until_ns(say_at_ns)  # sent on time: the bursts' places between the clicks count on it
             client.send(Say(agent=AGENT, request_id=rid, pcm=pcm, sample_rate=SAY_RATE_HZ, text="vowel bursts"))
             started = client.wait_for(lambda m: isinstance(m, SpeechStarted) and m.request_id == rid, 10.0)
+            # fresh taps for the measurement: an audio tap's buffer grows by a block at each glitch of a
+            # loaded machine and never shrinks (every connection's offset stepped +10 ms at once), a delay
+            # of the tap, not of what the browser plays
+            wait_until_ns(measure_start_ns - 500_000_000, pull_while_waiting)
+            restarted = driver.execute_async_script(RESTART_AUDIO_JS)
+            if restarted is not True:
+                raise RuntimeError(f"the page's audio taps could not be made afresh: {restarted}")
             wait_until_ns(measure_end_ns, pull_while_waiting)
             pull_while_waiting(0.0)
             ties.append(tie_clocks(driver, server))
     finally:
         mouth_sub.close()
         ctx.term()
-    driver.execute_script(CLOSE_CALIBRATION_JS)  # the references are not needed any more
+    driver.execute_script(CLOSE_CALIBRATION_JS)  # the marked connection is not needed any more
     tie, drift = combined_tie(ties)
     details.update(clock_offset_ms=tie.offset_ms, clock_uncertainty_ms=tie.uncertainty_ms, clock_drift_ms=drift,
-                   browser_estimate=sync)
+                   browser_estimate=sync, say_latency_ms=latency_ns / 1e6)
     start_ms, end_ms = measure_start_ns / 1e6, measure_end_ns / 1e6
     connected_ms, total_s = connected_ns / 1e6, args.settle_s + args.measure_s
 
@@ -738,65 +851,82 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
         return start_ms <= tie.host_ms(t_page) < end_ms
 
     def since_source(t_page: float) -> float:
-        """For a reference's flash or click: ms since the whole second of the master clock it marks."""
+        """For a flash or a click: ms since the whole second of the master clock it marks."""
         t = tie.host_ms(t_page)
         return t - math.floor(t / 1e3) * 1e3
 
-    openings, levels = mouth_openings(frames["face"])
-    video_events = {"face": openings, **{n: flashes(frames[n]) for n in REFERENCES}}
+    dac0_ms = started.dac_time_ns / 1e6  # type: ignore[attr-defined]
+    burst_dac = [dac0_ms + 1e3 * o for o in burst_onsets]
+    measured_bursts = [t for t in burst_dac if start_ms <= t < end_ms]
+    lipsync, peaks = jaw_crossings(keys, dac0_ms, measured_bursts)
+    details["lipsync_at_source_ms"] = spread(lipsync)
+    details["mouth_curve"] = curve
+    share = half_jaw_share(curve, statistics.median(peaks)) if peaks else 0.5
+    # a burst that fell too near a click (the say reached the output later than its probe said) hides the
+    # click's onset or its own: neither is paired
+    clear = [t for t in measured_bursts if CLEAR_AFTER_CLICK_S[0] <= (t / 1e3) % 1.0 < CLEAR_AFTER_CLICK_S[1]]
+    details["bursts"] = {"measured": len(measured_bursts), "between_clicks": len(clear),
+                         "phase_after_second_ms": spread([(t % 1e3) for t in measured_bursts])}
+
+    openings, levels = mouth_openings(frames["face"], share)
+    marked_openings, marked_levels = mouth_openings(frames[MARKED], share)
+    voice, clicks = split_onsets(onsets[MARKED], tie, burst_dac)
+    series = {  # name: (audio onsets, video events), page ms
+        "face": (onsets["face"], openings),
+        "face with markers": (voice, marked_openings),
+        "reference": (clicks, flashes(frames[MARKED])),
+    }
     offsets: dict[str, list[float]] = {}
-    for name in names:
-        pairs = pair_offsets(onsets[name], video_events[name])
+    for name, (heard, shown) in series.items():
+        pairs = pair_offsets(heard, shown)
         offsets[name] = [o for t, o in pairs if in_window(t)]
         details[name] = {"offsets": spread(offsets[name]), "offsets_ms": offsets[name],
                          "by_window": by_window(pairs, tie, connected_ms, total_s),
-                         "onsets": sum(map(in_window, onsets[name])),
-                         "video_events": sum(map(in_window, video_events[name])),
-                         "frames": sum(in_window(f["e"]) for f in frames[name])}
-    dac0_ms = started.dac_time_ns / 1e6  # type: ignore[attr-defined]
-    burst_dac = [dac0_ms + 1e3 * o for o in burst_onsets]
-    details["face"]["mouth_levels"] = levels
-    details["face"]["bursts_in_window"] = sum(1 for t in burst_dac if start_ms <= t < end_ms)
+                         "onsets": sum(map(in_window, heard)), "video_events": sum(map(in_window, shown))}
+    for name, connection in (("face", "face"), ("face with markers", MARKED)):
+        details[name]["frames"] = sum(in_window(f["e"]) for f in frames[connection])
+    details["face"]["mouth_levels"] = {**levels, "peak_jaw": statistics.median(peaks) if peaks else None}
+    details["face with markers"]["mouth_levels"] = marked_levels
+    # what the plain half-way count would have given: how much the jaw's threshold moves the figure
+    half_way = [o for t, o in pair_offsets(onsets["face"], mouth_openings(frames["face"])[0]) if in_window(t)]
+    details["face"]["offsets_at_half_way_count"] = spread(half_way)
     # paths from the master clock at the source to heard / shown in the page (host clock)
-    paths = {
-        "face: burst at source -> heard": [d for d in (nearest_after(tie.host_ms(t), burst_dac)
-                                                       for t in onsets["face"] if in_window(t)) if d is not None],
-        "face: burst at source -> mouth shown": [
-            d for d in (nearest_after(tie.host_ms(t), burst_dac, early_ms=100.0) for t in openings if in_window(t))
-            if d is not None],
-    }
-    for name in REFERENCES:
-        paths[f"{name}: click at source -> heard"] = [since_source(t) for t in onsets[name] if in_window(t)]
-        paths[f"{name}: flash at source -> shown"] = [since_source(t) for t in video_events[name] if in_window(t)]
+    paths: dict[str, list[float]] = {}
+    for name, (heard, shown) in series.items():
+        if name == "reference":
+            paths["reference: click at source -> heard"] = [since_source(t) for t in heard if in_window(t)]
+            paths["reference: flash at source -> shown"] = [since_source(t) for t in shown if in_window(t)]
+            continue
+        paths[f"{name}: burst at source -> heard"] = [
+            d for d in (nearest_after(tie.host_ms(t), burst_dac) for t in heard if in_window(t)) if d is not None]
+        paths[f"{name}: burst at source -> mouth shown"] = [
+            d for d in (nearest_after(tie.host_ms(t), burst_dac, early_ms=100.0) for t in shown if in_window(t))
+            if d is not None]
     details["paths_ms"] = {k: spread(v) for k, v in paths.items()}
-    lipsync = jaw_crossings(keys, dac0_ms, [t for t in burst_dac if start_ms <= t < end_ms])
-    details["lipsync_at_source_ms"] = spread(lipsync)
 
-    face = offsets["face"]
-    refs = {n: statistics.median(offsets[n]) for n in REFERENCES if offsets[n]}
-    if not face or len(refs) < len(REFERENCES):
-        report.add("A/V: pairs measured", ", ".join(f"{n} {len(offsets[n])}" for n in names), "> 0 each", False,
-                   "", f"mouth levels {levels}")
-    if face:
-        fm = statistics.median(face)
+    medians = {n: statistics.median(v) for n, v in offsets.items() if v}
+    if len(medians) < len(series):
+        report.add("A/V: pairs measured", ", ".join(f"{n} {len(v)}" for n, v in offsets.items()), "> 0 each",
+                   False, "", f"mouth levels {levels}; bursts between clicks {len(clear)} of {len(measured_bursts)}")
+    if "face" in medians:
+        face = offsets["face"]
+        fm = medians["face"]
         report.add("A/V offset, face (audio - mouth)", round(fm, 1), f"-{ATSC_EARLY_MS:g}..+{ATSC_LATE_MS:g}",
                    -ATSC_EARLY_MS <= fm <= ATSC_LATE_MS, "ms",
-                   f"ATSC IS-191; + = audio late; p10 {percentile(face, 0.1):.1f}, p90 {percentile(face, 0.9):.1f}, "
-                   f"n {len(face)}")
-    for name, rm in refs.items():
-        report.add(f"A/V offset, {name} (click - flash)", round(rm, 1), "-", None, "ms",
-                   f"source-aligned; p10 {percentile(offsets[name], 0.1):.1f}, p90 "
-                   f"{percentile(offsets[name], 0.9):.1f}, n {len(offsets[name])}")
-    if face and refs:
-        ref_mean = statistics.fmean(refs.values())
-        diff = statistics.median(face) - ref_mean
+                   f"ATSC IS-191, the page's own connection; + = audio late; p10 {percentile(face, 0.1):.1f}, "
+                   f"p90 {percentile(face, 0.9):.1f}, n {len(face)}")
+    notes = {"face with markers": "the same face and voice with the markers on them, on a connection of their own",
+             "reference": "the markers: source-aligned, on that connection"}
+    for name, note in notes.items():
+        if name in medians:
+            v = offsets[name]
+            report.add(f"A/V offset, {name}", round(medians[name], 1), "-", None, "ms",
+                       f"{note}; p10 {percentile(v, 0.1):.1f}, p90 {percentile(v, 0.9):.1f}, n {len(v)}")
+    if "face with markers" in medians and "reference" in medians:
+        diff = medians["face with markers"] - medians["reference"]
         report.add("A/V offset, face - reference", round(diff, 1), f"+-{TARGET_AV_DIFF_MS:g}",
-                   abs(diff) <= TARGET_AV_DIFF_MS, "ms", f"against the references' mean, {ref_mean:.1f} ms")
-        if len(refs) > 1:
-            apart = max(refs.values()) - min(refs.values())
-            report.add("A/V references apart", round(apart, 1), f"<= {TARGET_AV_DIFF_MS:g}",
-                       apart <= TARGET_AV_DIFF_MS, "ms",
-                       "identical streams, separate connections: beyond the target, the row above is not decidable")
+                   abs(diff) <= TARGET_AV_DIFF_MS, "ms",
+                   "on one connection: the same jitter buffers, decoder and A/V sync in the browser")
         if lipsync:
             lag = statistics.median(lipsync)
             # no frame quantization: each frame is composed for the middle of its time on screen, so the
@@ -805,12 +935,17 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
                        f"measured: the jaw half open {lag:+.1f} ms from the burst's onset (mouth keys on the bus)")
             report.add("  rest (drawing, sending, the browser)", round(diff + lag, 1), "-", None, "ms",
                        "face - reference less the lip-sync")
+    if "face" in medians and "face with markers" in medians:
+        report.add("A/V connections apart", round(medians["face"] - medians["face with markers"], 1), "-", None, "ms",
+                   "the face on the page's connection - on the marked one: a browser settles each connection's "
+                   "sync on its own, leaving up to about 30 ms")
     for name in names:
         polled = [o for t, o in sync[name] if in_window(t)]
         if polled:
-            report.add(f"A/V browser's own estimate, {name}", round(statistics.median(polled), 1), "-", None, "ms",
+            report.add(f"A/V browser's own estimate, {name} connection", round(statistics.median(polled), 1), "-",
+                       None, "ms",
                        f"getStats estimatedPlayoutTimestamp video - audio; range {min(polled):g}..{max(polled):g}")
-    for name in names:
+    for name in series:
         steps = [w for w in details[name]["by_window"] if w["median_ms"] is not None]
         if steps:
             report.add(f"A/V {name} while settling", " -> ".join(f"{w['median_ms']:g}" for w in steps), "-", None,
@@ -819,6 +954,10 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
         if values.get("n"):
             report.add(f"A/V {label}", values["median"], "-", None, "ms",
                        f"p10 {values['p10']}, p90 {values['p90']}, n {values['n']}")
+    if peaks:
+        report.add("A/V mouth opening threshold", round(share, 3), "-", None, "",
+                   f"share of the way from the closed to the open count: where half the jaw's peak "
+                   f"({statistics.median(peaks):.2f}) lies in the face drawn by the bench (half-way: 0.5)")
     report.add("A/V page clock tie", round(tie.uncertainty_ms, 2), "-", None, "ms",
                f"+- (GET round trips; drift between start and end {drift:.2f} ms)")
 
@@ -1292,6 +1431,7 @@ def run(args: argparse.Namespace, report: Report) -> None:
                    f"compose + draw + yuv on the GPU + read-back, {WIDTH}x{HEIGHT}; p95 {baselines['draw_p95_ms']:.2f}")
         report.add("baseline: VP8 encode per frame (bench)", round(baselines["encode_ms"], 2), "-", None, "ms",
                    f"the service's encoder, {WIDTH}x{HEIGHT}; p95 {baselines['encode_p95_ms']:.2f}")
+    curve = mouth_curve() if not args.skip_av else {}
     with instance() as inst, TimeServer() as server, chromium() as driver:
         report.details["web_pid"] = inst.web_pid
         report.details["rss_at_start_mib"] = rss_mib(inst.web_pid)
@@ -1300,7 +1440,7 @@ def run(args: argparse.Namespace, report: Report) -> None:
         driver.execute_script(PAGE_JS, list(MOUTH_BOX), list(SIGNATURE_SIZE), [ONSET_LEVEL, ONSET_QUIET_S],
                               list(PATCH_BOX))
         if not args.skip_av:
-            guarded("A/V offset", report, lambda: av_phase(args, inst, driver, server, report, rng))
+            guarded("A/V offset", report, lambda: av_phase(args, inst, driver, server, report, rng, curve))
         if not args.skip_latency:
             if not args.skip_av:
                 # a fresh connection, as a viewer has: the A/V phase's three streams and per-frame measuring
