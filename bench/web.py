@@ -115,7 +115,7 @@ BURST_S = 0.25
 # a burst a second, its onset drawn from this span after the whole second of the master clock (a frame
 # slot): onsets at every phase of the slots, and each burst and click with ONSET_QUIET_S of quiet before it
 BURST_AFTER_SECOND_S = (0.36, 0.40)
-CLEAR_AFTER_CLICK_S = (0.22, 0.54)  # a burst whose onset falls outside this (a say that started late) is left out
+CLEAR_AFTER_CLICK_S = (0.22, 0.54)  # a burst with its onset outside this (a say that started late) nears a click
 SAY_RATE_HZ = 16_000
 ONSET_LEVEL = 0.05  # of full scale: the first sample over it after ONSET_QUIET_S below it is an onset
 ONSET_QUIET_S = 0.2
@@ -291,7 +291,7 @@ return out;
 """
 
 CALIBRATION_JS = """
-const [name, slot, agent, width, height, fps, done] = arguments;
+const [name, agent, width, height, fps, done] = arguments;
 (async () => {
   const B = window.ecaBench;
   const pc = new RTCPeerConnection();
@@ -301,8 +301,7 @@ const [name, slot, agent, width, height, fps, done] = arguments;
   element.autoplay = true;
   element.playsInline = true;
   // in view, so the browser composites (and presents) its frames
-  element.style.cssText = `position: fixed; right: ${170 * slot}px; bottom: 0; width: 160px; height: 120px;
-                           z-index: 10`;
+  element.style.cssText = "position: fixed; right: 0; bottom: 0; width: 160px; height: 120px; z-index: 10";
   const stream = new MediaStream();
   element.srcObject = stream;
   document.body.append(element);
@@ -771,7 +770,7 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
 
     details: dict[str, Any] = {}
     report.details["av"] = details
-    answer = driver.execute_async_script(CALIBRATION_JS, MARKED, 0, AGENT, WIDTH, HEIGHT, FPS)
+    answer = driver.execute_async_script(CALIBRATION_JS, MARKED, AGENT, WIDTH, HEIGHT, FPS)
     if answer != "ok":
         raise RuntimeError(f"the {MARKED} connection did not connect: {answer}")
     wait_for(driver, STREAMS_READY_JS.replace("AGENT", json.dumps(AGENT)), CONNECT_TIMEOUT_S,
@@ -862,8 +861,8 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
     details["lipsync_at_source_ms"] = spread(lipsync)
     details["mouth_curve"] = curve
     share = half_jaw_share(curve, statistics.median(peaks)) if peaks else 0.5
-    # a burst that fell too near a click (the say reached the output later than its probe said) hides the
-    # click's onset or its own: neither is paired
+    # a burst that fell too near a click (the say reached the output later than its probe said) can hide
+    # the click's onset or its own; how many did not is shown, to explain pairs that are missing
     clear = [t for t in measured_bursts if CLEAR_AFTER_CLICK_S[0] <= (t / 1e3) % 1.0 < CLEAR_AFTER_CLICK_S[1]]
     details["bursts"] = {"measured": len(measured_bursts), "between_clicks": len(clear),
                          "phase_after_second_ms": spread([(t % 1e3) for t in measured_bursts])}
@@ -927,8 +926,11 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
     # each burst against the click of its own second: the browser moves a connection's sync now and then
     # (by 10-35 ms, seen mid-window), which moves both alike; medians of the two whole windows would mix
     # before and after in different shares
-    each = [o - min(timed["reference"], key=lambda c: abs(c[0] - t))[1] for t, o in timed["face with markers"]
-            if any(abs(c[0] - t) <= 1e3 for c in timed["reference"])]
+    each = []
+    for t, o in timed["face with markers"]:
+        click_t, click_o = min(timed["reference"], key=lambda c: abs(c[0] - t), default=(math.inf, 0.0))
+        if abs(click_t - t) <= 1e3:
+            each.append(o - click_o)
     details["face_less_reference_per_second_ms"] = spread(each)
     if each:
         diff = statistics.median(each)

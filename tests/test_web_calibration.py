@@ -27,7 +27,7 @@ from services.processes.web.encoding import VIDEO_RATE
 from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
 from services.processes.web.options import WebOptions
 from services.processes.web.service import WebService
-from services.processes.web.tracks import VoiceTrack
+from services.processes.web.tracks import Samples, VoiceTrack
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post
 
@@ -124,7 +124,7 @@ def test_the_patch_lies_over_the_face_and_leaves_the_rest_of_it_and_the_face_its
     assert np.array_equal(face.yuv, kept)  # the face's own picture, which its viewers are sent, is untouched
 
 
-def track_samples(feed: VoiceFeed, clock: VirtualClock, start_ns: int, frames: int) -> np.ndarray:
+def track_samples(feed: Samples, clock: VirtualClock, start_ns: int, frames: int) -> np.ndarray:
     """The samples a voice track on `feed` sends in `frames` 20 ms frames from `start_ns`, each asked for when due."""
     clock.set_ns(start_ns)
     track = VoiceTrack(feed, clock)

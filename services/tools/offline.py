@@ -91,7 +91,9 @@ def said_lines(timeline: Timeline, voices: VoiceCache | None,
 
 
 def _lines(timeline: Timeline, agent: str, voices: VoiceCache | None) -> list[tuple[Utterance, str]]:
-    voice_for = lambda speaker: AGENT_VOICE if speaker == agent else PARTNER_VOICE  # noqa: E731
+    def voice_for(speaker: str) -> str:
+        return AGENT_VOICE if speaker == agent else PARTNER_VOICE
+
     return [(Utterance(cue.t_s, samples, mouth_track(samples, AUDIO_RATE) if cue.agent == agent else None),
              cue.agent) for cue, samples in said_lines(timeline, voices, voice_for)]
 

@@ -60,12 +60,11 @@ def with_patch(picture: Picture, luma: int) -> np.ndarray:
     return yuv
 
 
-class FlashFeed(FrameFeed):
+class FlashFeed:
     """The agent's pictures from `faces`, each with the patch: white on the one for a whole second of the
     master clock, black on the others."""
 
     def __init__(self, faces: FrameFeed) -> None:
-        super().__init__()
         self.faces = faces
 
     async def next_after(self, agent: str, frame_ns: int, early_after_ns: int | None = None) -> Picture:
@@ -74,24 +73,18 @@ class FlashFeed(FrameFeed):
         luma = WHITE_LUMA if face.frame_ns % NS_PER_S == 0 else BLACK_LUMA
         return Picture(face.frame_ns, with_patch(face, luma), face.width, face.height, face.early)
 
-    def put(self, agent: str, picture: Picture) -> None:
-        raise TypeError("a flash feed puts its patch on the agent's own pictures")
 
-
-class ClickFeed(VoiceFeed):
+class ClickFeed:
     """The voice of `under` (silence without one) with a click added at each whole second of the master
     clock, for any span a track takes; where both are loud the sum is clipped to the sample range."""
 
     def __init__(self, under: VoiceFeed | None = None, sample_rate: int = 48_000) -> None:
-        super().__init__(sample_rate)
         if under is not None and under.sample_rate != sample_rate:
             raise ValueError(f"clicks at {sample_rate} Hz over a voice at {under.sample_rate} Hz")
         self.under = under
+        self.sample_rate = sample_rate
         t = np.arange(round(CLICK_S * sample_rate)) / sample_rate
         self.click = np.round(CLICK_LEVEL * 32767 * np.sin(2 * np.pi * CLICK_HZ * t)).astype(np.int16)
-
-    def add(self, dac_time_ns: int, samples: np.ndarray, sample_rate: int) -> None:
-        raise TypeError("a click feed adds its clicks to the voice it reads; the voice's blocks go to that")
 
     def take(self, start_ns: int, count: int) -> np.ndarray:
         out = self._clicks_in(start_ns, count)
@@ -114,17 +107,13 @@ class ClickFeed(VoiceFeed):
         return out
 
 
-class Markers:
-    """One viewer's markers on one agent: its face track (the patch on the agent's pictures, encoded for
-    this viewer alone) and its voice track (the agent's voice with the clicks)."""
+def flash_track(clock: Clock, faces: FrameFeed, agent: str, width: int, height: int, fps: float) -> FaceTrack:
+    """The agent's face with the flashing patch, encoded for this viewer alone."""
+    stream = EncodedStream(FlashFeed(faces).next_after, agent, width, height, fps, clock)
+    stream.start()
+    return FaceTrack(stream, on_stop=stream.stop)
 
-    def __init__(self, clock: Clock, faces: FrameFeed, voice: VoiceFeed) -> None:
-        self.clock, self.faces, self.voice = clock, faces, voice
 
-    def face_track(self, agent: str, width: int, height: int, fps: float) -> FaceTrack:
-        stream = EncodedStream(FlashFeed(self.faces).next_after, agent, width, height, fps, self.clock)
-        stream.start()
-        return FaceTrack(stream, on_stop=stream.stop)
-
-    def voice_track(self) -> VoiceTrack:
-        return VoiceTrack(ClickFeed(self.voice, self.voice.sample_rate), self.clock)
+def click_track(clock: Clock, voice: VoiceFeed) -> VoiceTrack:
+    """The agent's voice with the clicks."""
+    return VoiceTrack(ClickFeed(voice, voice.sample_rate), clock)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import fractions
 import logging
+import statistics
 import threading
 from collections import deque
 from collections.abc import Awaitable, Callable
@@ -123,8 +124,7 @@ class EncodedStream:
     @property
     def encode_ns(self) -> int:
         """How long a picture takes to encode, lately (the median; 0 before the first)."""
-        times = sorted(self._encode_times)
-        return times[len(times) // 2] if times else 0
+        return statistics.median_high(self._encode_times) if self._encode_times else 0
 
     def request_keyframe(self) -> None:
         self._keyframe_wanted = True

@@ -17,6 +17,7 @@ import math
 import os
 import queue
 import shlex
+import statistics
 import sys
 import threading
 from collections import deque
@@ -308,5 +309,4 @@ class WebService(Service):
         self._last_frame_ns = frame_ns
 
     def _typical_draw_ns(self) -> int:
-        times = sorted(self._draw_times)
-        return times[len(times) // 2] if times else 0
+        return statistics.median_high(self._draw_times) if self._draw_times else 0

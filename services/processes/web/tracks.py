@@ -13,17 +13,26 @@ from __future__ import annotations
 import asyncio
 import fractions
 from collections.abc import Callable
+from typing import Protocol
 
 import av
+import numpy as np
 from aiortc import MediaStreamTrack
 from aiortc.mediastreams import MediaStreamError
 from av import AudioFrame
 
 from agent.clock import Clock
 from services.processes.web.encoding import VIDEO_RATE, EncodedStream
-from services.processes.web.feeds import VoiceFeed
 
 AUDIO_FRAME_S = 0.020  # Opus' packet time: one frame per packet
+
+
+class Samples(Protocol):
+    """What a voice track reads: the samples of any span of the master clock (a VoiceFeed)."""
+
+    sample_rate: int
+
+    def take(self, start_ns: int, count: int) -> np.ndarray: ...
 
 
 class FaceTrack(MediaStreamTrack):
@@ -73,7 +82,7 @@ class VoiceTrack(MediaStreamTrack):
 
     kind = "audio"
 
-    def __init__(self, feed: VoiceFeed, clock: Clock) -> None:
+    def __init__(self, feed: Samples, clock: Clock) -> None:
         super().__init__()
         self.feed, self.clock = feed, clock
         self.rate = feed.sample_rate

@@ -24,7 +24,7 @@ from aiortc.rtcpeerconnection import or_direction
 
 from agent.clock import Clock
 from protocol.messages import Message, UserAudio, UserSpeech
-from services.processes.web.calibration import Markers
+from services.processes.web.calibration import click_track, flash_track
 from services.processes.web.encoding import EncodedStreams
 from services.processes.web.feeds import FrameFeed, VoiceFeed
 from services.processes.web.microphone import MicBlock, Microphone
@@ -114,21 +114,18 @@ class Viewers:
     def _attach(self, viewer: Viewer) -> None:
         request, backend = viewer.request, self.backend
         by_mid = {t.mid: t for t in viewer.pc.getTransceivers()}
-        markers: dict[str, Markers] = {}  # per agent, for a calibration viewer: its face and voice share clicks
         for mid, agent, kind in request.streams:
             transceiver = by_mid.get(mid)
             if transceiver is None or transceiver.kind != kind:
                 raise ValueError(f"the offer has no {kind} section with mid {mid!r}")
-            if request.calibration and agent not in markers:
-                markers[agent] = Markers(backend.clock, backend.frames, backend.voice(agent))
             track: MediaStreamTrack
             if kind == "video":
-                track = (markers[agent].face_track(agent, request.width, request.height, request.fps)
+                track = (flash_track(backend.clock, backend.frames, agent, request.width, request.height, request.fps)
                          if request.calibration else self._face_track(agent, request))
                 _forward_keyframe_requests(transceiver.sender, track)
             else:
-                track = (markers[agent].voice_track() if request.calibration
-                         else VoiceTrack(backend.voice(agent), backend.clock))
+                voice = backend.voice(agent)
+                track = click_track(backend.clock, voice) if request.calibration else VoiceTrack(voice, backend.clock)
             transceiver.sender.replaceTrack(track)
             transceiver.direction = or_direction(transceiver.direction, "sendonly")
             # one media stream per agent (its msid): the browser lines up the voice with the face it
