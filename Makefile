@@ -18,9 +18,9 @@ up: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m ruff check .
-	$(PY) -m mypy agent protocol
+	$(PY) -m mypy eca/agent eca/protocol
 	$(PY) -m pytest -n 2 -q
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
-	$(PY) -m mypy agent protocol
+	$(PY) -m mypy eca/agent eca/protocol

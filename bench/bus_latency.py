@@ -1,6 +1,6 @@
 """Benchmark: one-way bus latency through the broker, eca's Publisher/Subscriber/codec against raw pyzmq + msgpack.
 
-A real broker process is started (`python -m services.processes.run broker`). For each rate (60 Hz, 1 kHz) a
+A real broker process is started (`python -m eca.services.processes.run broker`). For each rate (60 Hz, 1 kHz) a
 publisher process and a subscriber process exchange eye-state messages through it, once with eca's
 `Publisher`, `Subscriber` and validating codec, once with a bare pyzmq socket and `msgpack.packb` /
 `unpackb` (the baseline), in ABBA order so slow drift of the machine cancels out. The publisher embeds
@@ -39,7 +39,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
+from eca.services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
 
 TOPIC = "stream.ada.eye_state"
 TARGET_MEDIAN_RATIO = 1.2
@@ -55,8 +55,8 @@ def run_subscriber(mode: str, config_path: str, instance: str, count: int, idle_
     import msgpack
     import zmq
 
-    from protocol.bus import Subscriber
-    from protocol.endpoints import load_bus_config
+    from eca.protocol.bus import Subscriber
+    from eca.protocol.endpoints import load_bus_config
 
     config = load_bus_config(config_path, instance)
     ctx = zmq.Context()
@@ -112,9 +112,9 @@ def run_publisher(mode: str, config_path: str, instance: str, count: int, rate_h
     import msgpack
     import zmq
 
-    from protocol.bus import Publisher
-    from protocol.endpoints import load_bus_config
-    from protocol.messages import EyeState
+    from eca.protocol.bus import Publisher
+    from eca.protocol.endpoints import load_bus_config
+    from eca.protocol.messages import EyeState
 
     config = load_bus_config(config_path, instance)
     ctx = zmq.Context()
@@ -206,7 +206,7 @@ def summarise(latencies_ns: list[int], lost: int) -> dict[str, Any]:
 def broker_process(config_path: Path, instance: str) -> Iterator[subprocess.Popen[bytes]]:
     from tests.support.bus import running
 
-    argv = [sys.executable, "-m", "services.processes.run", "broker", "--config", str(config_path),
+    argv = [sys.executable, "-m", "eca.services.processes.run", "broker", "--config", str(config_path),
             "--instance", instance]
     with running(argv) as (proc, out):
         out.wait_for("ready (pid", READY_TIMEOUT_S)

@@ -25,10 +25,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from agent.gaze.engine import GazeEngine  # noqa: E402
-from agent.gaze.params import GazeParams  # noqa: E402
-from agent.gaze.reference import Onset, ReferenceAgent  # noqa: E402
 from bench.report import machine  # noqa: E402
+from eca.agent.gaze.engine import GazeEngine  # noqa: E402
+from eca.agent.gaze.params import GazeParams  # noqa: E402
+from eca.agent.gaze.reference import Onset, ReferenceAgent  # noqa: E402
 
 NS = 1_000_000_000
 FRAME_NS = NS // 60

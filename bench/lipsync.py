@@ -31,9 +31,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from agent.clock import VirtualClock  # noqa: E402
-from agent.lipsync import LipSyncEstimator, MouthTrack  # noqa: E402
-from services.processes.audio import FakeSink, Player, PlayerAnchor, PlayerFinished, PlayerMouthKeys  # noqa: E402
+from eca.agent.clock import VirtualClock  # noqa: E402
+from eca.agent.lipsync import LipSyncEstimator, MouthTrack  # noqa: E402
+from eca.services.processes.audio import FakeSink, Player, PlayerAnchor, PlayerFinished, PlayerMouthKeys  # noqa: E402
 
 BLOCK_S = 0.010
 FRAME_S = 1.0 / 60.0
@@ -43,7 +43,7 @@ BUS_RATE = 48_000  # the say requests' PCM rate = the null sink's rate, so no re
 
 def speech_sample() -> tuple[np.ndarray, int, str]:
     try:
-        from services.processes.audio.espeak import EspeakUnavailable, synthesize
+        from eca.services.processes.audio.espeak import EspeakUnavailable, synthesize
 
         speech = synthesize("She sells sea shells by the sea shore, and my father bought a map of the moon.")
         return speech.samples, speech.sample_rate, "espeak-ng sentence"
@@ -137,8 +137,8 @@ def bus_offsets_ms(utterances: int, fps: float = 60.0, timeout_s: float = 20.0) 
     """Mouth-open onset minus audio onset at the DAC (ms) for each utterance, from the recorded bus.
 
     Needs headless OpenGL for the renderer (raises its error otherwise)."""
-    from protocol.client import AgentClient
-    from protocol.messages import (
+    from eca.protocol.client import AgentClient
+    from eca.protocol.messages import (
         ClockAnchor,
         FaceFrame,
         SpeechFailed,
@@ -146,11 +146,11 @@ def bus_offsets_ms(utterances: int, fps: float = 60.0, timeout_s: float = 20.0) 
         SpeechInterrupted,
         SpeechStarted,
     )
-    from services.processes.audio.service import AudioService
-    from services.processes.audio.sinks import NullSink
-    from services.processes.dialogue import DialogueService
-    from services.processes.renderer.options import RendererOptions
-    from services.processes.renderer.service import RendererService
+    from eca.services.processes.audio.service import AudioService
+    from eca.services.processes.audio.sinks import NullSink
+    from eca.services.processes.dialogue import DialogueService
+    from eca.services.processes.renderer.options import RendererOptions
+    from eca.services.processes.renderer.service import RendererService
     from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
     vowel = synthetic_vowel(750, 1200, 0.25, BUS_RATE)

@@ -191,7 +191,7 @@ async def pipeline_running(parts: dict[str, Any], processors: list[Any]) -> Asyn
 
 
 def face(instance: str) -> Any:
-    from services.pipecat import EcaFaceParams, EcaVideoService
+    from eca.services.pipecat import EcaFaceParams, EcaVideoService
 
     return EcaVideoService(EcaFaceParams(agent=AGENT, instance=instance, width=WIDTH, height=HEIGHT, fps=FPS))
 
@@ -219,7 +219,7 @@ async def latency_block(parts: dict[str, Any], instance: str, with_face: bool, s
 
 
 def latency_phase(parts: dict[str, Any], instance: str, args: argparse.Namespace, report: Report) -> None:
-    from services.processes.audio.tts import EngineSettings, EspeakSpeech
+    from eca.services.processes.audio.tts import EngineSettings, EspeakSpeech
 
     engine = EspeakSpeech(EngineSettings())
     speech: dict[str, bytes] = {}
@@ -305,7 +305,7 @@ def mouth_pixels(frame: Any) -> int:
 def expected_open(burst: np.ndarray) -> Callable[[float], bool]:
     """The mouth eca's lip-sync gives the burst, offline: open at sample s when its jaw weight is over half
     of its level in the middle of the burst."""
-    from agent.lipsync.estimator import mouth_track
+    from eca.agent.lipsync.estimator import mouth_track
 
     track = mouth_track(burst.astype(np.float32) / 32768.0, TTS_RATE)
     middle = [track.weights_at(s)["say_ah"] for s in range(len(burst) // 3, 2 * len(burst) // 3, 240)]
@@ -400,7 +400,7 @@ def av_phase(parts: dict[str, Any], instance: str, eca_pid: int, args: argparse.
 def run(args: argparse.Namespace, report: Report) -> None:
     try:
         parts = pipecat_parts()
-        from services.pipecat.instance import EcaInstance
+        from eca.services.pipecat.instance import EcaInstance
     except ImportError as exc:
         report.add("pipecat", "missing", "installed", False, "", f"{exc}; pip install 'eca[pipecat]'")
         return

@@ -41,19 +41,19 @@ import zmq
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from agent.face.emotions import load_emotion_table  # noqa: E402
-from agent.face.flexors import FLEXOR_NAMES  # noqa: E402
-from protocol.bus import Publisher, Subscriber  # noqa: E402
-from protocol.client import AgentClient  # noqa: E402
-from protocol.endpoints import BusConfig, load_bus_config  # noqa: E402
-from protocol.messages import EmotionState, EyeState, FaceFrame, Saccade  # noqa: E402
+from eca.agent.face.emotions import load_emotion_table  # noqa: E402
+from eca.agent.face.flexors import FLEXOR_NAMES  # noqa: E402
+from eca.protocol.bus import Publisher, Subscriber  # noqa: E402
+from eca.protocol.client import AgentClient  # noqa: E402
+from eca.protocol.endpoints import BusConfig, load_bus_config  # noqa: E402
+from eca.protocol.messages import EmotionState, EyeState, FaceFrame, Saccade  # noqa: E402
 from tests.support.bus import private_bus_config, running  # noqa: E402
 
 EXPRESSION = [n for n in FLEXOR_NAMES if n not in ("look_x", "look_y", "blink_l", "blink_r", "turn", "nod", "tilt")]
 
 
 def service_argv(config: BusConfig, name: str, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "services.processes.run", name, "--config", str(config.config_path),
+    return [sys.executable, "-m", "eca.services.processes.run", name, "--config", str(config.config_path),
             "--instance", config.instance, *extra]
 
 

@@ -66,7 +66,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
-from services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
+from eca.services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
 
 AGENT = "ada"
 READY_TIMEOUT_S = 90.0  # eca up to "ready": the renderer's JIT cache may be cold
@@ -298,7 +298,7 @@ class Pool:
 
 
 def build_pool(rng: random.Random, size: int, garbage_fraction: float, source: str) -> Pool:
-    from protocol.codec import decode
+    from eca.protocol.codec import decode
 
     pool = Pool()
     n_garbage = round(size * garbage_fraction)
@@ -330,9 +330,9 @@ def run_sender(config_path: str, instance: str, rate: float, seconds: float, gar
     """Wait for `go <start_ns>` on stdin, flood from then on at `rate`, then send the final commands."""
     import zmq
 
-    from protocol.codec import encode
-    from protocol.endpoints import load_bus_config
-    from protocol.messages import MESSAGE_TYPES
+    from eca.protocol.codec import encode
+    from eca.protocol.endpoints import load_bus_config
+    from eca.protocol.messages import MESSAGE_TYPES
 
     config = load_bus_config(config_path, instance)
     source = f"flood{index}"
@@ -425,9 +425,9 @@ def run_monitor(config_path: str, instance: str, seed: int) -> int:
     import msgpack
     import zmq
 
-    from protocol.codec import encode
-    from protocol.endpoints import load_bus_config
-    from protocol.messages import SetEmotion
+    from eca.protocol.codec import encode
+    from eca.protocol.endpoints import load_bus_config
+    from eca.protocol.messages import SetEmotion
 
     config = load_bus_config(config_path, instance)
     rng = random.Random(seed * 7919 + 1)
@@ -658,7 +658,7 @@ class Up:
 @contextmanager
 def child(argv: list[str], stdin: bool = False) -> Iterator[tuple[subprocess.Popen[bytes], Any]]:
     """A helper process of the bench with its stdout read line by line; killed (group) afterwards."""
-    from services.tools.child_processes import LineReader
+    from eca.services.tools.child_processes import LineReader
 
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
                             env=subprocess_env(), cwd=REPO, start_new_session=True)
@@ -885,8 +885,8 @@ def flood_phase(args: argparse.Namespace, config: Any, up: Up, monitor: subproce
 
 def settle_phase(config: Any, monitor_out: Any, done: list[dict[str, Any]]) -> dict[str, Any]:
     """Wait for the monitor to see all five final states; then read the state as a fresh client."""
-    from protocol.bus import BusTimeout
-    from protocol.client import AgentClient
+    from eca.protocol.bus import BusTimeout
+    from eca.protocol.client import AgentClient
 
     final_sent_ns = max(r["final_sent_ns"] for r in done)
     left_s = SETTLE_TIMEOUT_S - (time.monotonic_ns() - final_sent_ns) / 1e9
@@ -1040,8 +1040,8 @@ def say_figures(report: Report, label: str, outcome: SayOutcome, expect: str, pl
 
 
 def says_phase(args: argparse.Namespace, config: Any, up: Up, workdir: Path, report: Report) -> None:
-    from protocol.bus import BusTimeout
-    from protocol.client import AgentClient
+    from eca.protocol.bus import BusTimeout
+    from eca.protocol.client import AgentClient
 
     say_stderr(f"phase 3: long says under load ({os.cpu_count()} busy processes); writing WAVs")
     short_wav, long_wav = workdir / "say_short.wav", workdir / "say_long.wav"

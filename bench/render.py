@@ -26,8 +26,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from agent.face.model import FaceModel  # noqa: E402
-from services.processes.renderer import Renderer, create_headless_context, read_rgb  # noqa: E402
+from eca.agent.face.model import FaceModel  # noqa: E402
+from eca.services.processes.renderer import Renderer, create_headless_context, read_rgb  # noqa: E402
 
 TARGET_FPS = 200.0
 TARGET_OVERHEAD_MS = 3.0

@@ -18,13 +18,13 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-DIALOGUE = ROOT / "configs" / "demo" / "dialogue.xml"
+DIALOGUE = ROOT / "eca" / "configs" / "demo" / "dialogue.xml"
 
 MODELS_ONLY = """
 import time
-from agent.script import build_timeline
-from services.tools.offline import RenderSettings, animate
-from services.tools.playback import VoiceCache
+from eca.agent.script import build_timeline
+from eca.services.tools.offline import RenderSettings, animate
+from eca.services.tools.playback import VoiceCache
 voices = VoiceCache()
 timeline = build_timeline([{path!r}], agent="ada", text_duration=voices.duration_of_text)
 t0 = time.perf_counter()
@@ -37,8 +37,9 @@ def run_render(fps: float, size: str) -> tuple[float, float]:
     with tempfile.TemporaryDirectory() as tmp:
         before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "services.tools.cli", "render", str(DIALOGUE), "-o", f"{tmp}/demo.mp4",
-                        "--fps", str(fps), "--size", size], check=True, cwd=ROOT, capture_output=True)
+        subprocess.run([sys.executable, "-m", "eca.services.tools.cli", "render", str(DIALOGUE),
+                        "-o", f"{tmp}/demo.mp4", "--fps", str(fps), "--size", size],
+                       check=True, cwd=ROOT, capture_output=True)
         took = time.perf_counter() - t0
         peak_mib = max(before, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024
     return took, peak_mib

@@ -102,8 +102,8 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
-from services.processes.web.calibration import PATCH  # noqa: E402 (after the path is set)
-from services.tools.child_processes import subprocess_env  # noqa: E402
+from eca.services.processes.web.calibration import PATCH  # noqa: E402 (after the path is set)
+from eca.services.tools.child_processes import subprocess_env  # noqa: E402
 
 AGENT = "ada"
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
@@ -548,11 +548,11 @@ def draw_and_encode_baselines(frames: int = 150) -> dict[str, float]:
     """Per frame at 640x480, in this process, as the service does them: compose + draw + yuv420p on the
     GPU + read-back (once per frame slot), and the VP8 encode of the result (once per picture for all
     the viewers of that size and rate)."""
-    from agent.face.model import FaceModel
-    from services.processes.renderer import Renderer, create_headless_context
-    from services.processes.renderer.yuv import YuvTarget
-    from services.processes.web.encoding import Vp8Encoder
-    from services.processes.web.feeds import Picture
+    from eca.agent.face.model import FaceModel
+    from eca.services.processes.renderer import Renderer, create_headless_context
+    from eca.services.processes.renderer.yuv import YuvTarget
+    from eca.services.processes.web.encoding import Vp8Encoder
+    from eca.services.processes.web.feeds import Picture
 
     os.environ.setdefault("LP_NUM_THREADS", "1")  # as the web service draws (services/processes/web/service.py)
     ctx = create_headless_context()
@@ -636,8 +636,8 @@ def open_mouth_pixels(rgb: np.ndarray) -> int:
 def mouth_curve(steps: int = 20) -> dict[str, list[float]]:
     """The open-mouth count at jaw (say_ah) weights 0..1, the face drawn at 640x480 by the service's renderer
     in this process (neutral, eyes ahead)."""
-    from agent.face.model import FaceModel
-    from services.processes.renderer import Renderer, create_headless_context
+    from eca.agent.face.model import FaceModel
+    from eca.services.processes.renderer import Renderer, create_headless_context
 
     ctx = create_headless_context()
     try:
@@ -735,7 +735,7 @@ def jaw_crossings(keys: list[Any], dac0_ms: float, onsets_ms: list[float]) -> tu
 def say_latency_ns(client: Any, rid: str, seconds: float) -> int:
     """How long a say of `seconds` takes from sent to its first sample at the output (a silent one of that
     size, interrupted once it starts: a long say takes longer to arrive and prepare than a short one)."""
-    from protocol.messages import Interrupt, Say, SpeechInterrupted, SpeechStarted
+    from eca.protocol.messages import Interrupt, Say, SpeechInterrupted, SpeechStarted
 
     sent_ns = time.monotonic_ns()
     client.send(Say(agent=AGENT, request_id=rid, pcm=bytes(2 * round(seconds * SAY_RATE_HZ)),
@@ -763,9 +763,9 @@ def av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server: Time
              rng: random.Random, curve: dict[str, list[float]]) -> None:
     import zmq
 
-    from protocol.bus import Subscriber
-    from protocol.client import AgentClient
-    from protocol.messages import MouthKeys, Say, SpeechStarted
+    from eca.protocol.bus import Subscriber
+    from eca.protocol.client import AgentClient
+    from eca.protocol.messages import MouthKeys, Say, SpeechStarted
     from tests.support.browser import wait_for
 
     details: dict[str, Any] = {}
@@ -989,9 +989,9 @@ def latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, server:
                   rng: random.Random, baselines: dict[str, float] | None, connected_ns: int) -> None:
     import zmq
 
-    from protocol.bus import Subscriber
-    from protocol.client import AgentClient
-    from protocol.messages import EmotionState
+    from eca.protocol.bus import Subscriber
+    from eca.protocol.client import AgentClient
+    from eca.protocol.messages import EmotionState
 
     details: dict[str, Any] = {}
     report.details["latency"] = details
@@ -1177,7 +1177,7 @@ def rss_mib(pid: int) -> float:
 @contextmanager
 def load_process(url: str) -> Iterator[tuple[subprocess.Popen[bytes], Any]]:
     """The helper process holding the aiortc viewers; killed (its group) afterwards."""
-    from services.tools.child_processes import LineReader
+    from eca.services.tools.child_processes import LineReader
 
     argv = [sys.executable, str(Path(__file__).resolve()), "--role", "load", "--url", url]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE, env=subprocess_env(), cwd=REPO,

@@ -1,10 +1,10 @@
 """A pipecat voice bot with eca as its face: open the page, speak, and the face listens, answers, changes
 its expression and can be interrupted. Runs with no API key and no network.
 
-    pip install 'eca[pipecat]'
+    pip install 'eca-face[pipecat]'
     python examples/pipecat_bot.py            # then open http://127.0.0.1:7860/ and press Connect
 
-The page at / (examples/pipecat_client.html) is a small WebRTC client of the bot's SmallWebRTC offer
+The page at / (eca.pipecat.client_page()) is a small WebRTC client of the bot's SmallWebRTC offer
 endpoint (pipecat's peer-to-peer WebRTC transport): the face and the voice come in, the microphone goes
 out. pipecat's prebuilt client is served too, at /client/, but it loads a device manager from Daily's
 servers, so it connects only where the browser reaches the internet.
@@ -18,11 +18,11 @@ The pipeline, per browser that connects:
   speaks over it (barge-in);
 - the scripted "LLM" answers each finished user turn with the next line of a short script (it cannot
   hear words: there is no speech recognition offline), and some lines first change the face's emotion
-  or head through the same tools a real model calls (services/pipecat/tools.py);
-- espeak-ng speaks (services/pipecat/tts.py);
+  or head through the same tools a real model calls (eca/services/pipecat/tools.py);
+- espeak-ng speaks (eca/services/pipecat/tts.py);
 - `EcaVideoService` starts a private eca (`eca up`: broker, dialogue, gaze, audio) for the session, turns
   the bot's audio into eca's streamed say, the user's turns into eca's listening state, and pushes the
-  face's pictures with the voice (services/pipecat/face.py); the session's end stops that eca.
+  face's pictures with the voice (eca/services/pipecat/face.py); the session's end stops that eca.
 
 With OPENAI_API_KEY set (and no --offline), the script and the VAD-only turns give way to pipecat's
 OpenAI speech-to-text and LLM, with the face's tools offered to the model; the voice stays espeak-ng.
@@ -41,7 +41,6 @@ import socket
 import sys
 import uuid
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import uvicorn
@@ -70,9 +69,8 @@ from pipecat.turns.user_turn_strategies import UserTurnStrategies
 from pipecat.workers.runner import WorkerRunner
 from pipecat_ai_small_webrtc_prebuilt.frontend import SmallWebRTCPrebuiltUI
 
-from services.pipecat import EcaFaceParams, EcaTools, EcaVideoService, EspeakTTSService
+from eca.pipecat import EcaFaceParams, EcaTools, EcaVideoService, EspeakTTSService, client_page
 
-PAGE = Path(__file__).resolve().with_name("pipecat_client.html")
 SAMPLE_RATE = 24_000  # the pipeline's output rate: espeak-ng's 22,050 Hz is resampled to it
 
 
@@ -215,7 +213,7 @@ def make_app(args: argparse.Namespace, runner: WorkerRunner, active: set[Pipelin
 
     @app.get("/")
     async def page() -> HTMLResponse:
-        return HTMLResponse(PAGE.read_text(encoding="utf-8"))
+        return HTMLResponse(client_page())
 
     app.mount("/client", SmallWebRTCPrebuiltUI)
 

@@ -6,7 +6,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from protocol.endpoints import BusConfig
+from eca.protocol.endpoints import BusConfig
 from tests.support.bus import BrokerThread, private_bus_config
 
 _compiled = False
@@ -18,7 +18,7 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
     pays for it inside a measurement or a readiness timeout. Tests that draw nothing never load it."""
     global _compiled
     if not _compiled and (item.get_closest_marker("gl") or item.get_closest_marker("slow")):
-        from services.processes.renderer.kernels import warm_up
+        from eca.services.processes.renderer.kernels import warm_up
 
         warm_up()
         _compiled = True

@@ -8,10 +8,10 @@ import threading
 import numpy as np
 import pytest
 
-from agent.clock import VirtualClock
-from services.processes.audio import FakeSink, NullSink, Player, PlayerAnchor, PlayerFinished, PlayerStarted, output
-from services.processes.audio.clockmap import CallbackStamp, ClockMap
-from services.processes.audio.resample import Resampler, resample
+from eca.agent.clock import VirtualClock
+from eca.services.processes.audio import FakeSink, NullSink, Player, PlayerAnchor, PlayerFinished, PlayerStarted, output
+from eca.services.processes.audio.clockmap import CallbackStamp, ClockMap
+from eca.services.processes.audio.resample import Resampler, resample
 
 SR = 48_000
 OFFSET_NS = 5_000_000_000_123  # monotonic - stream clock, unknown to the map
@@ -94,11 +94,11 @@ def test_null_sink_plays_in_real_time_and_reports_from_one_thread() -> None:
 
 
 def test_no_device_falls_back_to_a_null_sink_with_one_warning(monkeypatch, caplog) -> None:
-    import services.processes.audio.sounddevice_sink as sds
+    import eca.services.processes.audio.sounddevice_sink as sds
 
     monkeypatch.setattr(sds, "no_output_reason", lambda device=None: "PortAudio lists no output device")
     monkeypatch.setattr(output, "_warned_no_device", False)
-    with caplog.at_level(logging.WARNING, logger="services.processes.audio.output"):
+    with caplog.at_level(logging.WARNING, logger="eca.services.processes.audio.output"):
         first = output.open_sink(SR, 480)
         second = output.open_sink(SR, 480)
     assert isinstance(first, NullSink) and isinstance(second, NullSink)
@@ -120,8 +120,8 @@ def test_fake_sink_needs_start_and_keeps_time() -> None:
 
 
 def test_audio_config_loads_and_rejects_bad_values() -> None:
-    from agent.config import ConfigError, load_toml
-    from services.processes.audio.config import AudioConfig
+    from eca.agent.config import ConfigError, load_toml
+    from eca.services.processes.audio.config import AudioConfig
 
     cfg = AudioConfig.load()
     assert cfg.sample_rate == 48_000 and cfg.block_frames == 480 and cfg.device is None

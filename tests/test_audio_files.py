@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from agent.clock import VirtualClock
-from agent.script import audiofile
-from services.processes.audio import FakeSink, Player, PlayerFailed
-from services.processes.audio.files import AudioFileError, MonoReader, open_sound_file, read_sound_file
-from services.tools.offline import AUDIO_RATE, load_audio
+from eca.agent.clock import VirtualClock
+from eca.agent.script import audiofile
+from eca.services.processes.audio import FakeSink, Player, PlayerFailed
+from eca.services.processes.audio.files import AudioFileError, MonoReader, open_sound_file, read_sound_file
+from eca.services.tools.offline import AUDIO_RATE, load_audio
 
 SR = 16_000
 

@@ -25,7 +25,7 @@ PLAY_S = 1.5
 CHILD = r"""
 import json, sys, threading, time
 import numpy as np
-from services.processes.audio import PlayerAnchor, Player, PlayerFinished, open_sink
+from eca.services.processes.audio import PlayerAnchor, Player, PlayerFinished, open_sink
 
 sink = open_sink(48_000, 480)
 done = threading.Event()
@@ -56,8 +56,8 @@ print(json.dumps({"sink": type(sink).__name__, "finished": finished, "lifecycle"
 VOICE_CHILD = r"""
 import json, sys, threading
 import numpy as np
-from services.processes.audio import Player, PlayerVoiceBlock, open_sink
-from services.processes.audio.player import pcm16_bytes
+from eca.services.processes.audio import Player, PlayerVoiceBlock, open_sink
+from eca.services.processes.audio.player import pcm16_bytes
 
 sink = open_sink(48_000, 480)
 done = threading.Event()  # the voice is back to silence after the utterance

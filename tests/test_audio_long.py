@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from agent.clock import MonotonicClock
-from protocol.client import AgentClient
-from protocol.messages import (
+from eca.agent.clock import MonotonicClock
+from eca.protocol.client import AgentClient
+from eca.protocol.messages import (
     Heartbeat,
     Interrupt,
     Message,
@@ -31,12 +31,12 @@ from protocol.messages import (
     SpeechInterrupted,
     SpeechStarted,
 )
-from services.processes.audio import Player, PlayerAnchor, PlayerInterrupted, PlayerMouthKeys, PlayerStarted
-from services.processes.audio.config import AudioConfig
-from services.processes.audio.events import TERMINAL_EVENTS as TERMINAL_PLAYER
-from services.processes.audio.service import AudioService
-from services.processes.dialogue import DialogueService
-from services.processes.runtime import wait_until
+from eca.services.processes.audio import Player, PlayerAnchor, PlayerInterrupted, PlayerMouthKeys, PlayerStarted
+from eca.services.processes.audio.config import AudioConfig
+from eca.services.processes.audio.events import TERMINAL_EVENTS as TERMINAL_PLAYER
+from eca.services.processes.audio.service import AudioService
+from eca.services.processes.dialogue import DialogueService
+from eca.services.processes.runtime import wait_until
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 RATE = 16_000

@@ -15,9 +15,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.signal import lfilter
 
-from agent.clock import VirtualClock
-from agent.lipsync import MouthKey, MouthTrack, mouth_track
-from services.processes.audio import (
+from eca.agent.clock import VirtualClock
+from eca.agent.lipsync import MouthKey, MouthTrack, mouth_track
+from eca.services.processes.audio import (
     FakeSink,
     Player,
     PlayerAnchor,
@@ -28,9 +28,9 @@ from services.processes.audio import (
     PlayerMouthReset,
     PlayerStarted,
 )
-from services.processes.audio.config import AudioConfig
-from services.processes.audio.events import TERMINAL_EVENTS
-from services.processes.audio.resample import resample
+from eca.services.processes.audio.config import AudioConfig
+from eca.services.processes.audio.events import TERMINAL_EVENTS
+from eca.services.processes.audio.resample import resample
 
 SR = 48_000
 BLOCK = 480

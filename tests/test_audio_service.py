@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocol.client import AgentClient
-from protocol.messages import (
+from eca.protocol.client import AgentClient
+from eca.protocol.messages import (
     ClockAnchor,
     MouthKeys,
     PlaybackState,
@@ -21,9 +21,9 @@ from protocol.messages import (
     SpeechStarted,
     SpeechState,
 )
-from services.processes.audio.service import AudioService
-from services.processes.audio.sinks import NullSink
-from services.processes.dialogue import DialogueService
+from eca.services.processes.audio.service import AudioService
+from eca.services.processes.audio.sinks import NullSink
+from eca.services.processes.dialogue import DialogueService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 RATE = 16_000
@@ -126,7 +126,7 @@ def test_barge_in_stops_the_voice_and_makes_the_agent_listen(client: AgentClient
 
 
 def test_an_unexpected_player_error_still_ends_the_request(client: AgentClient, monkeypatch) -> None:
-    from services.processes.audio.player import Player
+    from eca.services.processes.audio.player import Player
 
     def broken(self, utterance_id, samples, sample_rate):  # noqa: ANN001, ARG001
         raise RuntimeError("device went away")
@@ -140,7 +140,7 @@ def test_an_unexpected_player_error_still_ends_the_request(client: AgentClient, 
 def test_a_request_the_player_refuses_ends_with_speech_failed_and_leaves_no_pending(
     client: AgentClient, monkeypatch
 ) -> None:
-    from services.processes.audio.player import Player
+    from eca.services.processes.audio.player import Player
 
     def refuse(self, utterance_id, samples, sample_rate):  # noqa: ANN001, ARG001
         raise ValueError(f"utterance {utterance_id!r} is already in flight")

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.clock import VirtualClock
-from services.processes.audio import FakeSink, Player, PlayerFailed, PlayerFinished, PlayerStarted
-from services.processes.audio.tts import EngineSettings, SpeechSynthesisError, engine
+from eca.agent.clock import VirtualClock
+from eca.services.processes.audio import FakeSink, Player, PlayerFailed, PlayerFinished, PlayerStarted
+from eca.services.processes.audio.tts import EngineSettings, SpeechSynthesisError, engine
 
 SR = 48_000
 BLOCK = 480

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from agent.clock import VirtualClock
-from agent.config import ConfigError, load_toml
-from protocol.bus import Subscriber
-from protocol.client import AgentClient
-from protocol.messages import ClockAnchor, Message, SpeechFinished, SpeechInterrupted, VoiceBlock
-from services.processes.audio import (
+from eca.agent.clock import VirtualClock
+from eca.agent.config import ConfigError, load_toml
+from eca.protocol.bus import Subscriber
+from eca.protocol.client import AgentClient
+from eca.protocol.messages import ClockAnchor, Message, SpeechFinished, SpeechInterrupted, VoiceBlock
+from eca.services.processes.audio import (
     FakeSink,
     Player,
     PlayerFinished,
@@ -26,12 +26,12 @@ from services.processes.audio import (
     PlayerStarted,
     PlayerVoiceBlock,
 )
-from services.processes.audio.config import AudioConfig
-from services.processes.audio.player import pcm16_bytes
-from services.processes.audio.resample import resample
-from services.processes.audio.service import AudioService
-from services.processes.audio.sinks import NullSink
-from services.processes.dialogue import DialogueService
+from eca.services.processes.audio.config import AudioConfig
+from eca.services.processes.audio.player import pcm16_bytes
+from eca.services.processes.audio.resample import resample
+from eca.services.processes.audio.service import AudioService
+from eca.services.processes.audio.sinks import NullSink
+from eca.services.processes.dialogue import DialogueService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 SR = 48_000

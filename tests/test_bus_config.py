@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from protocol.endpoints import BusConfigError, load_bus_config
+from eca.protocol.endpoints import BusConfigError, load_bus_config
 from tests.support.bus import write_test_config
 
 

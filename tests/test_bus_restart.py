@@ -13,17 +13,17 @@ from collections.abc import Iterator
 import pytest
 import zmq
 
-from agent.clock import VirtualClock
-from protocol.bus import Publisher, Subscriber
-from protocol.client import AgentClient
-from protocol.codec import encode
-from protocol.endpoints import BusConfig
-from protocol.messages import ALL_AGENTS, EmotionState, HeadState, Heartbeat, Say, SpeechFailed
-from services.processes import broker as broker_module
-from services.processes.broker import Broker
-from services.processes.dialogue import DialogueService
-from services.processes.runtime import Service, wait_until
-from services.processes.state_snapshot import StateSnapshot, snapshot_path
+from eca.agent.clock import VirtualClock
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.client import AgentClient
+from eca.protocol.codec import encode
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import ALL_AGENTS, EmotionState, HeadState, Heartbeat, Say, SpeechFailed
+from eca.services.processes import broker as broker_module
+from eca.services.processes.broker import Broker
+from eca.services.processes.dialogue import DialogueService
+from eca.services.processes.runtime import Service, wait_until
+from eca.services.processes.state_snapshot import StateSnapshot, snapshot_path
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 
@@ -113,7 +113,7 @@ def test_the_cache_is_bounded_and_forgets_the_least_recently_changed(config: Bus
 
 
 def test_a_stopped_broker_leaves_no_socket_files_and_a_refused_one_removes_none(config: BusConfig, ctx) -> None:
-    from services.processes.broker import BrokerAlreadyRunning
+    from eca.services.processes.broker import BrokerAlreadyRunning
 
     first = Broker(config, ctx)
     files = [config.runtime_dir / "pub", config.runtime_dir / "sub"]
@@ -195,7 +195,7 @@ def test_a_silent_broker_does_not_make_the_dialogue_fail_its_requests(config: Bu
 def test_what_a_publisher_remembers_per_topic_is_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
     """Peers choose topics (an error goes to the offending message's agent): a flood of new topics must
     not grow a publisher's counts without bound; a forgotten topic counts from 1 again."""
-    from protocol import bus
+    from eca.protocol import bus
 
     monkeypatch.setattr(bus, "MAX_TOPICS_KEPT", 3)
     counts = bus.TopicCounts()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from services.tools.cli import main
+from eca.services.tools.cli import main
 
 
 @pytest.mark.parametrize("argv, option", [

@@ -9,13 +9,13 @@ from collections.abc import Callable, Iterator
 import pytest
 import zmq
 
-from agent.config import load_toml
-from agent.gaze.backchannel import USER, Backchannel
-from agent.gaze.backchannel import Nod as NodAction
-from protocol.bus import Subscriber
-from protocol.client import AgentClient
-from protocol.endpoints import BusConfig
-from protocol.messages import AttentionState, FaceFrame, Message, Nod, RoleState
+from eca.agent.config import load_toml
+from eca.agent.gaze.backchannel import USER, Backchannel
+from eca.agent.gaze.backchannel import Nod as NodAction
+from eca.protocol.bus import Subscriber
+from eca.protocol.client import AgentClient
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import AttentionState, FaceFrame, Message, Nod, RoleState
 from tests.support.bus import eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow

@@ -10,9 +10,9 @@ from contextlib import contextmanager
 import pytest
 import zmq
 
-from protocol.bus import BusTimeout, Publisher, Subscriber
-from protocol.client import AgentClient, CommandRejected
-from protocol.messages import (
+from eca.protocol.bus import BusTimeout, Publisher, Subscriber
+from eca.protocol.client import AgentClient, CommandRejected
+from eca.protocol.messages import (
     ALL_AGENTS,
     MAX_PENDING_SAYS,
     TERMINAL_SPEECH_EVENTS,
@@ -30,8 +30,8 @@ from protocol.messages import (
     SpeechStarted,
     SpeechState,
 )
-from services.processes.dialogue import DialogueService
-from services.processes.runtime import wait_until
+from eca.services.processes.dialogue import DialogueService
+from eca.services.processes.runtime import wait_until
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 
@@ -293,7 +293,7 @@ def test_a_say_sent_before_the_audio_service_came_up_still_ends_once() -> None:
 
 def test_eca_send_reports_the_state_its_command_caused_not_a_cached_one(
         bus, dialogue, capsys: pytest.CaptureFixture[str]) -> None:
-    from services.tools.cli import main
+    from eca.services.tools.cli import main
 
     where = ["send", "--config", str(bus.config_path), "--instance", bus.instance]
     assert main([*where, "emotion", "gleeful"]) == 1  # the cached "natural 1.0" is no answer to it
@@ -325,8 +325,8 @@ def test_garbage_under_a_non_ascii_agent_is_reported_under_star_and_the_service_
 
 
 def test_an_agent_id_with_a_trailing_newline_is_not_an_agent_id() -> None:
-    from protocol.codec import ProtocolError, encode
-    from protocol.messages import SetEmotion
+    from eca.protocol.codec import ProtocolError, encode
+    from eca.protocol.messages import SetEmotion
 
     with pytest.raises(ProtocolError, match="agent id"):
         encode(SetEmotion(agent="ada\n", name="happy"))

@@ -12,9 +12,17 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from agent.gaze.params import MODES
-from services.tools.cli import main as eca
-from services.tools.experiment import CONDITIONS, OPEN_LID, POSTER_AFTER_S, Condition, Panel, poster_frame, write_index
+from eca.agent.gaze.params import MODES
+from eca.services.tools.cli import main as eca
+from eca.services.tools.experiment import (
+    CONDITIONS,
+    OPEN_LID,
+    POSTER_AFTER_S,
+    Condition,
+    Panel,
+    poster_frame,
+    write_index,
+)
 
 
 class Page(HTMLParser):

@@ -10,8 +10,8 @@ from typing import Any
 
 import pytest
 
-from services.tools.cli import main as eca
-from services.tools.experiment import CONDITIONS
+from eca.services.tools.cli import main as eca
+from eca.services.tools.experiment import CONDITIONS
 from tests.support.browser import browser_available, chromium, wait_for
 
 pytestmark = [pytest.mark.gl, pytest.mark.slow,

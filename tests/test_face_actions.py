@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.clock import nanoseconds
-from agent.face.actions import Action, Envelope, Keyframes, Pose, ease
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from agent.face.head import HeadMotion
-from agent.face.idle import IdleNoise
+from eca.agent.clock import nanoseconds
+from eca.agent.face.actions import Action, Envelope, Keyframes, Pose, ease
+from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from eca.agent.face.head import HeadMotion
+from eca.agent.face.idle import IdleNoise
 
 S = nanoseconds
 SMILE, BROW = FLEXOR_INDEX["smile_l"], FLEXOR_INDEX["brow_l"]

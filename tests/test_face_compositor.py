@@ -7,12 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.clock import nanoseconds
-from agent.face.actions import Pose
-from agent.face.compositor import DEFAULT_LAYERS, Blend, Compositor, LayerSpec, blend_onto
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from agent.face.frame import DONT_CARE, FlexorFrame
-from agent.face.settling import LN_20, Settler
+from eca.agent.clock import nanoseconds
+from eca.agent.face.actions import Pose
+from eca.agent.face.compositor import DEFAULT_LAYERS, Blend, Compositor, LayerSpec, blend_onto
+from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from eca.agent.face.frame import DONT_CARE, FlexorFrame
+from eca.agent.face.settling import LN_20, Settler
 
 SMILE, BROW, NOD, LOOK_X = (FLEXOR_INDEX[n] for n in ("smile_l", "brow_l", "nod", "look_x"))
 S = nanoseconds

@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agent.config import ConfigError
-from agent.face.emotions import PAPER_EMOTIONS, load_emotion_table
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from eca.agent.config import ConfigError
+from eca.agent.face.emotions import PAPER_EMOTIONS, load_emotion_table
+from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
 
 TABLE = load_emotion_table()
 EXPRESSIONS = [name for name in PAPER_EMOTIONS if name != "natural"]

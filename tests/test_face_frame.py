@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agent.face.flexors import FLEXOR_NAMES, N_FLEXORS
-from agent.face.frame import DONT_CARE, FlexorFrame
+from eca.agent.face.flexors import FLEXOR_NAMES, N_FLEXORS
+from eca.agent.face.frame import DONT_CARE, FlexorFrame
 
 
 def test_dont_care_is_nan() -> None:

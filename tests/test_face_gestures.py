@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.face.flexors import FLEXOR_INDEX
-from agent.face.model import FaceModel
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.face.model import FaceModel
 
 S = 1_000_000_000
 TURN, NOD = FLEXOR_INDEX["turn"], FLEXOR_INDEX["nod"]

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.clock import nanoseconds
-from agent.face.flexors import FLEXOR_INDEX
-from agent.face.head import HeadMotion
+from eca.agent.clock import nanoseconds
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.face.head import HeadMotion
 
 S = nanoseconds
 pose = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1))

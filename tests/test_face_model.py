@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.clock import nanoseconds
-from agent.face.emotions import load_emotion_table
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from agent.face.model import FaceModel, eye_angles_deg, head_angles_deg
+from eca.agent.clock import nanoseconds
+from eca.agent.face.emotions import load_emotion_table
+from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from eca.agent.face.model import FaceModel, eye_angles_deg, head_angles_deg
 
 S = nanoseconds
 TABLE = load_emotion_table()

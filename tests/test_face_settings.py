@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config import ConfigError
-from agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES
-from agent.face.settings import load_face_settings, load_flexor_units
+from eca.agent.config import ConfigError
+from eca.agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES
+from eca.agent.face.settings import load_face_settings, load_flexor_units
 
 
 def _face_text(settle: dict[str, str] | None = None, idle: str = "rate_hz = 0.4\nnod = 0.04") -> str:

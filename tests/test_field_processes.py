@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 import zmq
 
-from protocol.bus import Publisher, Subscriber
-from protocol.client import AgentClient
-from protocol.codec import encode
-from protocol.endpoints import BusConfig
-from protocol.messages import (
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.client import AgentClient
+from eca.protocol.codec import encode
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import (
     ALL_AGENTS,
     TERMINAL_SPEECH_EVENTS,
     ClockAnchor,
@@ -37,9 +37,9 @@ from protocol.messages import (
     SetEmotion,
     SpeechState,
 )
-from protocol.topics import CATEGORIES
-from services.processes.liveness import liveness_endpoint
-from services.tools.child_processes import LineReader
+from eca.protocol.topics import CATEGORIES
+from eca.services.processes.liveness import liveness_endpoint
+from eca.services.tools.child_processes import LineReader
 from tests.support.bus import eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow
@@ -329,12 +329,13 @@ def test_a_service_alone_with_no_broker_says_so_in_one_line(tmp_path: Path) -> N
     import subprocess
     import sys
 
-    from services.tools.child_processes import REPO_ROOT, subprocess_env
+    from eca.services.tools.child_processes import subprocess_env
+    from tests.support.bus import REPO_ROOT
 
     with private_bus_config() as config:
         text = config.config_path.read_text()
         config.config_path.write_text(text.replace("connect_timeout_s = 10.0", "connect_timeout_s = 0.6", 1))
-        done = subprocess.run([sys.executable, "-m", "services.processes.run", "dialogue",
+        done = subprocess.run([sys.executable, "-m", "eca.services.processes.run", "dialogue",
                                "--config", str(config.config_path), "--instance", config.instance],
                               capture_output=True, text=True, timeout=60, env=subprocess_env(), cwd=REPO_ROOT)
     assert done.returncode == 1

@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from agent.config import ConfigError
-from agent.gaze.backchannel import USER, Backchannel, BackchannelParams, ListenerBlink, Nod
-from agent.lipsync.pauses import speech_segments
+from eca.agent.config import ConfigError
+from eca.agent.gaze.backchannel import USER, Backchannel, BackchannelParams, ListenerBlink, Nod
+from eca.agent.lipsync.pauses import speech_segments
 
 NS = 1_000_000_000
 PARAMS = BackchannelParams.load()
@@ -123,7 +123,7 @@ def test_bad_speakers_and_configs_are_named() -> None:
 
 def test_a_bad_config_is_named(tmp_path) -> None:
     bad = tmp_path / "bc.toml"
-    bad.write_text((__import__("agent.config", fromlist=["config_path"]).config_path("backchannel"))
+    bad.write_text((__import__("eca.agent.config", fromlist=["config_path"]).config_path("backchannel"))
                    .read_text().replace("probability = 0.35", "probability = 1.5"))
     with pytest.raises(ConfigError, match=r"\[nod\]: 'probability' must be in \[0, 1\]"):
         BackchannelParams.load(str(bad))

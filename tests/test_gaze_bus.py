@@ -9,10 +9,10 @@ from contextlib import contextmanager
 import numpy as np
 import zmq
 
-from agent.gaze.synth import eye_position_at
-from protocol.bus import Publisher, Subscriber
-from protocol.messages import EyeState, HeadState, RoleState, Saccade
-from services.processes.gaze import GazeService
+from eca.agent.gaze.synth import eye_position_at
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.messages import EyeState, HeadState, RoleState, Saccade
+from eca.services.processes.gaze import GazeService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 # Scheduled ticks 20 s apart: a saccade within the test's few seconds can only come from the reaction.

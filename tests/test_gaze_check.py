@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.conversation_animator import ConversationAnimator
-from agent.face.flexors import FLEXOR_INDEX
-from agent.gaze.situated import USER, SituatedParams
-from agent.gaze_check import NOBODY, GazeCheck, LookCounts, check_gaze, looked_at
-from agent.script import load_scripts, parse_dialogue
-from services.tools.cli import main as eca
-from services.tools.offline import RenderSettings
-from services.tools.offline_conversation import animate_conversation, write_conversation_csv
+from eca.agent.conversation_animator import ConversationAnimator
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.gaze.situated import USER, SituatedParams
+from eca.agent.gaze_check import NOBODY, GazeCheck, LookCounts, check_gaze, looked_at
+from eca.agent.script import load_scripts, parse_dialogue
+from eca.services.tools.cli import main as eca
+from eca.services.tools.offline import RenderSettings
+from eca.services.tools.offline_conversation import animate_conversation, write_conversation_csv
 
 AGENTS = ("ada", "bob", "cy")
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.gaze.params import FACE_FEATURES, GazeParams
-from services.tools.cli import main
-from services.tools.commands.gaze_plot import PANELS, ZOOM_DEG, simulate_panels, trajectory_figure
-from services.tools.commands.gaze_trace import COLUMNS, EVENT_KINDS
+from eca.agent.gaze.params import FACE_FEATURES, GazeParams
+from eca.services.tools.cli import main
+from eca.services.tools.commands.gaze_plot import PANELS, ZOOM_DEG, simulate_panels, trajectory_figure
+from eca.services.tools.commands.gaze_trace import COLUMNS, EVENT_KINDS
 
 NEW_MODE = "saccade+noise+blink"
 EYES_ALIVE = ("mutual", "away")

@@ -9,13 +9,13 @@ from contextlib import contextmanager
 
 import zmq
 
-from agent.clock import VirtualClock
-from agent.gaze.backchannel import USER, Backchannel
-from agent.gaze.backchannel import Nod as NodAction
-from agent.gaze.situated import Conversation, HeadTurn
-from protocol.bus import Publisher, Subscriber
-from protocol.messages import AttentionState, EmotionState, Error, EyesState, Message, Nod, RoleState, UserSpeech
-from services.processes.gaze import GazeService
+from eca.agent.clock import VirtualClock
+from eca.agent.gaze.backchannel import USER, Backchannel
+from eca.agent.gaze.backchannel import Nod as NodAction
+from eca.agent.gaze.situated import Conversation, HeadTurn
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.messages import AttentionState, EmotionState, Error, EyesState, Message, Nod, RoleState, UserSpeech
+from eca.services.processes.gaze import GazeService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 AGENTS = ["ada", "bob", "cy"]

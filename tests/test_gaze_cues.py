@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from agent.gaze.engine import BLINK_ONSET, NEXT_BLINK, GazeEngine
-from agent.gaze.params import KINDS, GazeParams
+from eca.agent.gaze.engine import BLINK_ONSET, NEXT_BLINK, GazeEngine
+from eca.agent.gaze.params import KINDS, GazeParams
 
 S = 1_000_000_000
 MUTUAL, AWAY, HEAD = (KINDS.index(k) for k in ("mutual", "away", "head"))

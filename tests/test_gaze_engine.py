@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from agent.gaze.blink import lid_closure
-from agent.gaze.engine import GazeEngine, SaccadeOnsets
-from agent.gaze.inflight import LiveBlinks
-from agent.gaze.params import KINDS, GazeParams
-from agent.gaze.synth import eye_position_at
-from agent.noise import perlin_blink
+from eca.agent.gaze.blink import lid_closure
+from eca.agent.gaze.engine import GazeEngine, SaccadeOnsets
+from eca.agent.gaze.inflight import LiveBlinks
+from eca.agent.gaze.params import KINDS, GazeParams
+from eca.agent.gaze.synth import eye_position_at
+from eca.agent.noise import perlin_blink
 
 S = 1_000_000_000
 MUTUAL, AWAY, HEAD, SCAN, MICRO = (KINDS.index(k) for k in ("mutual", "away", "head", "scan", "micro"))
@@ -64,7 +64,7 @@ def test_away_saccades_use_the_drawn_magnitude_and_direction(
 ) -> None:
     away = talking_crowd["kind"] == AWAY
     magnitude = talking_crowd["magnitude_deg"][away]
-    from agent.gaze.generator import magnitude_cdf
+    from eca.agent.gaze.generator import magnitude_cdf
 
     assert stats.kstest(magnitude, lambda a: magnitude_cdf(a, params, 27.5)).pvalue > 0.01
     offset = np.hypot(talking_crowd["to_yaw_deg"][away], talking_crowd["to_pitch_deg"][away])

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from agent.gaze.engine import GazeEngine
-from agent.gaze.fixation import Fixations
-from agent.gaze.params import FACE_FEATURES, KINDS, ROLES, GazeParams
+from eca.agent.gaze.engine import GazeEngine
+from eca.agent.gaze.fixation import Fixations
+from eca.agent.gaze.params import FACE_FEATURES, KINDS, ROLES, GazeParams
 
 S = 1_000_000_000
 MUTUAL, AWAY, HEAD, SCAN, MICRO = (KINDS.index(k) for k in ("mutual", "away", "head", "scan", "micro"))

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from agent.gaze.generator import (
+from eca.agent.gaze.generator import (
     direction_from_uniform,
     magnitude_cdf,
     magnitude_from_uniform,
     saccade_duration_s,
 )
-from agent.gaze.params import GazeParams
+from eca.agent.gaze.params import GazeParams
 
 N_DRAWS = 200_000
 

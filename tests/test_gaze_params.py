@@ -7,18 +7,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.config import CONFIG_DIR, ConfigError
-from agent.counter_rng import uniform01
-from agent.gaze.engine import GazeEngine
-from agent.gaze.generator import SACCADE_STREAM, derive_seed
-from agent.gaze.params import GazeParams
-from agent.gaze.rows import COUNTER_SACCADE, KEY_SACCADE, row_uniforms
+from eca.agent.config import SHIPPED_DIR, ConfigError
+from eca.agent.counter_rng import uniform01
+from eca.agent.gaze.engine import GazeEngine
+from eca.agent.gaze.generator import SACCADE_STREAM, derive_seed
+from eca.agent.gaze.params import GazeParams
+from eca.agent.gaze.rows import COUNTER_SACCADE, KEY_SACCADE, row_uniforms
 
 EMOTIONS = ("natural", "happy", "surprised", "arrogant", "angry", "half-angry", "disappointed", "annoyed", "frightened")
 
 
 def _write_variant(tmp_path: Path, edit: str, old: str, new: str) -> Path:
-    source = (CONFIG_DIR / f"{edit}.toml").read_text()
+    source = (SHIPPED_DIR / f"{edit}.toml").read_text()
     assert old in source
     path = tmp_path / f"{edit}.toml"
     path.write_text(source.replace(old, new, 1))

@@ -6,9 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.gaze.engine import GazeEngine
-from agent.gaze.params import MODES, ROLES, GazeParams
-from agent.gaze.rows import onset_order, sort_onsets
+from eca.agent.gaze.engine import GazeEngine
+from eca.agent.gaze.params import MODES, ROLES, GazeParams
+from eca.agent.gaze.rows import onset_order, sort_onsets
 
 PARAMS = GazeParams.load()
 N_AGENTS = 3

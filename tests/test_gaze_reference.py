@@ -20,9 +20,9 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from agent.gaze.engine import GazeEngine, SaccadeOnsets
-from agent.gaze.params import KINDS, MODES, ROLES, GazeParams
-from agent.gaze.reference import Onset, ReferenceAgent
+from eca.agent.gaze.engine import GazeEngine, SaccadeOnsets
+from eca.agent.gaze.params import KINDS, MODES, ROLES, GazeParams
+from eca.agent.gaze.reference import Onset, ReferenceAgent
 
 PARAMS = GazeParams.load()
 EMOTIONS = sorted(PARAMS.emotions)

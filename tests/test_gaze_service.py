@@ -1,10 +1,10 @@
-"""The gaze service's command line (`python -m services.processes.run gaze ...`)."""
+"""The gaze service's command line (`python -m eca.services.processes.run gaze ...`)."""
 
 from __future__ import annotations
 
 import pytest
 
-from services.processes.gaze import GazeService
+from eca.services.processes.gaze import GazeService
 from tests.support.bus import private_bus_config
 
 

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from agent.gaze.engine import KIND, MUTUAL, TARGET_PITCH, TARGET_YAW, GazeEngine
-from agent.gaze.situated import USER, Conversation, GazeShift, HeadTurn, LookAt, SituatedParams, apply
+from eca.agent.gaze.engine import KIND, MUTUAL, TARGET_PITCH, TARGET_YAW, GazeEngine
+from eca.agent.gaze.situated import USER, Conversation, GazeShift, HeadTurn, LookAt, SituatedParams, apply
 
 S = 1_000_000_000
 AGENTS = ("ada", "bob", "cy")
@@ -168,7 +168,7 @@ def test_a_live_turn_of_unknown_length_looks_back_when_it_ends(params: SituatedP
 
 
 def test_the_floor_follows_the_roles_as_the_dialogue_states_say_them() -> None:
-    from agent.gaze.situated import Floor
+    from eca.agent.gaze.situated import Floor
 
     floor = Floor(AGENTS)
     first = floor.update("ada", "listening", "user", ())
@@ -186,7 +186,7 @@ def test_the_floor_follows_the_roles_as_the_dialogue_states_say_them() -> None:
 
 
 def test_a_live_change_of_floor_ends_the_last_speaker_s_turn_first(params: SituatedParams) -> None:
-    from agent.gaze.situated import Floor, take_floor
+    from eca.agent.gaze.situated import Floor, take_floor
 
     backs = 0
     for k in range(200):

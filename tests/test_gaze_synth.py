@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.gaze.synth import eye_position_at, eye_position_one, saccade_progress, saccade_velocity
+from eca.agent.gaze.synth import eye_position_at, eye_position_one, saccade_progress, saccade_velocity
 
 
 def _closed_form(tau: float) -> float:

@@ -13,12 +13,14 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
-# folder -> the packages its modules must never import
+PACKAGE = REPO_ROOT / "eca"
+
+# folder (under eca/) -> the packages its modules must never import
 FORBIDDEN: dict[str, tuple[str, ...]] = {
-    "agent": ("protocol", "services"),  # pure models
-    "protocol": ("agent", "services"),  # the wire knows nothing of models
-    "services/processes": ("services.tools", "services.pipecat"),  # tools drive processes, never the reverse
-    "services/tools": ("services.pipecat",),
+    "agent": ("eca.protocol", "eca.services", "eca.pipecat"),  # pure models
+    "protocol": ("eca.agent", "eca.services", "eca.pipecat"),  # the wire knows nothing of models
+    "services/processes": ("eca.services.tools", "eca.services.pipecat", "eca.pipecat"),  # tools drive processes
+    "services/tools": ("eca.services.pipecat", "eca.pipecat"),
 }
 
 
@@ -40,8 +42,8 @@ def within(module: str, package: str) -> bool:
 
 @pytest.mark.parametrize("folder", sorted(FORBIDDEN))
 def test_no_import_runs_the_wrong_way(folder: str) -> None:
-    modules = sorted((REPO_ROOT / folder).rglob("*.py"))
-    assert modules, f"{folder}/ holds no module"
+    modules = sorted((PACKAGE / folder).rglob("*.py"))
+    assert modules, f"eca/{folder}/ holds no module"
     wrong = [f"{path.relative_to(REPO_ROOT)} imports {module}" for path in modules
              for module in sorted(imported_modules(path))
              if any(within(module, package) for package in FORBIDDEN[folder])]
@@ -50,17 +52,17 @@ def test_no_import_runs_the_wrong_way(folder: str) -> None:
 
 def test_the_checker_sees_a_lazy_import(tmp_path: Path) -> None:
     source = tmp_path / "lazy.py"
-    source.write_text("def f():\n    from services import tools\n    import services.pipecat.face\n")
-    assert {"services.tools", "services.pipecat.face"} <= imported_modules(source)
+    source.write_text("def f():\n    from eca.services import tools\n    import eca.services.pipecat.face\n")
+    assert {"eca.services.tools", "eca.services.pipecat.face"} <= imported_modules(source)
 
 
 def test_services_holds_processes_tools_and_pipecat_only() -> None:
     """A newcomer's map: every module of services/ is in one of its three folders."""
-    top = sorted(p.name for p in (REPO_ROOT / "services").iterdir() if p.name != "__pycache__")
+    top = sorted(p.name for p in (PACKAGE / "services").iterdir() if p.name != "__pycache__")
     assert top == ["__init__.py", "pipecat", "processes", "tools"]
 
 
 def test_every_process_run_starts_lives_in_processes() -> None:
-    from services.processes.run import SERVICES
+    from eca.services.processes.run import SERVICES
 
-    assert all(within(target.split(":")[0], "services.processes") for target in SERVICES.values())
+    assert all(within(target.split(":")[0], "eca.services.processes") for target in SERVICES.values())

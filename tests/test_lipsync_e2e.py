@@ -20,7 +20,7 @@ import pytest
 pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
 
 try:
-    from services.processes.renderer import create_headless_context
+    from eca.services.processes.renderer import create_headless_context
 
     create_headless_context().release()
 except Exception as exc:  # pragma: no cover - depends on the machine

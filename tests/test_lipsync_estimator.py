@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from agent.config import ConfigError, load_toml
-from agent.lipsync import MOUTH_FLEXORS, LipSyncConfig, LipSyncEstimator, MouthTrack, mouth_track
-from agent.lipsync.features import SpectrumPeaks, formants, levinson, lpc_solve
+from eca.agent.config import ConfigError, load_toml
+from eca.agent.lipsync import MOUTH_FLEXORS, LipSyncConfig, LipSyncEstimator, MouthTrack, mouth_track
+from eca.agent.lipsync.features import SpectrumPeaks, formants, levinson, lpc_solve
 
 FRAME_S = 1.0 / 60.0  # one video frame
 

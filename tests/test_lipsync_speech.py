@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from agent.lipsync import mouth_track
-from agent.lipsync.validation import Agreement, score
+from eca.agent.lipsync import mouth_track
+from eca.agent.lipsync.validation import Agreement, score
 
-espeak = pytest.importorskip("services.processes.audio.espeak")
+espeak = pytest.importorskip("eca.services.processes.audio.espeak")
 
 SENTENCES = (
     "papa mama see you",

@@ -14,18 +14,15 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
 
-import numpy as np
 import pytest
 import zmq
-from PIL import Image
 
 pytest.importorskip("pipecat.frames.frames", reason="pipecat is not installed: pip install 'eca[pipecat]'")
 
-from protocol.bus import Subscriber  # noqa: E402
-from protocol.endpoints import default_runtime_root, load_bus_config  # noqa: E402
-from protocol.messages import (  # noqa: E402
+from eca.protocol.bus import Subscriber  # noqa: E402
+from eca.protocol.endpoints import default_runtime_root, load_bus_config  # noqa: E402
+from eca.protocol.messages import (  # noqa: E402
     EmotionState,
     Message,
     SpeechFailed,
@@ -34,7 +31,16 @@ from protocol.messages import (  # noqa: E402
     SpeechStarted,
     UserSpeech,
 )
-from tests.support.browser import browser_available, chromium, page_stats, wait_for  # noqa: E402
+from tests.support.browser import (  # noqa: E402
+    audio_energy,
+    browser_available,
+    chromium,
+    face_skin_share,
+    poll,
+    video_stats,
+    wait_for,
+    wait_for_frames,
+)
 from tests.support.bus import running  # noqa: E402
 from tests.support.web_client import user_speech_wav  # noqa: E402
 
@@ -48,16 +54,6 @@ def user_says(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The fake microphone: five seconds of silence (the bot and its eca start meanwhile), then the user."""
     return user_speech_wav(tmp_path_factory.mktemp("microphone") / "user.wav", "Hello there. How are you today?",
                            before_s=5.0, after_s=10.0)
-
-
-def audio_energy(driver: Any) -> float:
-    stats = page_stats(driver)
-    return float(stats["audio"][0]["totalAudioEnergy"] or 0.0) if stats and stats["audio"] else 0.0
-
-
-def video_stats(driver: Any) -> dict[str, Any]:
-    stats = page_stats(driver)
-    return stats["video"][0] if stats and stats["video"] else {}
 
 
 def test_the_bot_answers_the_user_with_its_face_and_voice(user_says: Path, tmp_path: Path) -> None:
@@ -89,8 +85,7 @@ def test_the_bot_answers_the_user_with_its_face_and_voice(user_says: Path, tmp_p
                 counted_s = time.monotonic() - counted_from
                 screenshot = tmp_path / "pipecat_bot_page.png"
                 driver.save_screenshot(str(screenshot))
-                face_box = driver.execute_script("const r = document.getElementById('face')"
-                                                 ".getBoundingClientRect(); return [r.x, r.y, r.width, r.height];")
+                skin = face_skin_share(driver, screenshot)
             finally:
                 bus.close()
                 ctx.term()
@@ -106,11 +101,7 @@ def test_the_bot_answers_the_user_with_its_face_and_voice(user_says: Path, tmp_p
     assert started and finished.count(started[0]) == 1  # ... then said its answer, which ended once
     assert any(isinstance(m, EmotionState) and m.name == "surprised" for m in heard)  # the script's set_emotion
     assert not runtime_left, "the bot's eca left its runtime directory behind"
-    # The page shows the face: in the video's box of the screenshot, the face's warm skin (red well above
-    # blue) covers a good part (about a quarter at 640x480); an empty player (#111) or a grey one has none.
-    x, y, width, height = (round(v) for v in face_box)
-    picture = np.asarray(Image.open(screenshot).convert("RGB"))[y:y + height, x:x + width].astype(int)
-    skin = ((picture[..., 0] > 150) & (picture[..., 0] - picture[..., 2] > 50)).mean()
+    # The page shows the face: in the video's box of the screenshot, the face's warm skin covers a good part.
     assert 0.1 < skin < 0.6, f"{skin:.1%} of the video's box is skin-coloured ({screenshot})"
 
 
@@ -132,28 +123,6 @@ def collect(bus: Subscriber, until: Callable[[list[Message]], bool], timeout_s: 
     return got + [r.message for r in bus.drain() if r.message is not None]
 
 
-def poll(value: Callable[[], float], good: Callable[[float], bool], timeout_s: float) -> float | None:
-    """`value()` once it is good, or its last value at the timeout."""
-    deadline = time.monotonic() + timeout_s
-    got = value()
-    while not good(got) and time.monotonic() < deadline:
-        time.sleep(0.2)  # polling the page from outside: no event to wait on
-        got = value()
-    return got
-
-
-def wait_for_frames(driver: Any, count: int, timeout_s: float) -> dict[str, Any]:
-    """The video statistics once `count` frames of the face have been decoded."""
-    deadline = time.monotonic() + timeout_s
-    stats: dict[str, Any] = {}
-    while time.monotonic() < deadline:
-        stats = video_stats(driver)
-        if (stats.get("framesDecoded") or 0) >= count:
-            return stats
-        time.sleep(0.2)  # polling the page from outside: no event to wait on
-    raise TimeoutError(f"{count} frames of the face not decoded within {timeout_s} s (last {stats})")
-
-
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pipecat's own, about its internals
 def test_the_hosted_path_of_the_example_builds_its_pipeline(monkeypatch: pytest.MonkeyPatch) -> None:
     """With OPENAI_API_KEY the example uses pipecat's OpenAI speech-to-text and LLM, the face's tools offered
@@ -165,7 +134,7 @@ def test_the_hosted_path_of_the_example_builds_its_pipeline(monkeypatch: pytest.
     from pipecat.services.openai.llm import OpenAILLMService
     from pipecat.services.openai.stt import OpenAISTTService
 
-    from services.pipecat import EcaFaceParams, EcaVideoService, EspeakTTSService
+    from eca.services.pipecat import EcaFaceParams, EcaVideoService, EspeakTTSService
 
     spec = importlib.util.spec_from_file_location("pipecat_bot_example", BOT)
     assert spec is not None and spec.loader is not None

@@ -35,9 +35,9 @@ from pipecat.pipeline.pipeline import Pipeline  # noqa: E402
 from pipecat.processors.frame_processor import FrameDirection, FrameProcessor  # noqa: E402
 from pipecat.tests.utils import SleepFrame, run_test  # noqa: E402
 
-from protocol.bus import Subscriber  # noqa: E402
-from protocol.endpoints import BusConfig  # noqa: E402
-from protocol.messages import (  # noqa: E402
+from eca.protocol.bus import Subscriber  # noqa: E402
+from eca.protocol.endpoints import BusConfig  # noqa: E402
+from eca.protocol.messages import (  # noqa: E402
     Message,
     RoleState,
     Say,
@@ -48,10 +48,10 @@ from protocol.messages import (  # noqa: E402
     SpeechStarted,
     UserSpeech,
 )
-from services.pipecat import EcaFaceParams, EcaVideoService  # noqa: E402
-from services.processes.audio.service import AudioService  # noqa: E402
-from services.processes.audio.sinks import NullSink  # noqa: E402
-from services.processes.dialogue import DialogueService  # noqa: E402
+from eca.services.pipecat import EcaFaceParams, EcaVideoService  # noqa: E402
+from eca.services.processes.audio.service import AudioService  # noqa: E402
+from eca.services.processes.audio.sinks import NullSink  # noqa: E402
+from eca.services.processes.dialogue import DialogueService  # noqa: E402
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
 
 pytestmark = [pytest.mark.gl, pytest.mark.filterwarnings("ignore::DeprecationWarning")]  # pipecat's own

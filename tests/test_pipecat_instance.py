@@ -22,9 +22,10 @@ pytest.importorskip("pipecat.frames.frames", reason="pipecat is not installed: p
 from pipecat.frames.frames import TTSAudioRawFrame, TTSStartedFrame, TTSStoppedFrame  # noqa: E402
 from pipecat.tests.utils import SleepFrame, run_test  # noqa: E402
 
-from protocol.endpoints import default_runtime_root  # noqa: E402
-from services.pipecat import EcaFaceParams, EcaVideoService  # noqa: E402
-from services.tools.child_processes import REPO_ROOT, LineReader, subprocess_env  # noqa: E402
+from eca.protocol.endpoints import default_runtime_root  # noqa: E402
+from eca.services.pipecat import EcaFaceParams, EcaVideoService  # noqa: E402
+from eca.services.tools.child_processes import LineReader, subprocess_env  # noqa: E402
+from tests.support.bus import REPO_ROOT  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::DeprecationWarning")]  # pipecat's own
 RATE = 16_000
@@ -85,7 +86,7 @@ def test_an_eca_started_for_the_pipeline_serves_it_and_stops_with_it() -> None:
 def test_an_eca_left_by_a_killed_process_stops_by_itself() -> None:
     name = f"pc-{secrets.token_hex(4)}"
     starter = ("import sys, time\n"
-               "from services.pipecat.instance import EcaInstance\n"
+               "from eca.services.pipecat.instance import EcaInstance\n"
                f"EcaInstance.start({name!r})\n"
                "print('eca is up', flush=True)\n"
                "time.sleep(120)\n")

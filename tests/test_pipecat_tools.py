@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("pipecat.frames.frames", reason="pipecat is not installed: pip install 'eca[pipecat]'")
+pytest.importorskip("pipecat.frames.frames", reason="pipecat is not installed: pip install 'eca-face[pipecat]'")
 
 from pipecat.adapters.llm.services.open_ai_adapter import OpenAILLMAdapter  # noqa: E402
 from pipecat.frames.frames import EndFrame  # noqa: E402
@@ -26,13 +26,18 @@ from pipecat.pipeline.pipeline import Pipeline  # noqa: E402
 from pipecat.pipeline.worker import PipelineWorker  # noqa: E402
 from pipecat.workers.runner import WorkerRunner  # noqa: E402
 
-from agent.face.emotions import load_emotion_table  # noqa: E402
-from protocol.client import AgentClient  # noqa: E402
-from protocol.messages import EmotionState, HeadState  # noqa: E402
-from services.pipecat import EcaFaceParams, EcaTools, EcaVideoService  # noqa: E402
-from services.processes.dialogue import DialogueService  # noqa: E402
-from services.tools.child_processes import REPO_ROOT, subprocess_env  # noqa: E402
-from tests.support.bus import BrokerThread, ServiceThread, private_bus_config  # noqa: E402
+from eca.agent.face.emotions import load_emotion_table  # noqa: E402
+from eca.protocol.client import AgentClient  # noqa: E402
+from eca.protocol.messages import EmotionState, HeadState  # noqa: E402
+from eca.services.pipecat import EcaFaceParams, EcaTools, EcaVideoService  # noqa: E402
+from eca.services.processes.dialogue import DialogueService  # noqa: E402
+from eca.services.tools.child_processes import subprocess_env  # noqa: E402
+from tests.support.bus import (  # noqa: E402
+    REPO_ROOT,  # noqa: E402
+    BrokerThread,
+    ServiceThread,
+    private_bus_config,
+)
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pipecat's own
 
@@ -122,7 +127,34 @@ def test_the_handlers_apply_commands_and_return_ecas_reason_when_it_refuses() ->
     assert results["head"] == {"ok": True, "applied": "move_head", "turn": 0.5, "nod": -0.25, "tilt": 0.0}
     assert isinstance(head, HeadState) and (head.nod, head.tilt) == (-0.25, 0.0)
     assert results["dance"]["ok"] is False and "set_emotion, move_head" in results["dance"]["error"]
-    assert results["after"]["ok"] is False and "not connected" in results["after"]["error"]
+    assert results["after"] == {"ok": False, "error": f"{face} has ended: the pipeline is over", "retry": False}
+
+
+def test_a_tool_called_before_the_pipeline_starts_waits_for_the_face() -> None:
+    """A bot may call the tools at once (a greeting's emotion): the call waits for the face's connection, made
+    when the pipeline starts, and is applied; one that the face cannot serve in time says to try again."""
+    results: dict[str, dict[str, Any]] = {}
+
+    async def calls(face: EcaVideoService, idle: EcaVideoService) -> None:
+        tools = EcaTools(face)
+        early = asyncio.create_task(tools.set_emotion("surprised", 0.6))
+        await asyncio.sleep(0)  # the call is waiting before the pipeline exists
+        assert not early.done()
+        async with running(face):
+            results["early"] = await asyncio.wait_for(early, 20.0)
+        results["never"] = await EcaTools(idle).set_emotion("happy")  # its pipeline never starts
+
+    with private_bus_config(services=["dialogue"]) as config, BrokerThread(config), \
+            ServiceThread(DialogueService(config)), AgentClient(config) as client:
+        face = EcaVideoService(EcaFaceParams(instance=config.instance, config_path=config.config_path, video=False))
+        idle = EcaVideoService(EcaFaceParams(instance=config.instance, config_path=config.config_path, video=False,
+                                             connect_timeout_s=0.2))
+        asyncio.run(calls(face, idle))
+        emotion = client.wait_for(lambda m: isinstance(m, EmotionState) and m.name == "surprised", 5.0)
+    assert results["early"] == {"ok": True, "applied": "set_emotion", "emotion": "surprised", "intensity": 0.6}
+    assert isinstance(emotion, EmotionState) and emotion.intensity == 0.6
+    assert results["never"]["ok"] is False and results["never"]["retry"] is True
+    assert "not connected to eca yet" in results["never"]["error"]
 
 
 def test_without_pipecat_the_import_says_how_to_install_it() -> None:
@@ -133,20 +165,21 @@ def test_without_pipecat_the_import_says_how_to_install_it() -> None:
         "        if name == 'pipecat' or name.startswith('pipecat.'):\n"
         "            raise ModuleNotFoundError(f'No module named {name!r}')\n"
         "sys.meta_path.insert(0, NoPipecat())\n"
-        "import protocol.client, services.processes.web.service  # eca itself needs no pipecat\n"
+        "import eca.protocol.client, eca.services.processes.web.service  # eca itself needs no pipecat\n"
         "try:\n"
-        "    import services.pipecat\n"
+        "    import eca.services.pipecat\n"
         "except ImportError as exc:\n"
         "    print('ImportError:', exc)\n"
     )
     done = subprocess.run([sys.executable, "-c", blocked], capture_output=True, text=True, env=subprocess_env(),
                           cwd=REPO_ROOT, timeout=60)
     assert done.returncode == 0, done.stderr
-    assert "ImportError:" in done.stdout and "pip install 'eca[pipecat]'" in done.stdout
+    assert "ImportError:" in done.stdout and "pip install 'eca-face[pipecat]'" in done.stdout
 
 
 def test_nothing_outside_the_package_imports_pipecat() -> None:
     importing = re.compile(r"^\s*(from|import)\s+pipecat\b", re.MULTILINE)
-    outside = [p for folder in ("agent", "protocol", "services") for p in (REPO_ROOT / folder).rglob("*.py")
-               if Path("services", "pipecat") not in p.relative_to(REPO_ROOT).parents]
+    package = REPO_ROOT / "eca"
+    outside = [p for p in package.rglob("*.py") if Path("services", "pipecat") not in p.relative_to(package).parents
+               and p.relative_to(package) != Path("pipecat.py")]
     assert outside and not [str(p) for p in outside if importing.search(p.read_text(encoding="utf-8"))]

@@ -14,7 +14,7 @@ from pipecat.frames.frames import TTSAudioRawFrame, TTSSpeakFrame, TTSStartedFra
 from pipecat.pipeline.worker import PipelineParams  # noqa: E402
 from pipecat.tests.utils import SleepFrame, run_test  # noqa: E402
 
-from services.processes.audio.tts import espeak_available  # noqa: E402
+from eca.services.processes.audio.tts import espeak_available  # noqa: E402
 
 pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning"),  # pipecat's own
               pytest.mark.skipif(not espeak_available(), reason="espeak-ng is not installed")]
@@ -22,7 +22,7 @@ pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning"),  # pipec
 
 def espeak_tts(**settings: object) -> object:
     # Imported in the test, where pipecat's deprecation notice for a TTS class it defines is filtered.
-    from services.pipecat import EspeakTTSService
+    from eca.services.pipecat import EspeakTTSService
 
     return EspeakTTSService(**settings)  # type: ignore[arg-type]
 

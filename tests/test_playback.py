@@ -9,14 +9,14 @@ import msgpack
 import pytest
 import zmq
 
-from agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, SayCue
-from protocol.bus import Publisher, Subscriber
-from protocol.codec import encode
-from protocol.messages import EmotionState, MoveHead, RoleState, Say, SetEmotion, SetGazeTarget
-from services.processes.dialogue import DialogueService
-from services.tools.cli import main as eca
-from services.tools.playback import CueTranslator
-from services.tools.recording import RecordingError, RecordingWriter, read_recording
+from eca.agent.script import EmotionCue, GazeCue, HeadCue, RoleCue, SayCue
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.codec import encode
+from eca.protocol.messages import EmotionState, MoveHead, RoleState, Say, SetEmotion, SetGazeTarget
+from eca.services.processes.dialogue import DialogueService
+from eca.services.tools.cli import main as eca
+from eca.services.tools.playback import CueTranslator
+from eca.services.tools.recording import RecordingError, RecordingWriter, read_recording
 from tests.support.bus import ServiceThread
 
 
@@ -142,8 +142,8 @@ def test_play_refuses_a_bad_script_and_sends_nothing(bus, tmp_path: Path, capsys
 
 
 def test_a_gaze_cue_that_leaves_an_axis_alone_keeps_it_offline_as_live() -> None:
-    from agent.animator import TimelineAnimator
-    from agent.script import Timeline
+    from eca.agent.animator import TimelineAnimator
+    from eca.agent.script import Timeline
 
     cues = (GazeCue(0.0, "ada", None, 10.0, 5.0), GazeCue(0.5, "ada", None, -10.0, None),
             GazeCue(1.0, "ada", None, None, -3.0))
@@ -184,8 +184,8 @@ def test_play_refuses_a_cue_the_protocol_would_refuse_before_sending_anything(bu
 
 
 def test_the_animator_reports_the_role_and_emotion_its_models_are_in() -> None:
-    from agent.animator import TimelineAnimator
-    from agent.script import Timeline
+    from eca.agent.animator import TimelineAnimator
+    from eca.agent.script import Timeline
 
     cues = (RoleCue(0.5, "bob", "talking"), EmotionCue(1.0, "bob", "happy", 0.7, 0.2),
             RoleCue(1.0, "ada", "listening"), EmotionCue(1.5, "ada", "angry", 1.0, 0.2))

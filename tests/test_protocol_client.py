@@ -7,8 +7,8 @@ import threading
 import pytest
 import zmq
 
-from protocol.bus import BusTimeout
-from protocol.client import AgentClient
+from eca.protocol.bus import BusTimeout
+from eca.protocol.client import AgentClient
 from tests.support.bus import private_bus_config
 
 
@@ -31,7 +31,7 @@ def test_the_client_s_command_methods_take_the_command_s_fields() -> None:
     import dataclasses
     import inspect
 
-    from protocol.messages import ALL_MESSAGES, ENVELOPE_FIELDS
+    from eca.protocol.messages import ALL_MESSAGES, ENVELOPE_FIELDS
 
     methods = {"user_speech": "user_speaking", "speech_chunk": "say_stream"}
     # what a method deliberately leaves to another: a streamed say is say_stream's; a chunk's index, pcm and

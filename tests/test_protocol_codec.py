@@ -21,9 +21,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from protocol.bus import Publisher, Subscriber, parse_frames
-from protocol.codec import DEFAULT_MAX_BYTES, FieldSpec, ProtocolError, decode, encode, field_specs
-from protocol.messages import (
+from eca.protocol.bus import Publisher, Subscriber, parse_frames
+from eca.protocol.codec import DEFAULT_MAX_BYTES, FieldSpec, ProtocolError, decode, encode, field_specs
+from eca.protocol.messages import (
     ALL_AGENTS,
     ALL_MESSAGES,
     MESSAGE_TYPES,
@@ -39,7 +39,7 @@ from protocol.messages import (
     SetEmotion,
     SpeechState,
 )
-from protocol.topics import topic_for
+from eca.protocol.topics import topic_for
 from tests.support.bus import BrokerThread, private_bus_config
 
 ENVELOPE = tuple(f.name for f in dataclasses.fields(Message))
@@ -676,7 +676,7 @@ def test_the_subscriber_skips_only_exact_repeats_of_a_cached_state() -> None:
 
 
 def test_a_command_that_sets_a_state_has_that_state_s_fields_and_produces_it() -> None:
-    from protocol.messages import StateCommand
+    from eca.protocol.messages import StateCommand
 
     commands = [c for c in ALL_MESSAGES if issubclass(c, StateCommand)]
     assert {c.TYPE for c in commands} == {"set_role", "set_emotion", "move_head", "set_eyes", "set_gaze_target"}

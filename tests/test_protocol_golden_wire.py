@@ -12,9 +12,9 @@ import typing
 from pathlib import Path
 from typing import Any, Literal
 
-from protocol.codec import FieldSpec, decode, encode, field_specs
-from protocol.messages import ALL_MESSAGES, Message
-from protocol.topics import topic_for
+from eca.protocol.codec import FieldSpec, decode, encode, field_specs
+from eca.protocol.messages import ALL_MESSAGES, Message
+from eca.protocol.topics import topic_for
 
 GOLDEN = Path(__file__).parent / "golden" / "wire_bytes.json"
 

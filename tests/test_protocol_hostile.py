@@ -16,9 +16,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from protocol.bus import MAX_TOPIC_BYTES, parse_frames
-from protocol.codec import ProtocolError, decode, describe, encode, field_specs
-from protocol.messages import ALL_MESSAGES, SetEmotion
+from eca.protocol.bus import MAX_TOPIC_BYTES, parse_frames
+from eca.protocol.codec import ProtocolError, decode, describe, encode, field_specs
+from eca.protocol.messages import ALL_MESSAGES, SetEmotion
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 MAX_REASON_CHARS = 1000  # far above any reason the codec writes; a value printed whole would exceed it

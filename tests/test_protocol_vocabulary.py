@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from typing import get_args
 
-from agent import vocabulary
-from protocol import messages
+from eca.agent import vocabulary
+from eca.protocol import messages
 
 
 def test_the_protocol_uses_the_models_names() -> None:
@@ -18,9 +18,9 @@ def test_the_protocol_uses_the_models_names() -> None:
 
 
 def test_the_gaze_model_and_the_scripts_read_the_one_vocabulary() -> None:
-    from agent.face import scene
-    from agent.gaze import params
-    from agent.script import vocab
+    from eca.agent.face import scene
+    from eca.agent.gaze import params
+    from eca.agent.script import vocab
 
     assert params.MODES == vocab.EYE_MODES == scene.EYE_MODES == vocabulary.EYE_MODES
     assert params.ROLES == vocab.ROLES == scene.ROLES == vocabulary.ROLES

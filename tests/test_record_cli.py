@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from services.tools.cli import main
+from eca.services.tools.cli import main
 from tests.support.bus import private_bus_config
 
 
@@ -32,9 +32,9 @@ def test_record_with_no_instance_says_so_instead_of_recording_nothing(tmp_path: 
 
 
 def test_a_recording_starts_with_the_current_state_and_holds_what_followed(tmp_path: Path) -> None:
-    from protocol.client import AgentClient
-    from services.processes.dialogue import DialogueService
-    from services.tools.recording import read_recording
+    from eca.protocol.client import AgentClient
+    from eca.services.processes.dialogue import DialogueService
+    from eca.services.tools.recording import read_recording
     from tests.support.bus import BrokerThread, ServiceThread, eca_command, running
 
     target = tmp_path / "bus.rec"

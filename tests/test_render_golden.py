@@ -14,9 +14,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from agent.face.emotions import load_emotion_table
-from agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from services.processes.renderer import HeadlessContextError, Renderer, RenderToggles, create_headless_context, read_rgb
+from eca.agent.face.emotions import load_emotion_table
+from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from eca.services.processes.renderer import (
+    HeadlessContextError,
+    Renderer,
+    RenderToggles,
+    create_headless_context,
+    read_rgb,
+)
 
 pytestmark = pytest.mark.gl
 

@@ -9,9 +9,9 @@ import moderngl
 import numpy as np
 import pytest
 
-from agent.face.flexors import N_FLEXORS
-from agent.face.frame import FlexorFrame
-from services.processes.renderer import (
+from eca.agent.face.flexors import N_FLEXORS
+from eca.agent.face.frame import FlexorFrame
+from eca.services.processes.renderer import (
     HeadlessContextError,
     Renderer,
     RenderToggles,
@@ -20,7 +20,7 @@ from services.processes.renderer import (
     load_render_config,
     read_rgb,
 )
-from services.processes.renderer.mesh import (
+from eca.services.processes.renderer.mesh import (
     CURVE_POINTS,
     EYE_RADIUS,
     N_BONES,
@@ -29,8 +29,8 @@ from services.processes.renderer.mesh import (
     eye_centre,
     shader_template,
 )
-from services.processes.renderer.renderer import SURFACE, VERTEX_FORMAT
-from services.processes.renderer.shaders import FACE_VERTEX
+from eca.services.processes.renderer.renderer import SURFACE, VERTEX_FORMAT
+from eca.services.processes.renderer.shaders import FACE_VERTEX
 
 SURFACE_FACE = (SURFACE, "face")
 
@@ -285,7 +285,7 @@ def test_the_head_outline_lies_only_along_the_background(ctx, monkeypatch) -> No
     """The head's outline is its contour against what lies behind it: where the head folds away (the
     hair's ledge, the chin's blend into the jaw), an edge between a front and a back face runs across the
     visible surface, and no line may be drawn along it."""
-    import services.processes.renderer.renderer as module
+    import eca.services.processes.renderer.renderer as module
 
     config = load_render_config()
     r = Renderer(ctx, (640, 480), dataclasses.replace(config, colors=dict(config.colors, outline=MAGENTA)))
@@ -314,7 +314,7 @@ def test_the_head_outline_lies_only_along_the_background(ctx, monkeypatch) -> No
 
 def test_outline_quads_match_an_inverted_hull(ctx, monkeypatch) -> None:
     """The silhouette quads draw the line an inverted hull of the static parts would (the old way)."""
-    import services.processes.renderer.renderer as module
+    import eca.services.processes.renderer.renderer as module
 
     r = Renderer(ctx, SIZE)
     hull = np.concatenate([r.static.indices, r.static.indices + np.uint32(r.static.vertices.shape[0])])
@@ -406,7 +406,7 @@ def test_the_compiled_facing_pass_selects_what_the_numpy_reference_does(ctx) -> 
 def test_the_warm_up_compiles_what_a_frame_runs(ctx) -> None:
     """kernels.warm_up (which setup runs) compiles each compiled function for the very argument types a
     renderer's frame passes it, so that no frame compiles anything."""
-    from services.processes.renderer import kernels, mesh
+    from eca.services.processes.renderer import kernels, mesh
 
     compiled = [kernels.static_frame_indices, mesh.brow_curves, mesh._mouth_shape, mesh._curve_rows,
                 mesh.curve_block, mesh._pose_bones]  # fmt: skip

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.face.flexors import N_FLEXORS
-from agent.face.frame import FlexorFrame
-from services.processes.renderer.config import load_render_config
-from services.processes.renderer.mesh import (
+from eca.agent.face.flexors import N_FLEXORS
+from eca.agent.face.frame import FlexorFrame
+from eca.services.processes.renderer.config import load_render_config
+from eca.services.processes.renderer.mesh import (
     BONE_ULID_L,
     CURVE_POINTS,
     EXTRUDED,
@@ -297,9 +297,9 @@ def test_extruded_copies_keep_everything_but_the_marked_material(static) -> None
 
 
 def test_render_config_errors_name_the_file_and_key(tmp_path) -> None:
-    from agent.config import ConfigError
+    from eca.agent.config import ConfigError
 
-    good = (Path(__file__).resolve().parent.parent / "configs" / "render.toml").read_text()
+    good = (Path(__file__).resolve().parent.parent / "eca" / "configs" / "render.toml").read_text()
     cases = {
         "skin = [0.98, 0.80, 0.66]": ("skin = [0.98, 0.80]", "'skin' must be a list of 3 numbers"),
         "band_edges = [0.05, 0.5]": ("band_edges = [0.5, 0.05]", "'band_edges' must increase"),

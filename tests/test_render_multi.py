@@ -11,19 +11,19 @@ import av
 import numpy as np
 import pytest
 
-from agent.face.flexors import FLEXOR_INDEX
-from agent.script import load_scripts
-from services.tools.cli import main as eca
-from services.tools.offline import AUDIO_RATE, RenderSettings
-from services.tools.offline_conversation import (
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.script import load_scripts
+from eca.services.tools.cli import main as eca
+from eca.services.tools.offline import AUDIO_RATE, RenderSettings
+from eca.services.tools.offline_conversation import (
     AGENT_VOICES,
     CONVERSATION_CSV_COLUMNS,
     animate_conversation,
     voice_of,
     write_conversation_csv,
 )
-from services.tools.playback import AGENT_VOICE, PARTNER_VOICE
-from services.tools.video_render import panel_widths
+from eca.services.tools.playback import AGENT_VOICE, PARTNER_VOICE
+from eca.services.tools.video_render import panel_widths
 
 AGENTS = ("ada", "bob", "cy")
 TURN, SAY_AH = FLEXOR_INDEX["turn"], FLEXOR_INDEX["say_ah"]
@@ -155,9 +155,9 @@ def _pausing_voice(path: Path, stretches: int) -> None:
 def test_listeners_nod_at_the_speakers_pauses_only_in_the_recommended_mode(tmp_path: Path) -> None:
     import dataclasses
 
-    from agent.conversation_animator import ConversationAnimator
-    from agent.gaze.backchannel import BackchannelParams
-    from services.tools.offline_conversation import gather_lines
+    from eca.agent.conversation_animator import ConversationAnimator
+    from eca.agent.gaze.backchannel import BackchannelParams
+    from eca.services.tools.offline_conversation import gather_lines
 
     _pausing_voice(tmp_path / "user.wav", 6)
     _pausing_voice(tmp_path / "ada.wav", 3)

@@ -9,10 +9,10 @@ import av
 import numpy as np
 import pytest
 
-from agent.face.flexors import FLEXOR_NAMES
-from agent.script import build_timeline
-from services.tools.cli import main as eca
-from services.tools.offline import CSV_COLUMNS, RenderSettings, animate
+from eca.agent.face.flexors import FLEXOR_NAMES
+from eca.agent.script import build_timeline
+from eca.services.tools.cli import main as eca
+from eca.services.tools.offline import CSV_COLUMNS, RenderSettings, animate
 
 pytestmark = pytest.mark.gl
 DATA = Path(__file__).parent / "data" / "scripts"
@@ -176,10 +176,10 @@ def test_a_single_listener_nods_at_its_partner_s_pauses_in_the_recommended_mode(
     import dataclasses
     import wave
 
-    from agent.animator import TimelineAnimator
-    from agent.face.flexors import FLEXOR_INDEX
-    from agent.gaze.backchannel import BackchannelParams
-    from services.tools.offline import AUDIO_RATE, _lines, speech_events
+    from eca.agent.animator import TimelineAnimator
+    from eca.agent.face.flexors import FLEXOR_INDEX
+    from eca.agent.gaze.backchannel import BackchannelParams
+    from eca.services.tools.offline import AUDIO_RATE, _lines, speech_events
 
     t = np.arange(AUDIO_RATE) / AUDIO_RATE
     buzz = sum(np.sin(2 * np.pi * 120 * h * t) / h for h in range(1, 30)) * 0.3 * (0.6 + 0.4 * np.sin(np.pi * t))

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from agent.face.emotions import PAPER_EMOTIONS, load_emotion_table
-from agent.face.flexors import FLEXOR_INDEX
-from services.processes.renderer import HeadlessContextError, create_headless_context
-from services.processes.renderer.config import load_render_config
-from services.tools.commands import snapshot
-from services.tools.commands.snapshot import SnapshotError, parse_size, pose_flexors
+from eca.agent.face.emotions import PAPER_EMOTIONS, load_emotion_table
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.services.processes.renderer import HeadlessContextError, create_headless_context
+from eca.services.processes.renderer.config import load_render_config
+from eca.services.tools.commands import snapshot
+from eca.services.tools.commands.snapshot import SnapshotError, parse_size, pose_flexors
 
 
 def _gl_available() -> bool:

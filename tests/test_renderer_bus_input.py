@@ -7,11 +7,11 @@ import time
 import pytest
 import zmq
 
-from protocol.bus import Publisher, Received, Subscriber
-from protocol.messages import ClockAnchor, EmotionState, MouthKeys, SpeechFailed, SpeechStarted
-from protocol.topics import topic_for
-from services.processes.renderer.options import RendererOptions
-from services.processes.renderer.service import RendererService
+from eca.protocol.bus import Publisher, Received, Subscriber
+from eca.protocol.messages import ClockAnchor, EmotionState, MouthKeys, SpeechFailed, SpeechStarted
+from eca.protocol.topics import topic_for
+from eca.services.processes.renderer.options import RendererOptions
+from eca.services.processes.renderer.service import RendererService
 from tests.support.bus import BrokerThread, private_bus_config
 
 pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)

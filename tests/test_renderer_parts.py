@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from agent.clock import VirtualClock
-from protocol.bus import Received, parse_frames
-from protocol.codec import encode
-from protocol.endpoints import BusConfig
-from protocol.messages import (
+from eca.agent.clock import VirtualClock
+from eca.protocol.bus import Received, parse_frames
+from eca.protocol.codec import encode
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import (
     ClockAnchor,
     EmotionState,
     EyesState,
@@ -26,15 +26,15 @@ from protocol.messages import (
     RoleState,
     Saccade,
 )
-from protocol.topics import topic_for
-from services.processes.renderer import bus_scene
-from services.processes.renderer.bus_scene import KEEP_EYE_SAMPLES, BusScenes
-from services.processes.renderer.options import RendererOptions
-from services.processes.renderer.outputs import DrawnFrame, OffscreenCanvas, SinkOutput
-from services.processes.renderer.schedule import FrameSchedule
-from services.processes.renderer.service import RendererService
-from services.processes.renderer.video import PngWriter
-from services.processes.runtime import Service
+from eca.protocol.topics import topic_for
+from eca.services.processes.renderer import bus_scene
+from eca.services.processes.renderer.bus_scene import KEEP_EYE_SAMPLES, BusScenes
+from eca.services.processes.renderer.options import RendererOptions
+from eca.services.processes.renderer.outputs import DrawnFrame, OffscreenCanvas, SinkOutput
+from eca.services.processes.renderer.schedule import FrameSchedule
+from eca.services.processes.renderer.service import RendererService
+from eca.services.processes.renderer.video import PngWriter
+from eca.services.processes.runtime import Service
 from tests.support.bus import BrokerThread, private_bus_config
 
 S = 1_000_000_000
@@ -234,7 +234,7 @@ def test_a_drain_reads_a_bounded_number_of_messages_per_frame(config: BusConfig,
 
 @pytest.fixture(scope="module")
 def egl() -> None:
-    from services.processes.renderer import create_headless_context
+    from eca.services.processes.renderer import create_headless_context
 
     try:
         create_headless_context().release()
@@ -303,8 +303,8 @@ def test_every_output_gets_each_drawn_frame_with_its_slot_and_display_time(egl: 
 @pytest.mark.gl
 def test_the_parts_draw_a_face_for_a_service_of_their_own(egl: None, tmp_path: Path) -> None:
     # The web service's way: its own scenes, schedule, stage and outputs, no renderer service.
-    from services.processes.renderer.renderer import Renderer
-    from services.processes.renderer.stage import Stage
+    from eca.services.processes.renderer.renderer import Renderer
+    from eca.services.processes.renderer.stage import Stage
 
     with private_bus_config(agents=["ada", "bob"]) as config:
         svc = Service(config)
@@ -339,10 +339,10 @@ def test_the_face_as_yuv420p_from_the_gpu_matches_swscale_and_its_layout(egl: No
     import av
     import moderngl
 
-    from agent.face.model import FaceModel
-    from services.processes.renderer import create_headless_context, read_rgb
-    from services.processes.renderer.renderer import Renderer
-    from services.processes.renderer.yuv import YuvTarget
+    from eca.agent.face.model import FaceModel
+    from eca.services.processes.renderer import create_headless_context, read_rgb
+    from eca.services.processes.renderer.renderer import Renderer
+    from eca.services.processes.renderer.yuv import YuvTarget
 
     ctx = create_headless_context()
     try:

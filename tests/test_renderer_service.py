@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import zmq
 
-from agent.face.scene import LiveScene
-from agent.face.settings import load_flexor_units
-from agent.gaze.synth import eye_position_at
-from protocol.bus import Publisher, Subscriber
-from protocol.endpoints import BusConfig
-from protocol.messages import ClockAnchor, EmotionState, EyeState, FaceFrame, HeadState, MouthKeys, Saccade
-from services.processes.renderer.options import RendererOptions, options_from
-from services.processes.renderer.service import RendererService
-from services.processes.renderer.video import read_video_frames
+from eca.agent.face.scene import LiveScene
+from eca.agent.face.settings import load_flexor_units
+from eca.agent.gaze.synth import eye_position_at
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import ClockAnchor, EmotionState, EyeState, FaceFrame, HeadState, MouthKeys, Saccade
+from eca.services.processes.renderer.options import RendererOptions, options_from
+from eca.services.processes.renderer.service import RendererService
+from eca.services.processes.renderer.video import read_video_frames
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
@@ -27,7 +27,7 @@ UNITS = load_flexor_units()
 SMALL = (96, 72)
 
 try:
-    from services.processes.renderer import create_headless_context
+    from eca.services.processes.renderer import create_headless_context
 
     create_headless_context().release()
 except Exception as exc:  # pragma: no cover - depends on the machine

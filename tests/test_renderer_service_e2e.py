@@ -1,5 +1,5 @@
 """End to end with real processes: broker, dialogue, gaze and a headless renderer, each started as
-`python -m services.processes.run`.
+`python -m eca.services.processes.run`.
 
 Commands go in on the bus like any dialogue manager's; what comes back is the renderer's published face
 frames, which are exactly what it drew.
@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 import zmq
 
-from agent.face.emotions import load_emotion_table
-from agent.face.flexors import FLEXOR_NAMES
-from agent.face.settings import load_flexor_units
-from agent.gaze.synth import eye_position_at
-from protocol.bus import Subscriber
-from protocol.client import AgentClient
-from protocol.endpoints import BusConfig
-from protocol.messages import EmotionState, FaceFrame, RoleState, Saccade
+from eca.agent.face.emotions import load_emotion_table
+from eca.agent.face.flexors import FLEXOR_NAMES
+from eca.agent.face.settings import load_flexor_units
+from eca.agent.gaze.synth import eye_position_at
+from eca.protocol.bus import Subscriber
+from eca.protocol.client import AgentClient
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import EmotionState, FaceFrame, RoleState, Saccade
 from tests.support.bus import private_bus_config, running
 
 pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)
@@ -32,7 +32,7 @@ UNITS = load_flexor_units()
 EXPRESSION = [n for n in FLEXOR_NAMES if n not in ("look_x", "look_y", "blink_l", "blink_r", "turn", "nod", "tilt")]
 
 try:
-    from services.processes.renderer import create_headless_context
+    from eca.services.processes.renderer import create_headless_context
 
     create_headless_context().release()
 except Exception as exc:  # pragma: no cover - depends on the machine
@@ -40,7 +40,7 @@ except Exception as exc:  # pragma: no cover - depends on the machine
 
 
 def service_argv(config: BusConfig, name: str, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "services.processes.run", name, "--config", str(config.config_path),
+    return [sys.executable, "-m", "eca.services.processes.run", name, "--config", str(config.config_path),
             "--instance", config.instance, *extra]
 
 

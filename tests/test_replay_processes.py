@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import zmq
 
-from protocol.bus import Subscriber
-from protocol.endpoints import BusConfig
-from protocol.messages import EmotionState, FaceFrame, RoleState, Saccade
+from eca.protocol.bus import Subscriber
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import EmotionState, FaceFrame, RoleState, Saccade
 from tests.support.bus import REPO_ROOT, eca_command, private_bus_config, running
 
 pytestmark = [pytest.mark.slow, pytest.mark.gl]

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.face.emotions import load_emotion_table
-from agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES
-from agent.face.scene import LiveScene
-from agent.face.settings import load_flexor_units
-from agent.gaze.synth import eye_position_at
+from eca.agent.face.emotions import load_emotion_table
+from eca.agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES
+from eca.agent.face.scene import LiveScene
+from eca.agent.face.settings import load_flexor_units
+from eca.agent.gaze.synth import eye_position_at
 
 S = 1_000_000_000
 MS = 1_000_000

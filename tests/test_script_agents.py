@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from agent.script import DEFAULT_AGENT, HeadCue, ScriptError, load_script, load_scripts
-from services.tools.cli import main as eca
+from eca.agent.script import DEFAULT_AGENT, HeadCue, ScriptError, load_script, load_scripts
+from eca.services.tools.cli import main as eca
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).parent / "data" / "scripts"
@@ -22,7 +22,7 @@ def dialogue(tmp_path: Path, agent: str, name: str = "d.xml") -> Path:
 
 
 def test_the_one_default_agent_is_the_default_instance_agent() -> None:
-    config = tomllib.loads((ROOT / "configs" / "default.toml").read_text())
+    config = tomllib.loads((ROOT / "eca" / "configs" / "default.toml").read_text())
     assert DEFAULT_AGENT == config["agents"]["ids"][0] == "ada"
     assert load_scripts([HEAD]).agent == DEFAULT_AGENT
 
@@ -73,7 +73,7 @@ def test_every_command_defaults_to_the_dialogues_agent(tmp_path: Path, capsys: p
 
 
 def test_no_command_hard_codes_an_agent_of_its_own() -> None:
-    from services.tools.cli import build_parser
+    from eca.services.tools.cli import build_parser
 
     parser = build_parser()
     for command in ("render", "experiment", "check", "play"):

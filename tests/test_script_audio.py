@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import soundfile
 
-from agent.script import AudioFileError, ScriptError, load_dialogue, wav_duration
-from services.tools.cli import main as eca
-from services.tools.script_input import sound_duration
+from eca.agent.script import AudioFileError, ScriptError, load_dialogue, wav_duration
+from eca.services.tools.cli import main as eca
+from eca.services.tools.script_input import sound_duration
 
 DATA = Path(__file__).parent / "data" / "scripts"
 

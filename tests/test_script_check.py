@@ -7,12 +7,12 @@ from pathlib import Path
 
 import pytest
 
-from agent.face.emotions import PAPER_EMOTIONS
-from agent.script import EmotionCue, HeadCue, RoleCue, SayCue, ScriptError, ScriptErrors, load_script, parse_params
-from services.tools.cli import main
+from eca.agent.face.emotions import PAPER_EMOTIONS
+from eca.agent.script import EmotionCue, HeadCue, RoleCue, SayCue, ScriptError, ScriptErrors, load_script, parse_params
+from eca.services.tools.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
-DEMO = ROOT / "configs" / "demo"
+DEMO = ROOT / "eca" / "configs" / "demo"
 DATA = Path(__file__).parent / "data" / "scripts"
 
 

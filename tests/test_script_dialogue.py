@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from agent.script import (
+from eca.agent.script import (
     EmotionCue,
     GazeCue,
     HeadCue,
@@ -162,7 +162,7 @@ def test_parameter_files_inside_a_turn_count_from_its_start(tmp_path: Path) -> N
 
 
 def test_cues_that_leave_an_axis_alone_keep_the_current_value() -> None:
-    from agent.script import GazeCue, HeadCue
+    from eca.agent.script import GazeCue, HeadCue
 
     head = HeadCue(0.0, "ada", turn=None, nod=-0.3, tilt=None, duration_s=1.0)
     assert head.targets((0.5, 0.2, 0.1)) == (0.5, -0.3, 0.1)

@@ -7,7 +7,7 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from agent.script import ScriptError, load_script, parse_dialogue, parse_params
+from eca.agent.script import ScriptError, load_script, parse_dialogue, parse_params
 
 DATA = Path(__file__).parent / "data" / "scripts"
 PAPER = (DATA / "paper_head.txt").read_text()

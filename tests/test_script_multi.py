@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from agent.gaze.situated import USER
-from agent.script import (
+from eca.agent.gaze.situated import USER
+from eca.agent.script import (
     EmotionCue,
     HeadCue,
     RoleCue,
@@ -17,11 +17,11 @@ from agent.script import (
     load_scripts,
     parse_dialogue,
 )
-from agent.script.dialogue import USER as SCRIPT_USER
-from services.tools.cli import main as eca
+from eca.agent.script.dialogue import USER as SCRIPT_USER
+from eca.services.tools.cli import main as eca
 
 ROOT = Path(__file__).resolve().parent.parent
-THREE = ROOT / "configs" / "demo" / "three.xml"
+THREE = ROOT / "eca" / "configs" / "demo" / "three.xml"
 DATA = Path(__file__).parent / "data" / "scripts"
 
 

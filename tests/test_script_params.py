@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from agent.face.flexors import FLEXOR_INDEX
-from agent.script import ScriptError, load_params, load_script, parse_params
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.script import ScriptError, load_params, load_script, parse_params
 
 DATA = Path(__file__).parent / "data" / "scripts"
 

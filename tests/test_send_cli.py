@@ -12,12 +12,12 @@ import pytest
 import soundfile as sf
 import zmq
 
-from protocol.bus import Publisher
-from protocol.client import AgentClient
-from protocol.endpoints import BusConfig
-from protocol.messages import EmotionState, SetEmotion
-from services.processes.dialogue import DialogueService
-from services.tools.cli import main
+from eca.protocol.bus import Publisher
+from eca.protocol.client import AgentClient
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import EmotionState, SetEmotion
+from eca.services.processes.dialogue import DialogueService
+from eca.services.tools.cli import main
 from tests.support.bus import ServiceThread
 
 
@@ -94,10 +94,10 @@ def test_a_command_sent_again_is_acknowledged_again_but_applied_once(bus: BusCon
 
 def test_every_state_verb_takes_every_field_of_its_command_within_its_limits(
         capsys: pytest.CaptureFixture[str]) -> None:
-    from protocol.codec import field_specs
-    from protocol.messages import ENVELOPE_FIELDS
-    from services.tools.cli import build_parser
-    from services.tools.commands.send import STATE_VERBS, option_name
+    from eca.protocol.codec import field_specs
+    from eca.protocol.messages import ENVELOPE_FIELDS
+    from eca.services.tools.cli import build_parser
+    from eca.services.tools.commands.send import STATE_VERBS, option_name
 
     parser = build_parser()
     for verb, (cls, _) in STATE_VERBS.items():

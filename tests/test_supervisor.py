@@ -6,8 +6,8 @@ import signal
 
 import pytest
 
-from agent.clock import VirtualClock
-from services.tools.supervisor import RestartPolicy, Supervisor
+from eca.agent.clock import VirtualClock
+from eca.services.tools.supervisor import RestartPolicy, Supervisor
 
 
 class FakeProcess:
@@ -195,7 +195,7 @@ def test_a_broker_that_cannot_bind_releases_its_sockets_and_lock(tmp_path) -> No
 
     import zmq
 
-    from services.processes.broker import Broker
+    from eca.services.processes.broker import Broker
     from tests.support.bus import private_bus_config
 
     with socket.socket() as taken:
@@ -238,9 +238,9 @@ def test_a_killed_service_is_polled_until_its_end_is_collected(rig) -> None:
 
 
 def test_the_bus_view_holds_a_fixed_amount_whatever_arrives() -> None:
-    from protocol.bus import Received
-    from protocol.messages import ALL_AGENTS, EmotionState, Error, Heartbeat
-    from services.tools.bus_view import MAX_SERVICES_SHOWN, BusView
+    from eca.protocol.bus import Received
+    from eca.protocol.messages import ALL_AGENTS, EmotionState, Error, Heartbeat
+    from eca.services.tools.bus_view import MAX_SERVICES_SHOWN, BusView
 
     view = BusView(["ada"])
     for k in range(1000):

@@ -14,12 +14,12 @@ import av
 import pytest
 import zmq
 
-from protocol.bus import Subscriber
-from protocol.client import AgentClient
-from protocol.endpoints import BusConfig
-from protocol.messages import EmotionState, Heartbeat
-from services.tools.cli import main as eca_main
-from services.tools.up import instance_running
+from eca.protocol.bus import Subscriber
+from eca.protocol.client import AgentClient
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import EmotionState, Heartbeat
+from eca.services.tools.cli import main as eca_main
+from eca.services.tools.up import instance_running
 from tests.support.bus import LineReader, eca_command, private_bus_config, running
 
 pytestmark = pytest.mark.slow

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 import zmq
 
-from agent.vocabulary import EYE_MODES
-from protocol.bus import Subscriber
-from protocol.client import AgentClient
-from protocol.endpoints import BusConfig
-from protocol.messages import Say, SpeechFinished, SpeechInterrupted, UserAudio, UserSpeech
-from services.processes.web.options import WebOptions
-from services.processes.web.service import WebService
-from services.tools.child_processes import LineReader
+from eca.agent.vocabulary import EYE_MODES
+from eca.protocol.bus import Subscriber
+from eca.protocol.client import AgentClient
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import Say, SpeechFinished, SpeechInterrupted, UserAudio, UserSpeech
+from eca.services.processes.web.options import WebOptions
+from eca.services.processes.web.service import WebService
+from eca.services.tools.child_processes import LineReader
 from tests.support.browser import browser_available, chromium, page_stats, wait_for
 from tests.support.bus import BrokerThread, ServiceThread, eca_command, private_bus_config, running
 from tests.support.web_client import user_speech_wav

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from agent.clock import NS_PER_S, VirtualClock
-from services.processes.renderer.schedule import FrameSchedule
-from services.processes.web.calibration import (
+from eca.agent.clock import NS_PER_S, VirtualClock
+from eca.services.processes.renderer.schedule import FrameSchedule
+from eca.services.processes.web.calibration import (
     BLACK_LUMA,
     CLICK_S,
     NEUTRAL_CHROMA,
@@ -23,11 +23,11 @@ from services.processes.web.calibration import (
     ClickFeed,
     FlashFeed,
 )
-from services.processes.web.encoding import VIDEO_RATE
-from services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
-from services.processes.web.options import WebOptions
-from services.processes.web.service import WebService
-from services.processes.web.tracks import Samples, VoiceTrack
+from eca.services.processes.web.encoding import VIDEO_RATE
+from eca.services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
+from eca.services.processes.web.options import WebOptions
+from eca.services.processes.web.service import WebService
+from eca.services.processes.web.tracks import Samples, VoiceTrack
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post
 
@@ -266,7 +266,7 @@ def test_a_calibration_flag_that_is_not_a_boolean_is_refused(web: WebService, va
 
 
 def test_the_flag_reaches_the_view_request() -> None:
-    from services.processes.web.server import parse_offer
+    from eca.services.processes.web.server import parse_offer
 
     body = {"type": "offer", "sdp": "v=0", "streams": [{"mid": "0", "agent": "ada", "kind": "video"}]}
     _, plain = parse_offer(body, WebOptions(), ("ada",))

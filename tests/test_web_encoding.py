@@ -12,10 +12,10 @@ import av
 import numpy as np
 from aiortc.mediastreams import MediaStreamError
 
-from agent.clock import VirtualClock
-from services.processes.web.encoding import EncodedStream, EncodedStreams
-from services.processes.web.feeds import FrameFeed, Picture
-from services.processes.web.tracks import FaceTrack
+from eca.agent.clock import VirtualClock
+from eca.services.processes.web.encoding import EncodedStream, EncodedStreams
+from eca.services.processes.web.feeds import FrameFeed, Picture
+from eca.services.processes.web.tracks import FaceTrack
 
 PERIOD = 33_333_333  # 30 fps
 T = TypeVar("T")

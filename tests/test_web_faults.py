@@ -9,10 +9,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from protocol.endpoints import BusConfig
-from services.processes.runtime import wait_until
-from services.processes.web.options import WebOptions
-from services.processes.web.service import WebService
+from eca.protocol.endpoints import BusConfig
+from eca.services.processes.runtime import wait_until
+from eca.services.processes.web.options import WebOptions
+from eca.services.processes.web.service import WebService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import Client, post
 

@@ -7,9 +7,9 @@ import asyncio
 import numpy as np
 import pytest
 
-from agent.clock import VirtualClock
-from services.processes.web.feeds import VoiceFeed
-from services.processes.web.tracks import VoiceTrack
+from eca.agent.clock import VirtualClock
+from eca.services.processes.web.feeds import VoiceFeed
+from eca.services.processes.web.tracks import VoiceTrack
 
 RATE = 48_000
 BLOCK = 480  # 10 ms

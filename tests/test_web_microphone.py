@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from services.processes.audio.resample import resample
-from services.processes.web.microphone import FRAME_SAMPLES, RATE, Microphone
-from services.processes.web.options import VadSettings
+from eca.services.processes.audio.resample import resample
+from eca.services.processes.web.microphone import FRAME_SAMPLES, RATE, Microphone
+from eca.services.processes.web.options import VadSettings
 
 SPEECH_AT_S = 1.0
 

@@ -20,15 +20,15 @@ import pytest
 import zmq
 from aiortc.contrib.media import MediaPlayer
 
-from agent.clock import VirtualClock
-from protocol.bus import Publisher, Subscriber
-from protocol.endpoints import BusConfig
-from protocol.messages import EmotionState, UserAudio, UserSpeech, VoiceBlock
-from services.processes.runtime import wait_until
-from services.processes.web.feeds import Picture
-from services.processes.web.options import WebOptions
-from services.processes.web.service import WebService
-from services.processes.web.viewers import ViewRequest
+from eca.agent.clock import VirtualClock
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import EmotionState, UserAudio, UserSpeech, VoiceBlock
+from eca.services.processes.runtime import wait_until
+from eca.services.processes.web.feeds import Picture
+from eca.services.processes.web.options import WebOptions
+from eca.services.processes.web.service import WebService
+from eca.services.processes.web.viewers import ViewRequest
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post, user_speech_wav
 

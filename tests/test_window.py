@@ -13,13 +13,13 @@ import glfw
 import pytest
 import zmq
 
-from protocol.bus import Publisher, Subscriber
-from protocol.messages import FaceFrame, Message, MoveHead, SetEmotion, SetEyes, SetRole
-from services.processes.dialogue import DialogueService
-from services.processes.renderer import read_rgb
-from services.processes.renderer.options import RendererOptions
-from services.processes.renderer.service import RendererService
-from services.processes.renderer.window import EMOTION_KEYS, AgentStatus, LocalAction, action_for_key
+from eca.protocol.bus import Publisher, Subscriber
+from eca.protocol.messages import FaceFrame, Message, MoveHead, SetEmotion, SetEyes, SetRole
+from eca.services.processes.dialogue import DialogueService
+from eca.services.processes.renderer import read_rgb
+from eca.services.processes.renderer.options import RendererOptions
+from eca.services.processes.renderer.service import RendererService
+from eca.services.processes.renderer.window import EMOTION_KEYS, AgentStatus, LocalAction, action_for_key
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 pytestmark = pytest.mark.gl  # draws: the renderer's compiled code is loaded first (conftest.py)

@@ -97,3 +97,48 @@ window.eca.pc.getStats().then((report) => {
 def page_stats(driver: Any) -> dict[str, list[dict[str, Any]]] | None:
     """The page's inbound RTP statistics (getStats), video and audio."""
     return driver.execute_async_script(PAGE_STATS)
+
+
+def audio_energy(driver: Any) -> float:
+    stats = page_stats(driver)
+    return float(stats["audio"][0]["totalAudioEnergy"] or 0.0) if stats and stats["audio"] else 0.0
+
+
+def video_stats(driver: Any) -> dict[str, Any]:
+    stats = page_stats(driver)
+    return stats["video"][0] if stats and stats["video"] else {}
+
+
+def poll(value: Callable[[], float], good: Callable[[float], bool], timeout_s: float) -> float | None:
+    """`value()` once it is good, or its last value at the timeout."""
+    deadline = time.monotonic() + timeout_s
+    got = value()
+    while not good(got) and time.monotonic() < deadline:
+        time.sleep(0.2)  # polling the page from outside: no event to wait on
+        got = value()
+    return got
+
+
+def wait_for_frames(driver: Any, count: int, timeout_s: float) -> dict[str, Any]:
+    """The video statistics once `count` frames of the face have been decoded."""
+    deadline = time.monotonic() + timeout_s
+    stats: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        stats = video_stats(driver)
+        if (stats.get("framesDecoded") or 0) >= count:
+            return stats
+        time.sleep(0.2)  # polling the page from outside: no event to wait on
+    raise TimeoutError(f"{count} frames of the face not decoded within {timeout_s} s (last {stats})")
+
+
+def face_skin_share(driver: Any, screenshot: Path, element_id: str = "face") -> float:
+    """The share of the page element's box (the face's video) in `screenshot` that is the face's warm skin
+    (red well above blue): about a quarter for the 2D face at 640x480; none for an empty player (#111) or grey."""
+    import numpy as np
+    from PIL import Image
+
+    box = driver.execute_script(f"const r = document.getElementById('{element_id}').getBoundingClientRect(); "
+                                "return [r.x, r.y, r.width, r.height];")
+    x, y, width, height = (round(v) for v in box)
+    picture = np.asarray(Image.open(screenshot).convert("RGB"))[y:y + height, x:x + width].astype(int)
+    return float(((picture[..., 0] > 150) & (picture[..., 0] - picture[..., 2] > 50)).mean())

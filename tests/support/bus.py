@@ -20,9 +20,11 @@ from pathlib import Path
 
 import zmq
 
-from protocol.endpoints import DEFAULT_CONFIG, BusConfig, load_bus_config
-from services.processes.broker import Broker
-from services.tools.child_processes import REPO_ROOT, LineReader, eca_command, subprocess_env  # noqa: F401 (re-exported)
+from eca.protocol.endpoints import DEFAULT_CONFIG, BusConfig, load_bus_config
+from eca.services.processes.broker import Broker
+from eca.services.tools.child_processes import LineReader, eca_command, subprocess_env  # noqa: F401 (re-exported)
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def write_test_config(directory: Path, services: list[str] | None = None, agents: list[str] | None = None,
@@ -117,11 +119,11 @@ class ServiceThread:
 
 
 @contextmanager
-def running(argv: list[str], stop_signal: int = signal.SIGINT, stop_timeout_s: float = 5.0) -> Iterator[
-        tuple[subprocess.Popen[bytes], LineReader]]:
+def running(argv: list[str], stop_signal: int = signal.SIGINT, stop_timeout_s: float = 5.0,
+            cwd: Path = REPO_ROOT) -> Iterator[tuple[subprocess.Popen[bytes], LineReader]]:
     """Run a command with merged output captured line by line; stop it (and its group) afterwards."""
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                            env=subprocess_env(), cwd=REPO_ROOT, start_new_session=True)
+                            env=subprocess_env(), cwd=cwd, start_new_session=True)
     reader = LineReader(proc.stdout)
     try:
         yield proc, reader

@@ -1,0 +1,67 @@
+"""Idle noise: small, smooth, seeded Perlin motion that keeps a resting face alive (Perlin's
+ResponsiveFace "noise" button). An action meant for an additive layer on top of the others."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from eca.agent.clock import seconds
+from eca.agent.counter_rng import uniform01
+from eca.agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES, N_FLEXORS
+
+
+def _pair_streams() -> np.ndarray:
+    """One noise stream per flexor; the left and right of a pair share one, so they move together."""
+    streams = np.arange(N_FLEXORS, dtype=np.int64)
+    for name in FLEXOR_NAMES:
+        if name.endswith("_r") and name[:-2] + "_l" in FLEXOR_INDEX:
+            streams[FLEXOR_INDEX[name]] = FLEXOR_INDEX[name[:-2] + "_l"]
+    return streams
+
+
+_STREAMS = _pair_streams()
+# Noise is zero at integer lattice points; a per-stream offset keeps flexors from all passing through
+# zero at the same instants.
+_PHASE = (np.arange(N_FLEXORS) * 0.618034) % 1.0
+
+
+class IdleNoise:
+    """amplitude[i] * perlin1d(rate_hz * t) per flexor; "do not care" where the amplitude is 0.
+
+    The noise is agent.noise.perlin1d, evaluated here with its lattice gradients kept between frames:
+    they change only when the phase crosses an integer (every few seconds at idle rates), and hashing
+    them is most of perlin1d's cost.
+    """
+
+    def __init__(self, amplitude: np.ndarray, rate_hz: float, seed: int = 0) -> None:
+        amplitude = np.array(amplitude, dtype=np.float64)
+        if amplitude.shape != (N_FLEXORS,) or np.any(~np.isfinite(amplitude)) or np.any(amplitude < 0):
+            raise ValueError(f"idle-noise amplitudes need shape ({N_FLEXORS},), finite and >= 0")
+        if not np.isfinite(rate_hz) or rate_hz < 0:
+            raise ValueError(f"idle-noise rate must be a finite number of Hz >= 0, got {rate_hz!r}")
+        self.amplitude = amplitude
+        self.rate_hz = float(rate_hz)
+        self.seed = int(seed)
+        self._active = amplitude > 0
+        self._offset = _PHASE[_STREAMS]
+        self._lattice: np.ndarray | None = None  # the integer parts the cached gradients belong to
+        self._g0 = self._g1 = np.zeros(N_FLEXORS)
+
+    def values_at(self, t_ns: int) -> np.ndarray:
+        phase = self.rate_hz * seconds(t_ns) + self._offset
+        noise = self._perlin(phase)
+        return np.where(self._active, self.amplitude * noise, np.nan)
+
+    def _perlin(self, x: np.ndarray) -> np.ndarray:
+        """perlin1d(x, self.seed, _STREAMS), the same arithmetic step for step."""
+        i0 = np.floor(x)
+        if self._lattice is None or not np.array_equal(i0, self._lattice):
+            lattice = i0.astype(np.int64).astype(np.uint64)
+            self._g0 = uniform01(self.seed, _STREAMS, lattice) * 2.0 - 1.0
+            self._g1 = uniform01(self.seed, _STREAMS, lattice + np.uint64(1)) * 2.0 - 1.0
+            self._lattice = i0
+        f = x - i0
+        n0 = self._g0 * f
+        n1 = self._g1 * (f - 1.0)
+        fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
+        return 2.0 * (n0 + fade * (n1 - n0))

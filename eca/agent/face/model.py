@@ -1,0 +1,162 @@
+"""The face in one object: emotion, head, eyes and mouth in, a flexor frame out at any time.
+
+The renderer service and the offline renderer drive this; it owns the default layer stack
+(agent/face/compositor.py) and converts degrees to flexor units (configs/flexor_units.toml).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+from eca.agent.clock import nanoseconds
+from eca.agent.face.compositor import DEFAULT_LAYERS, Compositor
+from eca.agent.face.emotions import (
+    NATURAL,
+    EmotionTable,
+    canonical_emotion_name,
+    check_intensity,
+    load_emotion_table,
+)
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.face.frame import FlexorFrame, check_flexor_value, dont_care_vector
+from eca.agent.face.head import HeadMotion, Nods
+from eca.agent.face.idle import IdleNoise
+from eca.agent.face.settings import FaceSettings, FlexorUnits, load_face_settings, load_flexor_units
+
+MOUTH_FLEXORS: tuple[str, ...] = ("say_ah", "say_oo", "say_ee", "say_mm", "say_ff")
+_LOOK_X, _LOOK_Y = FLEXOR_INDEX["look_x"], FLEXOR_INDEX["look_y"]
+_BLINKS = np.array([FLEXOR_INDEX["blink_l"], FLEXOR_INDEX["blink_r"]])
+_MOUTH = np.array([FLEXOR_INDEX[name] for name in MOUTH_FLEXORS])
+
+
+class _Held:
+    """A trajectory-layer action that holds whatever vector it was last given (gaze, blink, mouth):
+    those inputs already arrive as per-frame trajectories, so they are shown without settling."""
+
+    def __init__(self) -> None:
+        self.vector = dont_care_vector()
+
+    def values_at(self, t_ns: int) -> np.ndarray:
+        return self.vector.copy()
+
+
+class FaceModel:
+    def __init__(
+        self,
+        seed: int = 0,
+        idle_noise: bool = True,
+        emotions: EmotionTable | None = None,
+        settings: FaceSettings | None = None,
+        units: FlexorUnits | None = None,
+        t_ns: int = 0,
+    ) -> None:
+        self.emotions = emotions if emotions is not None else load_emotion_table()
+        self.settings = settings if settings is not None else load_face_settings()
+        self.units = units if units is not None else load_flexor_units()
+        self.compositor = Compositor(self.settings.settle_s, DEFAULT_LAYERS, t_ns)
+        self.compositor.set_pose("base", self.emotions.pose(NATURAL), t_ns, settle_s=0.0)
+        self.head = HeadMotion(t_ns=t_ns)
+        self.compositor.set_action("head", self.head)
+        self.attention = HeadMotion(t_ns=t_ns)
+        self.compositor.set_action("attention", self.attention)
+        self.nods = Nods()
+        self.compositor.set_action("gesture", self.nods)
+        self._gaze, self._mouth, self._blink = _Held(), _Held(), _Held()
+        self.compositor.set_action("gaze", self._gaze)
+        self.compositor.set_action("mouth", self._mouth)
+        self.compositor.set_action("blink", self._blink)
+        self.idle = IdleNoise(self.settings.idle_amplitude, self.settings.idle_rate_hz, seed)
+        self.compositor.set_action("idle", self.idle if idle_noise else None)
+        self._emotion: tuple[str, float] = (NATURAL, 1.0)
+
+    @property
+    def emotion(self) -> tuple[str, float]:
+        """(name, intensity) of the emotion last set."""
+        return self._emotion
+
+    def set_emotion(self, name: str, intensity: float = 1.0, transition_s: float | None = None, t_ns: int = 0) -> None:
+        """Blend toward `name` at `intensity` from t_ns; within transition_s if given, else with the
+        per-flexor settle times (configs/face.toml)."""
+        pose = self.emotions.pose(name, intensity)
+        self.set_expression(pose, transition_s, t_ns)
+        self._emotion = (canonical_emotion_name(name), check_intensity(intensity))
+
+    def set_expression(self, pose: np.ndarray, transition_s: float | None = None, t_ns: int = 0) -> None:
+        """Blend the emotion layer toward any flexor vector (NaN = do not care), e.g. a script element's
+        values; the same settling as set_emotion."""
+        if transition_s is not None and (not math.isfinite(transition_s) or transition_s < 0):
+            raise ValueError(f"emotion transition must be a finite number of seconds >= 0, got {transition_s!r}")
+        self.compositor.set_pose("emotion", pose, t_ns, settle_s=transition_s)
+
+    def move_head(self, turn: float, nod: float, tilt: float, duration_s: float, t_ns: int) -> None:
+        """Move the head to (turn, nod, tilt) in flexor units, arriving at rest after duration_s."""
+        self.head.move_to((turn, nod, tilt), duration_s, t_ns)
+
+    def move_head_deg(self, yaw_deg: float, pitch_deg: float, roll_deg: float, duration_s: float, t_ns: int) -> None:
+        """Move the head to angles in degrees (yaw to the agent's right, pitch chin-up, roll to the right)."""
+        u = self.units
+        self.move_head(yaw_deg / u.turn_deg, pitch_deg / u.nod_deg, roll_deg / u.tilt_deg, duration_s, t_ns)
+
+    def attend(self, yaw_deg: float, pitch_deg: float, duration_s: float, t_ns: int) -> None:
+        """Turn the head toward the person attended (situated gaze, agent/gaze/situated.py): an offset in
+        degrees added to the scripted head moves, reached at rest after duration_s."""
+        u = self.units
+        self.attention.move_to((yaw_deg / u.turn_deg, pitch_deg / u.nod_deg, 0.0), duration_s, t_ns)
+
+    def nod(self, amplitude_deg: float, duration_s: float, t_ns: int) -> None:
+        """A nod from t_ns: the chin dips by amplitude_deg and comes back within duration_s."""
+        self.nods.add(t_ns, amplitude_deg / self.units.nod_deg, duration_s)
+
+    def set_eyes(self, yaw_deg: float | None, pitch_deg: float | None, lid: float | None = None) -> None:
+        """Gaze in degrees (yaw to the agent's right, pitch up; None = leave to the layers below) and lid
+        closure in [0, 1] for both eyes (None = no blink layer). Angles beyond the eye's range clip."""
+        self._gaze.vector[_LOOK_X] = self._degrees_to_flexor(yaw_deg, self.units.look_x_deg, "gaze yaw")
+        self._gaze.vector[_LOOK_Y] = self._degrees_to_flexor(pitch_deg, self.units.look_y_deg, "gaze pitch")
+        if lid is None:
+            self._blink.vector[_BLINKS] = np.nan
+        else:
+            closure = check_flexor_value("blink_l", lid)
+            if closure < 0:
+                raise ValueError(f"lid closure must lie in [0, 1], got {lid!r}")
+            self._blink.vector[_BLINKS] = closure
+
+    @staticmethod
+    def _degrees_to_flexor(angle_deg: float | None, deg_per_unit: float, what: str) -> float:
+        if angle_deg is None:
+            return math.nan
+        if not math.isfinite(angle_deg):
+            raise ValueError(f"{what} must be a finite number of degrees, got {angle_deg!r}")
+        return min(max(float(angle_deg) / deg_per_unit, -1.0), 1.0)  # plain floats: this runs every frame
+
+    def set_mouth(self, weights: Mapping[str, float] | None) -> None:
+        """Mouth-shape weights from lip-sync ({say_ah: 0.6, ...}); shapes not named are closed (0).
+        None or {} hands the mouth back to the emotion."""
+        vector = np.full(len(MOUTH_FLEXORS), np.nan)
+        if weights:
+            vector[:] = 0.0
+            for name, value in weights.items():
+                if name not in MOUTH_FLEXORS:
+                    raise ValueError(f"unknown mouth shape {name!r}; mouth shapes: {', '.join(MOUTH_FLEXORS)}")
+                vector[MOUTH_FLEXORS.index(name)] = check_flexor_value(name, value, "mouth")
+        self._mouth.vector[_MOUTH] = vector
+
+    def frame_at(self, t_ns: int) -> FlexorFrame:
+        return self.compositor.frame_at(t_ns)
+
+    def frame_at_s(self, t_s: float) -> FlexorFrame:
+        return self.frame_at(nanoseconds(t_s))
+
+
+def head_angles_deg(frame: FlexorFrame, units: FlexorUnits | None = None) -> tuple[float, float, float]:
+    """(yaw, pitch, roll) of the head in degrees: yaw to the agent's right, pitch chin-up, roll right."""
+    u = units if units is not None else load_flexor_units()
+    return frame.get("turn") * u.turn_deg, frame.get("nod") * u.nod_deg, frame.get("tilt") * u.tilt_deg
+
+
+def eye_angles_deg(frame: FlexorFrame, units: FlexorUnits | None = None) -> tuple[float, float]:
+    """(yaw, pitch) of the eyes in the head, in degrees: yaw to the agent's right, pitch up."""
+    u = units if units is not None else load_flexor_units()
+    return frame.get("look_x") * u.look_x_deg, frame.get("look_y") * u.look_y_deg

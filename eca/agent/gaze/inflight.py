@@ -1,0 +1,189 @@
+"""What a GazeEngine tick rewrites every tick: the eyes in flight and the lids of blinks in progress.
+
+Both live in persistent buffers that a tick appends to and trims, so a tick never gathers them from the
+per-agent state or concatenates them anew; with a hundred thousand agents the fixed cost of each numpy
+call, not arithmetic, sets the time here, so each tick makes a handful of calls over each buffer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from eca.agent.gaze.synth import saccade_progress
+
+# Columns of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch (float bit
+# patterns), then its agent.
+FLIGHT_WIDTH = 7
+_AGENT = 6
+_FLIGHT_ROW = np.dtype((np.void, FLIGHT_WIDTH * 8))
+_SACCADE = np.dtype((np.void, _AGENT * 8))  # a flight's saccade columns as one element
+
+# (agents) -> their resting yaw and pitch: where the current saccade lands.
+RestingPosition = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+class Flights:
+    """Copies of the saccades of the eyes in flight, in the order they were launched."""
+
+    def __init__(self) -> None:
+        self._buffer = np.empty((256, FLIGHT_WIDTH), np.int64)
+        self._spare = np.empty_like(self._buffer)  # the buffer's next state, to trim into without a copy
+        self._count = 0
+
+    def add(self, agents: np.ndarray, saccades: np.ndarray) -> None:
+        """Append launched saccades: `saccades` holds onset, end, from and to of each (6 int64 columns)."""
+        end = self._count + agents.size
+        if end > self._buffer.shape[0]:
+            capacity = max(2 * self._buffer.shape[0], end)
+            grown = np.empty((capacity, FLIGHT_WIDTH), np.int64)
+            grown[: self._count] = self._buffer[: self._count]
+            self._buffer, self._spare = grown, np.empty_like(grown)
+        # As one 48-byte element per row: numpy copies those by memcpy, six int64 columns one by one.
+        self._buffer[self._count : end, :_AGENT].view(_SACCADE)[:, 0] = saccades.view(_SACCADE)[:, 0]
+        self._buffer[self._count : end, _AGENT] = agents
+        self._count = end
+
+    def keep_current(self, onset_end: Callable[[np.ndarray], np.ndarray]) -> None:
+        """Drop the copies of saccades cut short from outside (relaunched or stopped): those whose onset and
+        end are no longer their agent's (`onset_end(agents)`), and all but the last of two launches of one
+        agent at one instant (the later one, appended last, is the current one)."""
+        live = self._buffer[: self._count]
+        agents = live[:, _AGENT]
+        keep = np.all(live[:, :2] == onset_end(agents), axis=1)
+        _, first_in_reverse = np.unique(agents[::-1], return_index=True)
+        latest = np.zeros(agents.size, dtype=bool)
+        latest[agents.size - 1 - first_in_reverse] = True
+        keep &= latest
+        self._trim(keep)
+
+    def write_positions(self, t: int, yaw: np.ndarray, pitch: np.ndarray, resting: RestingPosition) -> None:
+        """Write every eye in flight at `t`; eyes that landed since go to their resting position and leave."""
+        live = self._buffer[: self._count]
+        flying = live[:, 1] > t
+        if np.count_nonzero(flying) < flying.size:
+            # A relaunch by the timer comes after landing, so a landed copy never hides a newer flight;
+            # the resting position is the agent's current one, so duplicates write the same value.
+            landed = live[:, _AGENT][~flying]
+            yaw[landed], pitch[landed] = resting(landed)
+            live = self._trim(flying)
+        if not live.size:
+            return
+        onset = live[:, 0]
+        elapsed = t - onset
+        progress = saccade_progress(elapsed / (live[:, 1] - onset))
+        remaining = 1.0 - progress  # this form is exact at both ends of the saccade
+        floats = live.view(np.float64)
+        agents = live[:, _AGENT]
+        yaw[agents] = floats[:, 2] * remaining + floats[:, 4] * progress
+        pitch[agents] = floats[:, 3] * remaining + floats[:, 5] * progress
+
+    def _trim(self, keep: np.ndarray) -> np.ndarray:
+        count = int(np.count_nonzero(keep))
+        rows = self._buffer[: self._count].view(_FLIGHT_ROW).reshape(-1)
+        # A boolean index and a copy: np.compress into `out` takes about twice as long.
+        self._spare[:count].view(_FLIGHT_ROW).reshape(-1)[:] = rows[keep]
+        self._buffer, self._spare = self._spare, self._buffer
+        self._count = count
+        return self._buffer[:count]
+
+
+class LiveBlinks:
+    """Blinks in progress, at most one per agent (its latest), in the order they started.
+
+    The entries sit in a buffer between a head and a tail; ended blinks leave at the head. An agent's
+    earlier blink that a new one replaces stays in place, its agent turned into the sentinel: an index
+    one past the last agent, a scratch slot of the lid array, so one assignment writes every lid and no
+    agent twice. Entry positions are counted from the first blink ever added, so an agent's entry is in
+    the buffer exactly when its position is at or past the head's.
+    """
+
+    def __init__(self, curve_s: np.ndarray, closure: np.ndarray, n_agents: int) -> None:
+        self._closure = np.asarray(closure, dtype=np.float64)
+        self._duration_ns = int(round(float(curve_s[-1]) * 1e9))
+        # The curve's pieces as lines closure = slope * elapsed + offset, latest piece first (the window
+        # holds onsets in ascending order, so elapsed times descend): (first ns, slope, offset) each.
+        knots, values = np.asarray(curve_s, dtype=np.float64) * 1e9, self._closure
+        self._pieces: list[tuple[int, float, float]] = []
+        for j in range(len(knots) - 2, -1, -1):
+            if knots[j + 1] > knots[j]:
+                slope = float((values[j + 1] - values[j]) / (knots[j + 1] - knots[j]))
+                self._pieces.append((int(round(knots[j])), slope, float(values[j] - slope * knots[j])))
+        self._elapsed = np.empty(1024)  # scratch for the window's elapsed times
+        self._agents = np.empty(1024, np.int64)
+        self._onsets = np.empty(1024, np.int64)
+        self._head = self._tail = 0  # buffer indices
+        self._base = 0  # the entry position of buffer index 0
+        self._position = np.full(n_agents + 1, -1, np.int64)  # each agent's latest entry
+        self._sentinel = n_agents
+
+    def grow(self, n_agents: int) -> None:
+        """Make room for agents added up to `n_agents`; the sentinel moves past them."""
+        added = n_agents - self._sentinel
+        self._position = np.concatenate([self._position, np.full(added, -1, np.int64)])
+        window = self._agents[self._head : self._tail]
+        window[window == self._sentinel] = n_agents
+        self._sentinel = n_agents
+
+    def cancel(self, agents: np.ndarray) -> None:
+        """Stop writing the lids of these agents' blinks in progress (their lids are opened elsewhere)."""
+        self._retire(agents)
+
+    def update(self, t: int, lid: np.ndarray, agents: np.ndarray, onsets: np.ndarray) -> None:
+        """Add the latest blinks of `agents` (onsets sorted, none before an earlier call's) and write the lid
+        of every blink in progress at `t`; blinks over by then open their lids and leave."""
+        if agents.size:
+            self._retire(agents)
+            self._append(agents, onsets)
+        head, tail = self._head, self._tail
+        # A lid reads its curve up to and including the curve's end, so a blink leaves once past it.
+        ended = int(np.searchsorted(self._onsets[head:tail], t - self._duration_ns, side="left"))
+        if ended:
+            lid[self._agents[head : head + ended]] = 0.0
+            head = self._head = head + ended
+        if head < tail:
+            lid[self._agents[head:tail]] = self._closures(t, self._onsets[head:tail])
+
+    def _closures(self, t: int, onsets: np.ndarray) -> np.ndarray:
+        """The lid curve at t - onsets (ascending onsets, none before t - the curve's length), piece by
+        piece: each piece is a run of the window, so a line per run replaces a search per blink."""
+        if self._elapsed.size < onsets.size:
+            self._elapsed = np.empty(2 * onsets.size)
+        out = self._elapsed[: onsets.size]
+        np.subtract(t, onsets, out=out)  # exact: nanosecond counts stay far below 2**53
+        # At exactly the curve's end a blink reads the last value, like np.interp.
+        stop = int(np.searchsorted(onsets, t - self._duration_ns, side="right"))
+        out[:stop] = self._closure[-1]
+        for knot_ns, slope, offset in self._pieces:
+            start = stop
+            stop = int(np.searchsorted(onsets, t - knot_ns, side="right"))
+            if stop > start:
+                piece = out[start:stop]
+                piece *= slope
+                piece += offset
+        out[stop:] = 0.0  # before the curve starts (np.interp's left)
+        return out
+
+    def _retire(self, agents: np.ndarray) -> None:
+        position = self._position[agents]
+        held = position >= self._base + self._head
+        if held.any():
+            self._agents[position[held] - self._base] = self._sentinel
+
+    def _append(self, agents: np.ndarray, onsets: np.ndarray) -> None:
+        count = self._tail - self._head
+        if self._tail + agents.size > self._agents.size:
+            capacity = max(self._agents.size, 2 * (count + agents.size))
+            for name in ("_agents", "_onsets"):
+                old = getattr(self, name)
+                new = np.empty(capacity, np.int64) if capacity > old.size else old
+                new[:count] = old[self._head : self._tail]
+                setattr(self, name, new)
+            self._base += self._head
+            self._head, self._tail = 0, count
+        end = self._tail + agents.size
+        self._agents[self._tail : end] = agents
+        self._onsets[self._tail : end] = onsets
+        self._position[agents] = np.arange(self._base + self._tail, self._base + end)
+        self._tail = end

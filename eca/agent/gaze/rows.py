@@ -1,0 +1,195 @@
+"""The gaze engine's memory layout: per-agent state as rows of an int64 matrix, and the machinery to read it.
+
+The gaze engine keeps the state an event reads or writes as one row per agent (float fields as their bit
+patterns), so an event batch gathers its agents' rows once and scatters them back once: with a million
+agents, random access to per-agent state, not arithmetic, sets the tick time. Here are the engine's row
+columns, cache-line aligned row matrices, whole-row gathers and scatters, the counter-based draws read
+from a row's key and counter, the hold tables laid out for one cache line per draw, and the packed sort of
+a tick's onsets; the fixational rows (fixation.py) share the machinery.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import numpy as np
+
+from eca.agent.counter_rng import splitmix64_inplace, stream_key
+from eca.agent.gaze.generator import HOLD_TABLE_INTERVALS, hold_quantiles
+from eca.agent.gaze.params import ROLES, GazeParams
+
+_TWO_POW_MINUS_53 = 1.0 / float(1 << 53)
+_TWO_POW_MINUS_32 = 1.0 / float(1 << 32)
+_COUNTER_STEPS = np.arange(8, dtype=np.uint64)  # a draw of k uniforms reads counters c .. c + k - 1
+CACHE_LINE = 64
+# np.rad2deg's own factor: multiplying by it gives rad2deg's results bit for bit, many times faster (numpy
+# runs rad2deg through a scalar loop).
+DEGREES_PER_RADIAN = 180.0 / math.pi
+
+# Columns of the engine's per-agent row matrix; float fields hold float64 bit patterns. The current saccade
+# comes first, so its compact copy for the eyes in flight is one slice of the row.
+(
+    ONSET, END, FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH,
+    NEXT_SACCADE, NEXT_BLINK, COUNTER_SACCADE, COUNTER_BLINK, KEY_SACCADE, KEY_BLINK,
+    ROLE, MODE, KIND, HOLD_BASE, TARGET_YAW, TARGET_PITCH,
+    P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE, BLINK_SPREAD_NS, BLINK_ONSET,
+) = range(24)  # fmt: skip
+# 24 columns are 192 bytes, three whole cache lines when the matrix starts on a line (aligned_rows): a
+# 23-column row straddles four lines at most offsets, and the rows an event batch gathers and scatters
+# back are the bulk of a tick's random memory traffic. The latest blink onset rides in the row, written
+# with the rest of it, instead of costing a random write of its own per blink.
+N_COLUMNS = 24
+# The compact copy of a saccade in flight (inflight.Flights): onset, end, from yaw, from pitch, to yaw, to pitch.
+FLIGHT = slice(ONSET, TO_PITCH + 1)
+# The hold tables (hold_table) have one row per (role, mutual/away); HOLD_BASE is the agent's role's first.
+HOLD_ROW = HOLD_TABLE_INTERVALS + 1
+
+
+def row_uniforms(rows: np.ndarray, key: int, counter: int, count: int) -> np.ndarray:
+    """`count` uniforms in [0, 1) per row from the agent's own stream, its key and counter in the given
+    columns: shape (count, len(rows)), so each draw is one contiguous row and the broadcasts run along the
+    agents, not along a few draws. Bit for bit counter_rng.uniform01(stream seed, agent index, counter); the
+    rows' counters advance by `count`."""
+    u = uniform_draws(rows[:, counter].view(np.uint64), rows[:, key].view(np.uint64), count)
+    rows[:, counter] += count
+    return u
+
+
+def hold_table(params: GazeParams) -> np.ndarray:
+    """The quantile tables of the six (role, mutual/away) hold distributions (generator.hold_quantiles), one
+    row each, raveled: per quantile a pair (step to the next quantile, quantile), as the interpolation reads
+    value + fraction * step. Side by side, a draw reads one cache line of the table instead of one in each of
+    two."""
+    quantiles = np.concatenate([hold_quantiles(params, role, away) for role in ROLES for away in (False, True)])
+    return np.stack([np.append(np.diff(quantiles), 0.0), quantiles], axis=1)
+
+
+def uniform_draws(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+    """`count` uniforms in [0, 1) per agent from its stream's counters c .. c + count - 1 (uint64 counters and
+    keys): shape (count, agents), so each draw is one contiguous row. Bit for bit counter_rng.uniform01."""
+    z = _streams(counters, keys, count)
+    splitmix64_inplace(z, scratch := np.empty_like(z))
+    np.right_shift(z, np.uint64(11), out=scratch)
+    # As int64 (the same values below 2**53), which numpy converts to float faster than uint64: exactly.
+    return np.multiply(scratch.view(np.int64), _TWO_POW_MINUS_53)
+
+
+def uniform_halves(counters: np.ndarray, keys: np.ndarray, hashes: int) -> np.ndarray:
+    """2 * `hashes` uniforms in [0, 1) per agent, two from each 64-bit hash of counters c .. c + hashes - 1:
+    row j is the high 32 bits of hash j, row hashes + j its low 32 bits. Half the hashing of uniform_draws,
+    for draws that need no more than 32 bits (a choice, a table look-up, an interval's exponential)."""
+    z = _streams(counters, keys, hashes)
+    splitmix64_inplace(z, scratch := np.empty_like(z))
+    out = np.empty((2 * hashes, z.shape[1]))
+    np.right_shift(z, np.uint64(32), out=scratch)
+    np.multiply(scratch.view(np.int64), _TWO_POW_MINUS_32, out=out[:hashes])  # int64: see uniform_draws
+    z &= np.uint64(0xFFFFFFFF)
+    np.multiply(z.view(np.int64), _TWO_POW_MINUS_32, out=out[hashes:])
+    return out
+
+
+def _streams(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+    """The hash inputs (counter + j) ^ key for j < count, shape (count, agents). Counters and keys are
+    usually columns of a row matrix: copied to contiguous arrays first, each is read once instead of once
+    per row of the result."""
+    z = np.ascontiguousarray(counters) + _COUNTER_STEPS[:count, None]
+    z ^= np.ascontiguousarray(keys)
+    return z
+
+
+def float_bits(values: np.ndarray | float) -> np.ndarray:
+    """Float64 values as the int64 bit patterns a row stores."""
+    return np.asarray(values, dtype=np.float64).view(np.int64)
+
+
+def aligned_rows(count: int, width: int) -> np.ndarray:
+    """An uninitialised (count, width) int64 matrix that starts on a cache line boundary."""
+    words = CACHE_LINE // 8
+    buffer = np.empty(count * width + words, np.int64)
+    start = (-buffer.ctypes.data % CACHE_LINE) // 8
+    return buffer[start : start + count * width].reshape(count, width)
+
+
+@cache
+def _row_dtype(width: int) -> np.dtype:
+    return np.dtype((np.void, width * 8))
+
+
+def as_rows(matrix: np.ndarray) -> np.ndarray:
+    """A C-contiguous row matrix as a 1-D array of whole rows: indexing it copies rows by memcpy, several
+    times faster than numpy's general fancy indexing of 2-D arrays (np.take is the fast gather)."""
+    return matrix.view(_row_dtype(matrix.shape[1])).reshape(-1)
+
+
+def scatter_rows(matrix: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> None:
+    """matrix[indices] = rows for C-contiguous row matrices: np.put of whole rows (void views), about a
+    third faster than the same assignment by index."""
+    np.put(as_rows(matrix), indices, as_rows(rows))
+
+
+def column_pair(matrix: np.ndarray, rows: np.ndarray, first: int, second: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two columns of the given rows of a C-contiguous row matrix: np.take on flat offsets, cheaper per
+    element than 2-D fancy indexing, and reading only the lines that hold them."""
+    flat = matrix.reshape(-1)
+    offsets = rows * matrix.shape[1]
+    offsets += first
+    a = flat.take(offsets)
+    offsets += second - first
+    return a, flat.take(offsets)
+
+
+def stream_keys(stream_seed: int, agents: np.ndarray) -> np.ndarray:
+    """The per-agent keys counter_rng.hash3 derives for (stream seed, stream = agent index), as int64 bits."""
+    return stream_key(stream_seed, agents).view(np.int64)
+
+
+def grow_rows(rows: np.ndarray, count: int, added: np.ndarray) -> np.ndarray:
+    """`rows` (count rows) with `added` appended, in a fresh aligned matrix."""
+    grown = aligned_rows(count + added.shape[0], rows.shape[1])
+    grown[:count] = rows[:count]
+    grown[count:] = added
+    return grown
+
+
+def read_only(values: np.ndarray) -> np.ndarray:
+    """A read-only view: a tick hands out the state it keeps this way."""
+    view = values.view()
+    view.flags.writeable = False
+    return view
+
+
+def onset_order(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> np.ndarray:
+    """The order that sorts onsets by (onset, agent), ties kept in the order given: np.lexsort((agent, onset))."""
+    return sort_onsets(agent, onset, n_agents)[0]
+
+
+def sort_onsets(agent: np.ndarray, onset: np.ndarray, n_agents: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The order that sorts onsets by (onset, agent), ties kept in the order given (np.lexsort((agent, onset))),
+    and the agents and onsets in that order.
+
+    The three keys packed into the bits of one int64, (onset - first, agent, position), so that a plain
+    sort of the values (several times faster than an argsort, and than the two-key stable sort) leaves
+    the order in the low bits, and the sorted agents and onsets above them (no gathers); used whenever the
+    three fit in 63 bits (a tick's onsets span milliseconds)."""
+    if agent.size >= 512:  # below, a few numpy calls cost more than the sort
+        # The ufuncs' reductions themselves: ndarray.min and .max go through Python wrappers.
+        first = int(np.minimum.reduce(onset))
+        span = int(np.maximum.reduce(onset)) - first
+        agent_bits = max(n_agents - 1, 1).bit_length()
+        position_bits = (agent.size - 1).bit_length()
+        if span.bit_length() + agent_bits + position_bits <= 63:
+            key = onset - first
+            key <<= agent_bits
+            key |= agent
+            key <<= position_bits
+            key |= np.arange(agent.size)
+            key.sort()
+            order = key & ((1 << position_bits) - 1)
+            key >>= position_bits
+            sorted_agent = key & ((1 << agent_bits) - 1)
+            key >>= agent_bits
+            key += first
+            return order, sorted_agent, key
+    order = np.lexsort((agent, onset))
+    return order, agent.take(order), onset.take(order)

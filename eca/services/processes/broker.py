@@ -1,0 +1,227 @@
+"""The broker: an XSUB/XPUB proxy with a last-value cache of state topics (zguide: "Last Value Cache").
+
+Publishers connect to the XSUB side, subscribers to the XPUB side. The broker subscribes to
+everything upstream, so it sees every state message and keeps the last one per topic; when a
+subscription arrives (XPUB_VERBOSE passes every one, duplicates too) it sends the cached values that
+match the new prefix, so a late joiner such as a restarted renderer has the current state at once.
+Re-sent values also reach older subscribers of that topic; state messages are idempotent, so that
+is harmless. A subscription to `sys.<nonce>.hello` is answered with a Hello: the subscriber's
+readiness barrier.
+
+A restarted broker starts with an empty cache; the owners of the states publish them again when they
+see it subscribe (services/processes/runtime.py `on_new_broker`). Each state's `t_ns` orders its versions: a
+state older than the cached one of its topic is stale (say, a re-publication racing a newer change) and
+is neither cached nor forwarded, and one stamped in the future is forwarded but not cached, so no
+publisher can pin a topic. The cache holds at most `MAX_CACHED_TOPICS` topics (the least recently
+changed go first), so no flood of new topics can grow it without bound.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import fcntl
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+from eca.protocol.bus import TopicCounts, parse_frames
+from eca.protocol.codec import ProtocolError, encode
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import ALL_AGENTS, Heartbeat, Hello
+from eca.protocol.topics import STATE_PREFIX, topic_for
+from eca.services.processes.liveness import LivenessSender
+
+log = logging.getLogger("broker")
+BROKER_LOCK = "broker.lock"  # in the runtime directory
+MAX_CACHED_TOPICS = 65_536
+FUTURE_SLACK_NS = 5_000_000_000  # a state stamped further ahead of this host's clock is not cached
+
+
+class BrokerAlreadyRunning(RuntimeError):
+    pass
+
+
+class Broker:
+    def __init__(self, config: BusConfig, ctx: zmq.Context | None = None) -> None:
+        self.config = config
+        self.ctx = ctx or zmq.Context.instance()
+        self.cache: dict[bytes, list[bytes]] = {}
+        self._cached_t_ns: dict[bytes, int] = {}
+        self.stale = 0  # states dropped because the cache held a newer one of their topic
+        self.failures = 0  # messages the broker failed on (a bug): dropped, counted
+        self.started_ns = time.monotonic_ns()
+        self._seq = TopicCounts()
+        self._lock_fd: int | None = None
+        self._lock_runtime_dir(config.runtime_dir)
+        self.frontend = self.ctx.socket(zmq.XSUB)
+        self.frontend.setsockopt(zmq.RCVHWM, config.hwm)
+        self.frontend.setsockopt(zmq.LINGER, 0)
+        # Protects the broker's memory from a runaway publisher; the codec's cap is the real check.
+        self.frontend.setsockopt(zmq.MAXMSGSIZE, 4 * config.max_message_bytes)
+        self.backend = self.ctx.socket(zmq.XPUB)
+        self.backend.setsockopt(zmq.SNDHWM, config.hwm)
+        self.backend.setsockopt(zmq.LINGER, 0)
+        self.backend.setsockopt(zmq.XPUB_VERBOSE, 1)
+        try:
+            self.frontend.bind(config.frontend)
+            self.backend.bind(config.backend)
+        except zmq.ZMQError:
+            self.close()  # a failed start leaves no socket or lock behind
+            raise
+        self.frontend.send(b"\x01")  # subscribe to everything: the cache must see every state message
+        self.poller = zmq.Poller()
+        self.poller.register(self.frontend, zmq.POLLIN)
+        self.poller.register(self.backend, zmq.POLLIN)
+        self.forwarded = 0
+
+    def _lock_runtime_dir(self, runtime_dir: Path) -> None:
+        # A second bind on a filesystem ipc path silently steals it; a lock file refuses instead.
+        fd = os.open(runtime_dir / BROKER_LOCK, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise BrokerAlreadyRunning(f"a broker already serves instance '{self.config.instance}' "
+                                       f"in {runtime_dir}") from None
+        self._lock_fd = fd
+
+    def step(self, timeout_ms: int) -> int:
+        """Move everything that is waiting (up to a batch); returns the number of messages handled."""
+        handled = 0
+        events = dict(self.poller.poll(timeout_ms))
+        if self.frontend in events:
+            for _ in range(1000):
+                try:
+                    frames = self.frontend.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                self._guarded(self._forward, frames)
+                handled += 1
+        if self.backend in events:
+            for _ in range(1000):
+                try:
+                    event = self.backend.recv(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                self._guarded(self._on_subscription, event)
+                handled += 1
+        return handled
+
+    def _guarded(self, handle: Any, item: Any) -> None:
+        # Whatever one message does to a bug in here, the broker and its cache stay up for the rest.
+        try:
+            handle(item)
+        except Exception:
+            self.failures += 1
+            if self.failures == 1:
+                log.exception("failed on one message (dropped it; further failures are only counted)")
+
+    def _forward(self, frames: list[bytes]) -> None:
+        if len(frames) == 2 and frames[0].startswith(STATE_PREFIX) and not self._cache_state(frames):
+            self.stale += 1
+            return
+        self.backend.send_multipart(frames)
+        self.forwarded += 1
+
+    def _cache_state(self, frames: list[bytes]) -> bool:
+        """Cache a state message if it is valid and not stale; False if it is stale (to be dropped)."""
+        # Only valid state is cached: a late joiner must never be handed garbage as "current".
+        msg = parse_frames(frames, self.config.max_message_bytes).message
+        if msg is None:
+            return True
+        topic = frames[0]
+        cached_t_ns = self._cached_t_ns.get(topic)
+        if cached_t_ns is not None and msg.t_ns < cached_t_ns:
+            return False
+        if msg.t_ns > time.monotonic_ns() + FUTURE_SLACK_NS:
+            return True
+        if cached_t_ns is not None:
+            del self.cache[topic]  # re-inserted at the end: the dict's order is the order of change
+        elif len(self.cache) >= MAX_CACHED_TOPICS:
+            oldest = next(iter(self.cache))
+            del self.cache[oldest], self._cached_t_ns[oldest]
+        self.cache[topic] = frames
+        self._cached_t_ns[topic] = msg.t_ns
+        return True
+
+    def _on_subscription(self, event: bytes) -> None:
+        if not event or event[0] != 1:
+            return  # an unsubscription: nothing to do
+        prefix = event[1:]
+        if prefix.startswith(b"sys.") and prefix.endswith(b".hello") and prefix.count(b".") == 2:
+            nonce = prefix.decode("utf-8", "replace").split(".")[1]
+            self._send_own(Hello(agent=nonce))
+            return
+        for topic, frames in list(self.cache.items()):
+            if topic.startswith(prefix):
+                self.backend.send_multipart(frames)
+
+    def heartbeat(self) -> Heartbeat:
+        return self._send_own(Heartbeat(agent=ALL_AGENTS, service="broker", pid=os.getpid(),
+                                        started_ns=self.started_ns, dropped=self.stale + self.failures))  # type: ignore[return-value]
+
+    def _send_own(self, msg: Hello | Heartbeat) -> Hello | Heartbeat:
+        topic = topic_for(msg)
+        seq = self._seq.next(topic)
+        self._seq.sent(topic, seq)
+        stamped = dataclasses.replace(msg, seq=seq, t_ns=time.monotonic_ns(), source="broker")
+        try:
+            payload = encode(stamped)
+        except ProtocolError as exc:  # a probe with a malformed nonce: ignore it, never crash
+            log.warning("not answering %s: %s", topic[:80], exc)
+            return stamped
+        self.backend.send_multipart([topic.encode(), payload])
+        return stamped
+
+    def close(self) -> None:
+        self.frontend.close()
+        self.backend.close()
+        if self._lock_fd is not None:
+            # the socket files are this broker's (it holds the lock): none stays behind a clean stop
+            for endpoint in (self.config.frontend, self.config.backend):
+                if endpoint.startswith("ipc://"):
+                    Path(endpoint.removeprefix("ipc://")).unlink(missing_ok=True)
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+
+def run_broker(config: BusConfig, parent_pid: int | None = None, liveness: str | None = None) -> int:
+    """The broker process's loop: move messages, beat, stop on SIGINT/SIGTERM or supervisor death."""
+    import signal
+    import threading
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        broker = Broker(config)
+    except (BrokerAlreadyRunning, zmq.ZMQError) as exc:
+        log.error("cannot start: %s", exc)
+        return 2
+    log.info("ready (pid %d): publishers -> %s, subscribers -> %s", os.getpid(), config.frontend,
+             config.backend)
+    supervisor = LivenessSender(broker.ctx, liveness) if liveness else None
+    interval_ns = int(config.heartbeat_interval_s * 1e9)
+    next_beat = 0
+    try:
+        while not stop.is_set():
+            now = time.monotonic_ns()
+            if now >= next_beat:
+                beat = broker.heartbeat()
+                if supervisor is not None:
+                    supervisor.beat(beat)
+                next_beat = now + interval_ns
+                if parent_pid is not None and os.getppid() != parent_pid:
+                    log.warning("supervisor %d is gone: stopping", parent_pid)
+                    break
+            broker.step(min(100, max(0, (next_beat - now) // 1_000_000)))
+    finally:
+        if supervisor is not None:
+            supervisor.close()
+        broker.close()
+    log.info("stopped")
+    return 0

@@ -1,0 +1,69 @@
+"""The stage: every drawn agent's face composed for one display time, and drawn side by side.
+
+Composing asks each agent's live scene for its face at the frame's display time (and keeps the recent
+gaze for the trajectory overlay); drawing gives each agent its own viewport, turned toward the others
+(a staging turn added when drawing only: the composed frames stay each agent's own face).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import moderngl
+import numpy as np
+
+from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.face.frame import FlexorFrame
+from eca.services.processes.renderer.bus_scene import AgentView
+from eca.services.processes.renderer.renderer import Renderer, RenderToggles
+
+_TURN = FLEXOR_INDEX["turn"]
+_LOOK = [FLEXOR_INDEX["look_x"], FLEXOR_INDEX["look_y"]]
+
+
+class Stage:
+    """Draws `views` with `renderer`, left to right in the order given.
+
+    fps and trail_s size the trajectory overlay (trail_s of frames); facing_turn is the staging turn
+    of side-by-side agents (flexor units)."""
+
+    def __init__(self, renderer: Renderer, views: Sequence[AgentView], *, fps: float, facing_turn: float = 0.0,
+                 trail_s: float = 1.0) -> None:
+        self.renderer = renderer
+        self.views = list(views)
+        self.facing_turn = facing_turn
+        self.trail_len = max(2, round(trail_s * fps))
+
+    def compose(self, display_ns: int) -> list[FlexorFrame]:
+        """Every agent's face at display time display_ns (each view's `frame` and `trail` follow)."""
+        frames = []
+        for v in self.views:
+            frame = v.scene.frame_at(display_ns)
+            v.scene.prune(display_ns)
+            v.frame = frame
+            v.trail.append((float(frame.values[_LOOK[0]]), float(frame.values[_LOOK[1]])))
+            while len(v.trail) > self.trail_len:
+                v.trail.popleft()
+            frames.append(frame)
+        return frames
+
+    def draw(self, frames: Sequence[FlexorFrame], target: moderngl.Framebuffer, *, view: str = "full",
+             toggles: RenderToggles | None = None) -> None:
+        """Draw the agents side by side into target (each in its own viewport, turned toward the other).
+
+        toggles: the renderer's switches (None: its defaults); the gaze trail is drawn where they say so."""
+        x0, y0, width, height = target.viewport
+        n = len(frames)
+        for i, (v, frame) in enumerate(zip(self.views, frames, strict=True)):
+            values = np.array(frame.values)
+            if n > 1:
+                # The agent on the left turns to its left (the screen's right) to face the other.
+                side = -1.0 if i < n / 2 else 1.0
+                values[_TURN] = float(np.clip(values[_TURN] + side * self.facing_turn, -1.0, 1.0))
+            region = (x0 + i * width // n, y0, (i + 1) * width // n - i * width // n, height)
+            target.viewport = region
+            target.scissor = region
+            trail = np.array(v.trail) if toggles is not None and toggles.trajectory and len(v.trail) >= 2 else None
+            self.renderer.render(values, target=target, view=view, toggles=toggles, overlay_points=trail)
+        target.viewport = (x0, y0, width, height)
+        target.scissor = None

@@ -1,0 +1,60 @@
+"""`python -m eca.services.processes.run NAME`: start one eca service as its own fresh interpreter."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from eca.protocol.endpoints import BusConfigError, load_bus_config
+from eca.services.processes.heap import bound_heap
+from eca.services.processes.runtime import setup_logging
+
+# name -> "module:class"; a module is imported only when its service is started.
+SERVICES: dict[str, str] = {
+    "dialogue": "eca.services.processes.dialogue:DialogueService",
+    "gaze": "eca.services.processes.gaze:GazeService",
+    "audio": "eca.services.processes.audio.service:AudioService",
+    "renderer": "eca.services.processes.renderer.service:RendererService",
+    "web": "eca.services.processes.web.service:WebService",
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m eca.services.processes.run")
+    parser.add_argument("name", choices=["broker", *SERVICES])
+    parser.add_argument("--config", default=None, help="runtime config (default configs/default.toml)")
+    parser.add_argument("--instance", default=None, help="bus instance name")
+    parser.add_argument("--parent-pid", type=int, default=None, help="stop when this process is gone")
+    parser.add_argument("--liveness", default=None, metavar="ENDPOINT",
+                        help="also send heartbeats straight to the supervisor listening here")
+    args, extra = parser.parse_known_args(argv)
+    bound_heap()  # before the bus: a flood's large messages must not stay resident afterwards
+    setup_logging(args.name)
+    try:
+        config = load_bus_config(args.config, args.instance)
+    except BusConfigError as exc:
+        print(f"[{args.name}] ERROR {exc}", file=sys.stderr)
+        return 2
+    if args.name == "broker":
+        from eca.services.processes.broker import run_broker
+
+        if extra:
+            print(f"[broker] ERROR unknown arguments: {' '.join(extra)}", file=sys.stderr)
+            return 2
+        return run_broker(config, args.parent_pid, args.liveness)
+    module_name, class_name = SERVICES[args.name].split(":")
+    service_cls = getattr(importlib.import_module(module_name), class_name)
+    common = {"parent_pid": args.parent_pid, "liveness": args.liveness}
+    if hasattr(service_cls, "from_args"):
+        service = service_cls.from_args(config, extra, **common)
+    elif extra:
+        print(f"[{args.name}] ERROR unknown arguments: {' '.join(extra)}", file=sys.stderr)
+        return 2
+    else:
+        service = service_cls(config, **common)
+    return service.run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,158 @@
+"""The web service's settings: where it listens, who may connect, and the limits of what a page may ask.
+
+From the config's [web] table, overridden on the command line (`eca up --web --web-host ...`, `eca web
+...`). Listening anywhere but loopback needs a token (or a token file): the page and its offers must
+present it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from eca.protocol.endpoints import is_loopback
+
+MAX_TOKEN_CHARS = 256
+
+
+@dataclass(frozen=True)
+class VadSettings:
+    # 0 (most speech kept) .. 3 (most noise refused): webrtcvad's modes. Below 3 it calls a microphone's
+    # hiss speech: at 2, 37-82 % of the frames of white noise at -64..-44 dBFS are "voiced" (measured),
+    # enough to barge in on the agent; 3 refuses them all and still hears speech.
+    aggressiveness: int = 3
+    window: int = 10  # frames (200 ms) over which voiced frames are counted
+    start_frames: int = 6  # voiced frames in the window that make the user speaking (120 ms of speech)
+    stop_s: float = 0.6  # without a voiced frame this long, the user has stopped
+
+    def check(self) -> VadSettings:
+        if self.aggressiveness not in (0, 1, 2, 3):
+            raise ValueError(f"vad aggressiveness must be 0, 1, 2 or 3, got {self.aggressiveness}")
+        if not 1 <= self.start_frames <= self.window <= 100:
+            raise ValueError(f"vad start_frames must lie in 1..window and window in 1..100, got "
+                             f"{self.start_frames} of {self.window}")
+        if not 0.02 <= self.stop_s <= 10:
+            raise ValueError(f"vad stop_s must lie in [0.02, 10] s, got {self.stop_s}")
+        return self
+
+
+class WebOptionsError(ValueError):
+    """A setting that cannot be: the message names it."""
+
+
+@dataclass(frozen=True)
+class WebOptions:
+    host: str = "127.0.0.1"
+    port: int = 8080
+    token: str | None = None
+    agents: tuple[str, ...] = ()  # empty: every agent of the instance
+    width: int = 640  # what a page gets when it asks for nothing
+    height: int = 480
+    fps: float = 30.0
+    max_width: int = 1280  # what a page may ask for at most
+    max_height: int = 720
+    max_fps: float = 30.0
+    max_viewers: int = 16
+    connect_timeout_s: float = 15.0  # a viewer that does not connect within this is closed
+    silent_timeout_s: float = 10.0  # a connected viewer that sends no receiver report for this long is closed
+    vad: VadSettings = field(default_factory=VadSettings)
+
+    def check(self) -> WebOptions:
+        if not 0 <= self.port < 65536:
+            raise WebOptionsError(f"web port must lie in 0..65535 (0: any free port), got {self.port}")
+        if not is_loopback(self.host) and not self.token:
+            raise WebOptionsError(f"listening on {self.host!r} (not loopback) needs a token: give --web-token or "
+                                  "--web-token-file, and open the page with ?token=...")
+        if self.token is not None and not (8 <= len(self.token) <= MAX_TOKEN_CHARS and self.token.isprintable()):
+            raise WebOptionsError(f"the web token must be 8-{MAX_TOKEN_CHARS} printable characters")
+        for name in ("width", "height", "max_width", "max_height"):
+            if not 16 <= getattr(self, name) <= 4096 or getattr(self, name) % 2:
+                raise WebOptionsError(f"web {name} must be an even number in 16..4096, got {getattr(self, name)}")
+        for name in ("fps", "max_fps"):
+            if not (math.isfinite(getattr(self, name)) and 1 <= getattr(self, name) <= 60):
+                raise WebOptionsError(f"web {name} must lie in [1, 60], got {getattr(self, name)}")
+        if self.width > self.max_width or self.height > self.max_height or self.fps > self.max_fps:
+            raise WebOptionsError("the web defaults (width, height, fps) must lie within the maxima")
+        if not 1 <= self.max_viewers <= 256:
+            raise WebOptionsError(f"web max_viewers must lie in 1..256, got {self.max_viewers}")
+        if not 1 <= self.connect_timeout_s <= 120:
+            raise WebOptionsError(f"web connect_timeout_s must lie in [1, 120], got {self.connect_timeout_s}")
+        if not 2 <= self.silent_timeout_s <= 120:
+            raise WebOptionsError(f"web silent_timeout_s must lie in [2, 120], got {self.silent_timeout_s}")
+        self.vad.check()
+        return self
+
+    def url(self, port: int | None = None) -> str:
+        """The page's address (with the token): on `port` when given (the one bound for port 0)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{port or self.port}/" + (f"?token={self.token}" if self.token else "")
+
+
+def options_from_table(table: dict[str, Any], where: str = "[web]") -> WebOptions:
+    """Options from a config's [web] table; unknown keys and wrong types are errors naming them."""
+    known = {f.name: f for f in fields(WebOptions)} | {"token_file": None}
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in known:
+            raise WebOptionsError(f"{where}: unknown key {key!r}; known: {', '.join(sorted(known))}")
+        if key == "vad":
+            if not isinstance(value, dict):
+                raise WebOptionsError(f"{where}: 'vad' must be a table")
+            values["vad"] = _vad_from(value, f"{where}.vad")
+        elif key == "agents":
+            values["agents"] = tuple(str(a) for a in value)
+        elif key == "token_file":
+            values["token"] = read_token_file(Path(value)) if value else None
+        else:
+            values[key] = value
+    try:
+        return WebOptions(**values)
+    except TypeError as exc:
+        raise WebOptionsError(f"{where}: {exc}") from None
+
+
+def _vad_from(table: dict[str, Any], where: str) -> VadSettings:
+    names = {f.name for f in fields(VadSettings)}
+    unknown = set(table) - names
+    if unknown:
+        raise WebOptionsError(f"{where}: unknown keys {sorted(unknown)}; known: {', '.join(sorted(names))}")
+    return VadSettings(**table)
+
+
+def read_token_file(path: Path) -> str:
+    try:
+        text = path.read_text(encoding="utf-8").strip()
+    except OSError as exc:
+        raise WebOptionsError(f"cannot read the web token file {path}: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise WebOptionsError(f"the web token file {path} is not UTF-8 text") from None
+    if not text:
+        raise WebOptionsError(f"the web token file {path} is empty")
+    return text
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--web-host", default=None, help="address to listen on (default 127.0.0.1)")
+    parser.add_argument("--web-port", type=int, default=None, help="port to listen on (default 8080)")
+    token = parser.add_mutually_exclusive_group()
+    token.add_argument("--web-token", default=None, help="a token the page must present (needed off loopback)")
+    token.add_argument("--web-token-file", default=None, help="read the token from this file")
+
+
+def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
+    """The config's [web] table overridden by the command line; checked."""
+    options = options_from_table(table)
+    changes: dict[str, Any] = {}
+    if args.web_host is not None:
+        changes["host"] = args.web_host
+    if args.web_port is not None:
+        changes["port"] = args.web_port
+    if args.web_token is not None:
+        changes["token"] = args.web_token
+    if args.web_token_file is not None:
+        changes["token"] = read_token_file(Path(args.web_token_file))
+    return replace(options, **changes).check()
+

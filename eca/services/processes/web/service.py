@@ -1,0 +1,312 @@
+"""The web service: the live agent in a person's browser, over WebRTC (`eca up --web`, `eca web`).
+
+One process, two loops. The service's own loop (this thread, like every eca service) follows the bus,
+draws each watched agent's face headless at every frame slot, once however many viewers watch it, and
+hands the pictures and the agents' voice blocks (`stream.<agent>.voice`, from the audio service: the
+master clock) to the feeds; it also publishes what the pages send (their commands, the microphone's
+turns and audio). An asyncio loop on a second thread serves the page and the WebRTC peers
+(services/processes/web/server.py, viewers.py), whose tracks take from the feeds. Nothing is drawn while no one
+watches.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import queue
+import shlex
+import statistics
+import sys
+import threading
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from aiohttp import web
+
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import Message, VoiceBlock
+from eca.services.processes.renderer.bus_scene import BusScenes
+from eca.services.processes.renderer.context import HeadlessContextError
+from eca.services.processes.renderer.outputs import OffscreenCanvas
+from eca.services.processes.renderer.renderer import Renderer
+from eca.services.processes.renderer.schedule import FrameSchedule
+from eca.services.processes.renderer.stage import Stage
+from eca.services.processes.renderer.yuv import YuvTarget
+from eca.services.processes.runtime import CannotStart, Rejected, Service
+from eca.services.processes.web.encoding import EncodedStreams
+from eca.services.processes.web.event_loop import EventLoopThread
+from eca.services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
+from eca.services.processes.web.options import WebOptions, WebOptionsError, add_arguments, options_from
+from eca.services.processes.web.server import make_app
+from eca.services.processes.web.viewers import Viewers, ViewRequest
+
+MAX_SUBMITTED = 10_000  # messages from the pages waiting for the bus loop; past that they are dropped
+_WAIT_S = 0.01  # the loop's longest wait while viewers watch: how soon a page's command goes out
+# A commanded change (emotion, head, role, eye mode) is drawn at once rather than at the next frame slot,
+# by drawing that slot early, but never sooner than this share of a frame period after the last frame:
+# the frame rate stays the schedule's, however fast commands come.
+EARLY_GAP = 0.25
+
+
+@dataclass(frozen=True)
+class DrawPlan:
+    """What the viewers ask to be drawn: which agents, at what size and rate (the largest asked)."""
+
+    agents: tuple[str, ...]
+    width: int
+    height: int
+    fps: float
+
+
+class WebService(Service):
+    name = "web"
+
+    def __init__(self, config: BusConfig, options: WebOptions | None = None, **kwargs: Any) -> None:
+        super().__init__(config, **kwargs)
+        self.options = (options or WebOptions()).check()
+        instance_agents = config.agents
+        self.agent_ids = self.options.agents or instance_agents
+        unknown = [a for a in self.agent_ids if a not in instance_agents]
+        if unknown:
+            raise WebOptionsError(f"[web] agents {unknown} are not agents of this instance "
+                                  f"({', '.join(instance_agents)})")
+        self.frames = FrameFeed()
+        self.encoded = EncodedStreams(self.frames.next_after, self.clock)
+        self.voices = {a: VoiceFeed() for a in self.agent_ids}
+        self.scenes = BusScenes(self, self.agent_ids)
+        self.handle(VoiceBlock, self.on_voice)
+        self._submitted: queue.SimpleQueue[Message] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._watching: dict[int, ViewRequest] = {}
+        self._plan: DrawPlan | None = None
+        self._schedule: FrameSchedule | None = None
+        self._last_frame_ns = -(1 << 62)  # the time the last frame drawn is shown
+        self._draw_times: deque[int] = deque(maxlen=31)
+        self._canvas: OffscreenCanvas | None = None
+        self._yuv: YuvTarget | None = None
+        self._renderer: Renderer | None = None
+        self._stages: dict[str, Stage] = {}
+        self._events: EventLoopThread | None = None
+        self._runner: web.AppRunner | None = None
+        self.viewers: Viewers | None = None
+        self.port = self.options.port  # the one bound, once serving (for port 0: whichever was free)
+        self.url = ""
+
+    @classmethod
+    def from_args(cls, config: BusConfig, argv: list[str], **kwargs: Any) -> WebService:
+        # Software GL (Mesa's llvmpipe) rasterizes on a thread per core by default; at a web face's
+        # size that costs more CPU than it saves time (measured: 6.1 -> 3.9 ms of CPU a frame at
+        # 640x480, the same wall time), CPU the encoders and a browser on the same machine need. A
+        # GPU driver ignores this, and a user's own setting wins.
+        os.environ.setdefault("LP_NUM_THREADS", "1")
+        parser = argparse.ArgumentParser(prog="python -m eca.services.processes.run web", add_help=False,
+                                         exit_on_error=False)
+        add_arguments(parser)
+        try:
+            args, unknown = parser.parse_known_args(argv)
+            if unknown:
+                raise WebOptionsError(f"unknown web arguments: {shlex.join(unknown)}")
+            return cls(config, options_from(dict(config.raw.get("web", {})), args), **kwargs)
+        except (argparse.ArgumentError, WebOptionsError) as exc:
+            print(f"[web] ERROR {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+
+    def subscriptions(self) -> list[str]:
+        return self.scenes.subscriptions() + [f"stream.{a}.voice" for a in self.agent_ids]
+
+    # --- what the viewers need (called on the event loop's thread) ------------------------------
+
+    def voice(self, agent: str) -> VoiceFeed:
+        return self.voices[agent]
+
+    def watch(self, viewer: int, request: ViewRequest) -> None:
+        with self._lock:
+            self._watching[viewer] = request
+
+    def unwatch(self, viewer: int) -> None:
+        with self._lock:
+            self._watching.pop(viewer, None)
+
+    def submit(self, msg: Message) -> None:
+        if self._submitted.qsize() >= MAX_SUBMITTED:
+            self.dropped += 1
+            return
+        self._submitted.put(msg)
+
+    # --- start and stop -------------------------------------------------------------------------
+
+    def setup(self) -> None:
+        logging.getLogger("aioice").setLevel(logging.WARNING)  # every ICE check at INFO drowns the service's lines
+        self.viewers = Viewers(self, self.options.max_viewers, self.options.vad, self.options.connect_timeout_s,
+                               self.options.silent_timeout_s)
+        try:
+            self._prepare_drawing((self.options.width, self.options.height))  # before ready: see _prepare_drawing
+        except HeadlessContextError as exc:
+            raise CannotStart(str(exc)) from None
+        self._events = EventLoopThread().start()
+        app = make_app(self, self.viewers, self.options, self.agent_ids)
+        try:
+            self._runner = self._events.call(self._listen(app), timeout_s=20.0)
+        except OSError as exc:
+            raise CannotStart(f"cannot listen on {self.options.host}:{self.options.port}: "
+                              f"{exc.strerror or exc}") from None
+        self.port = int(self._runner.addresses[0][1])
+        self.url = self.options.url(self.port)
+        self.log.info("serving %s (agents %s)", self.url, ", ".join(self.agent_ids))
+
+    async def _listen(self, app: web.Application) -> web.AppRunner:
+        runner = web.AppRunner(app, access_log=None)
+        await runner.setup()
+        try:
+            await web.TCPSite(runner, self.options.host, self.options.port).start()
+        except BaseException:
+            await runner.cleanup()
+            raise
+        return runner
+
+    def teardown(self) -> None:
+        if self._events is not None:
+            if self.viewers is not None and self._runner is not None:
+                try:
+                    self._events.call(self._stop_serving(), timeout_s=10.0)
+                except Exception:  # a peer that will not close must not keep the process
+                    self.log.exception("closing the viewers failed")
+            self._events.stop()
+        self._release_drawing()
+
+    async def _stop_serving(self) -> None:
+        assert self.viewers is not None and self._runner is not None
+        await self.viewers.close_all()
+        await self._runner.cleanup()
+
+    # --- the loop -------------------------------------------------------------------------------
+
+    def on_voice(self, msg: VoiceBlock) -> None:
+        feed = self.voices.get(msg.agent)
+        if feed is None:
+            raise Rejected(f"this web service does not serve agent '{msg.agent}'")
+        try:
+            feed.add(msg.dac_time_ns, np.frombuffer(msg.pcm, dtype="<i2"), msg.sample_rate)
+        except ValueError as exc:
+            raise Rejected(str(exc)) from None
+
+    def run_once(self) -> None:
+        assert self.sub is not None
+        now = self.clock.now_ns()
+        self.beat_if_due(now)
+        self._publish_submitted()
+        plan = self._current_plan()
+        if plan != self._plan:
+            self._replan(plan)
+        schedule = self._schedule
+        if schedule is not None and now >= self._next_draw_ns(schedule):
+            self.scenes.drain()
+            self.scenes.commanded = False  # this frame shows it
+            shown_ns = now + self._lead_ns()
+            early = shown_ns < schedule.due_ns
+            self._draw(shown_ns if early else schedule.due_ns, early)
+            schedule.advance()
+        else:
+            due = self._next_draw_ns(schedule) if schedule is not None else now + int(0.1e9)
+            wait_s = max(0.0, min(_WAIT_S if schedule is not None else 0.1, (due - now) / 1e9))
+            if self.sub.socket.poll(math.ceil(wait_s * 1000)):
+                self.scenes.drain()  # voice blocks must reach the tracks before their time
+        self._check_parent()
+
+    def _lead_ns(self) -> int:
+        """How long before its time a frame is drawn: it is shown (sent) once drawn and encoded."""
+        return self._typical_draw_ns() + self.encoded.encode_ns
+
+    def _next_draw_ns(self, schedule: FrameSchedule) -> int:
+        """When to draw the next slot (its time less the lead), or sooner when a commanded change waits
+        to be shown."""
+        shown_ns = schedule.early_due_ns(self._last_frame_ns, EARLY_GAP) if self.scenes.commanded else schedule.due_ns
+        return shown_ns - self._lead_ns()
+
+    def _publish_submitted(self) -> None:
+        while True:
+            try:
+                msg = self._submitted.get_nowait()
+            except queue.Empty:
+                return
+            self.publish(msg)
+
+    def _current_plan(self) -> DrawPlan | None:
+        with self._lock:
+            requests = list(self._watching.values())
+        if not requests:
+            return None
+        agents = tuple(a for a in self.agent_ids if any(a in r.agents for r in requests))
+        return DrawPlan(agents, max(r.width for r in requests), max(r.height for r in requests),
+                        max(r.fps for r in requests))
+
+    def _replan(self, plan: DrawPlan | None) -> None:
+        old = self._plan
+        self._plan = plan
+        if plan is None:
+            self._schedule = None
+            self._stages = {}
+            for agent in self.agent_ids:
+                self.frames.forget(agent)
+            self.log.info("no one watching: drawing stopped")
+            return
+        self._prepare_drawing((plan.width, plan.height))
+        if old is None or old.fps != plan.fps:
+            # frames at k / fps of the master clock, whoever watches: at a whole-number rate every whole
+            # second is a frame's time (the calibration markers, web/calibration.py, rely on it)
+            self._schedule = FrameSchedule(self.clock, plan.fps, t0_ns=0)
+        assert self._renderer is not None
+        self._stages = {v.agent: Stage(self._renderer, [v], fps=plan.fps) for v in self.scenes.views
+                        if v.agent in plan.agents}
+        self.log.info("drawing %s at %dx%d, %g fps", ", ".join(plan.agents), plan.width, plan.height, plan.fps)
+
+    def _prepare_drawing(self, size: tuple[int, int]) -> None:
+        """A GL context, renderer and yuv target of `size`, kept while the size stays (also while no one
+        watches): making them (the context, the shaders' compilation, the first frame's compiled code)
+        takes a second or more on a loaded machine, which the loop must not spend when a viewer comes."""
+        if self._yuv is not None and self._yuv.size == size:
+            return
+        self._release_drawing()
+        self._canvas = OffscreenCanvas(size)
+        self._renderer = Renderer(self._canvas.ctx, size=size)
+        self._yuv = YuvTarget(self._canvas.ctx, size)
+        warm_up = Stage(self._renderer, self.scenes.views[:1], fps=self.options.fps)
+        warm_up.draw(warm_up.compose(self.clock.now_ns()), self._yuv.fbo)
+        self._yuv.read()
+
+    def _release_drawing(self) -> None:
+        self._stages = {}
+        self._renderer = None
+        if self._yuv is not None:
+            self._yuv.release()
+            self._yuv = None
+        if self._canvas is not None:
+            self._canvas.close()
+            self._canvas = None
+        for agent in self.agent_ids:
+            self.frames.forget(agent)
+
+    def _draw(self, frame_ns: int, early: bool = False) -> None:
+        """Each watched agent's face for the frame shown at `frame_ns`: a slot's time, drawn that long
+        before it as drawing and encoding take, or drawn now (early) to show a commanded change at once.
+
+        A frame's time is when it will leave, drawn and encoded: the browser takes the time a picture is
+        sent as the time it shows (the sender's reports), as it does for the voice, sent at its output
+        time. It is composed for the middle of its time on screen (half a period later): a change shows
+        at the nearest frame, not the next one."""
+        assert self._yuv is not None and self._plan is not None and self._schedule is not None
+        width, height = self._plan.width, self._plan.height
+        began = self.clock.now_ns()
+        composed_ns = frame_ns + self._schedule.period_ns // 2
+        for agent, stage in self._stages.items():
+            stage.draw(stage.compose(composed_ns), self._yuv.fbo)
+            self.frames.put(agent, Picture(frame_ns, self._yuv.read(), width, height, early))
+        self._draw_times.append(self.clock.now_ns() - began)
+        self._last_frame_ns = frame_ns
+
+    def _typical_draw_ns(self) -> int:
+        return statistics.median_high(self._draw_times) if self._draw_times else 0

@@ -1,0 +1,110 @@
+"""The WebRTC tracks a viewer receives: the agent's face (video) and voice (audio), on the master clock.
+
+A browser lines video and audio up by each stream's sender reports, which map a frame's RTP timestamp
+to the time the sender sent it. So both tracks send each frame at the time it is meant for: the face
+track a picture as soon as it is drawn and encoded (stamped with that time), the voice track 20 ms of
+samples when the first of them reaches the output (their DAC time on the master clock, which the audio
+service stamps ahead of time, as a sound card's output buffer does). Timestamps (`pts`) are that same
+clock, so the browser's own A/V synchronisation does the rest.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import fractions
+from collections.abc import Callable
+from typing import Protocol
+
+import av
+import numpy as np
+from aiortc import MediaStreamTrack
+from aiortc.mediastreams import MediaStreamError
+from av import AudioFrame
+
+from eca.agent.clock import Clock
+from eca.services.processes.web.encoding import VIDEO_RATE, EncodedStream
+
+AUDIO_FRAME_S = 0.020  # Opus' packet time: one frame per packet
+
+
+class Samples(Protocol):
+    """What a voice track reads: the samples of any span of the master clock (a VoiceFeed)."""
+
+    sample_rate: int
+
+    def take(self, start_ns: int, count: int) -> np.ndarray: ...
+
+
+class FaceTrack(MediaStreamTrack):
+    """One viewer's copy of an encoded face stream: each encoded picture as it comes, stamped from the
+    first one this track sent. A picture that cannot be decoded after what this track sent (it missed
+    one) is not sent: the track asks the stream for a keyframe and sends from there."""
+
+    kind = "video"
+
+    def __init__(self, stream: EncodedStream, on_stop: Callable[[], None] | None = None) -> None:
+        super().__init__()
+        self.stream = stream
+        self._on_stop = on_stop
+        self._sent_seq = -1
+        self._first_ns: int | None = None
+        self.sent = 0
+
+    async def recv(self) -> av.Packet:
+        seen = self._sent_seq
+        while True:
+            picture = await self.stream.next_after(seen)
+            if picture is None:
+                raise MediaStreamError("the face's stream stopped")
+            if picture.keyframe or (self._sent_seq >= 0 and picture.seq == self._sent_seq + 1):
+                break
+            self.stream.request_keyframe()
+            seen = picture.seq
+        self._sent_seq = picture.seq
+        if self._first_ns is None:
+            self._first_ns = picture.frame_ns
+        packet = av.Packet(picture.data)
+        packet.is_keyframe = picture.keyframe
+        packet.pts = (picture.frame_ns - self._first_ns) * VIDEO_RATE // 1_000_000_000
+        packet.time_base = fractions.Fraction(1, VIDEO_RATE)
+        self.sent += 1
+        return packet
+
+    def stop(self) -> None:
+        super().stop()
+        if self._on_stop is not None:
+            on_stop, self._on_stop = self._on_stop, None
+            on_stop()
+
+
+class VoiceTrack(MediaStreamTrack):
+    """One agent's voice in 20 ms frames, each sent when its first sample reaches the output."""
+
+    kind = "audio"
+
+    def __init__(self, feed: Samples, clock: Clock) -> None:
+        super().__init__()
+        self.feed, self.clock = feed, clock
+        self.rate = feed.sample_rate
+        self.samples_per_frame = round(self.rate * AUDIO_FRAME_S)
+        self._start_ns: int | None = None
+        self._frames = 0
+
+    def frame_start_ns(self, k: int) -> int:
+        assert self._start_ns is not None
+        return self._start_ns + k * self.samples_per_frame * 1_000_000_000 // self.rate
+
+    async def recv(self) -> AudioFrame:
+        if self._start_ns is None:
+            self._start_ns = self.clock.now_ns()
+        start_ns = self.frame_start_ns(self._frames)
+        wait_ns = start_ns - self.clock.now_ns()
+        if wait_ns > 0:
+            await asyncio.sleep(wait_ns / 1e9)  # pacing to the master clock, not synchronisation
+        samples = self.feed.take(start_ns, self.samples_per_frame)
+        frame = AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16", layout="mono")
+        frame.sample_rate = self.rate
+        frame.pts = self._frames * self.samples_per_frame
+        frame.time_base = fractions.Fraction(1, self.rate)
+        self._frames += 1
+        return frame

@@ -1,0 +1,251 @@
+"""The browsers watching: one WebRTC peer connection each, with its face and voice tracks and, when the
+page sends one, its microphone.
+
+A viewer's tracks take from the service's shared feeds: the face is drawn once per frame, and encoded
+once for all the viewers who asked the same size and rate (services/processes/web/encoding.py), whatever
+their number; each viewer's own encoder encodes the voice. A viewer that leaves, fails, does not
+connect within `connect_timeout_s`, or stops answering (no receiver report for `silent_timeout_s`:
+a browser that vanished mid-call, which ICE itself notices only after about 30 s) is closed and
+forgotten: its peer connection, its encoders, its microphone and its place in what the service draws.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Protocol
+
+from aiortc import MediaStreamTrack, RTCPeerConnection, RTCRtpSender, RTCSessionDescription
+from aiortc.mediastreams import MediaStreamError
+from aiortc.rtcpeerconnection import or_direction
+
+from eca.agent.clock import Clock
+from eca.protocol.messages import Message, UserAudio, UserSpeech
+from eca.services.processes.web.calibration import click_track, flash_track
+from eca.services.processes.web.encoding import EncodedStreams
+from eca.services.processes.web.feeds import FrameFeed, VoiceFeed
+from eca.services.processes.web.microphone import MicBlock, Microphone
+from eca.services.processes.web.options import VadSettings
+from eca.services.processes.web.tracks import FaceTrack, VoiceTrack
+
+log = logging.getLogger("web")
+
+
+@dataclass(frozen=True)
+class ViewRequest:
+    """What one page asked for, already checked against the limits (services/processes/web/server.py)."""
+
+    agents: tuple[str, ...]
+    width: int
+    height: int
+    fps: float
+    streams: tuple[tuple[str, str, str], ...]  # (mid, agent, "video" | "audio") for each media section it receives
+    mic_mid: str | None  # the section its microphone comes in, if it sends one
+    calibration: bool = False  # the agents with flashes and clicks on them (web/calibration.py)
+
+
+class Backend(Protocol):
+    """What the viewers need of the service (called from the event loop; thread-safe)."""
+
+    clock: Clock
+    encoded: EncodedStreams
+    frames: FrameFeed
+
+    def voice(self, agent: str) -> VoiceFeed: ...
+
+    def watch(self, viewer: int, request: ViewRequest) -> None: ...
+
+    def unwatch(self, viewer: int) -> None: ...
+
+    def submit(self, msg: Message) -> None: ...
+
+
+@dataclass
+class Viewer:
+    number: int
+    pc: RTCPeerConnection
+    request: ViewRequest
+    tracks: list[MediaStreamTrack] = field(default_factory=list)
+    mic_task: asyncio.Task[None] | None = None
+    watchdog: asyncio.Future[None] | None = None
+    closed: bool = False
+
+
+class Viewers:
+    def __init__(self, backend: Backend, max_viewers: int, vad: VadSettings, connect_timeout_s: float = 15.0,
+                 silent_timeout_s: float = 10.0) -> None:
+        self.backend = backend
+        self.max_viewers = max_viewers
+        self.vad = vad
+        self.connect_timeout_s = connect_timeout_s
+        self.silent_timeout_s = silent_timeout_s
+        self.open: dict[int, Viewer] = {}
+        self._numbers = itertools.count(1)
+
+    @property
+    def full(self) -> bool:
+        return len(self.open) >= self.max_viewers
+
+    async def answer(self, offer_sdp: str, request: ViewRequest) -> str:
+        """Open a viewer for an offer; its answer's SDP. ValueError (with a sentence for the page) when the
+        offer cannot be answered; nothing is left open then."""
+        number = next(self._numbers)
+        viewer = Viewer(number, RTCPeerConnection(), request)
+        self.open[number] = viewer
+        try:
+            _offer_vp8_only(viewer.pc, sum(kind == "video" for _, _, kind in request.streams))
+            await viewer.pc.setRemoteDescription(RTCSessionDescription(sdp=offer_sdp, type="offer"))
+            self._attach(viewer)
+            await viewer.pc.setLocalDescription(await viewer.pc.createAnswer())
+        except Exception as exc:  # aiortc's SDP parser raises many types on a malformed offer
+            await self.close(viewer)
+            raise ValueError(f"the offer could not be answered: {_plain(exc)}") from None
+        self.backend.watch(number, request)
+        viewer.pc.on("connectionstatechange", lambda: self._on_state(viewer))
+        asyncio.get_running_loop().call_later(self.connect_timeout_s, self._check_connected, viewer)
+        log.info("viewer %d: %s at %dx%d, %g fps%s%s", number, ", ".join(request.agents), request.width,
+                 request.height, request.fps, ", with a microphone" if request.mic_mid else "",
+                 ", with calibration flashes and clicks" if request.calibration else "")
+        return viewer.pc.localDescription.sdp
+
+    def _attach(self, viewer: Viewer) -> None:
+        request, backend = viewer.request, self.backend
+        by_mid = {t.mid: t for t in viewer.pc.getTransceivers()}
+        for mid, agent, kind in request.streams:
+            transceiver = by_mid.get(mid)
+            if transceiver is None or transceiver.kind != kind:
+                raise ValueError(f"the offer has no {kind} section with mid {mid!r}")
+            track: MediaStreamTrack
+            if kind == "video":
+                track = (flash_track(backend.clock, backend.frames, agent, request.width, request.height, request.fps)
+                         if request.calibration else self._face_track(agent, request))
+                _forward_keyframe_requests(transceiver.sender, track)
+            else:
+                voice = backend.voice(agent)
+                track = click_track(backend.clock, voice) if request.calibration else VoiceTrack(voice, backend.clock)
+            transceiver.sender.replaceTrack(track)
+            transceiver.direction = or_direction(transceiver.direction, "sendonly")
+            # one media stream per agent (its msid): the browser lines up the voice with the face it
+            # belongs to, not with another agent's
+            transceiver.sender._stream_id = f"eca-{agent}"
+            viewer.tracks.append(track)
+        if request.mic_mid is not None:
+            transceiver = by_mid.get(request.mic_mid)
+            if transceiver is None or transceiver.kind != "audio":
+                raise ValueError(f"the offer has no audio section with mid {request.mic_mid!r} for the microphone")
+            viewer.mic_task = asyncio.ensure_future(self._listen(viewer, transceiver.receiver.track))
+
+    def _face_track(self, agent: str, request: ViewRequest) -> FaceTrack:
+        """A track of the agent's face stream at the asked size and rate, shared with the other viewers
+        who asked the same; the stream goes when the last of its tracks stops."""
+        encoded = self.backend.encoded
+        stream = encoded.use(agent, request.width, request.height, request.fps)
+        return FaceTrack(stream, on_stop=lambda: encoded.release(stream))
+
+    async def _listen(self, viewer: Viewer, track: MediaStreamTrack) -> None:
+        """The viewer's microphone: blocks and turns onto the bus, for the agents it watches."""
+        agents = viewer.request.agents
+        source = f"viewer-{viewer.number}"
+        submit, clock = self.backend.submit, self.backend.clock
+
+        def on_block(block: MicBlock) -> None:
+            submit(UserAudio(agent=agents[0], first_sample=block.first_sample, capture_time_ns=block.capture_ns,
+                             pcm=block.pcm, speaking=block.speaking, source_id=source))
+
+        def on_turn(speaking: bool) -> None:
+            log.info("viewer %d: the user %s speaking", viewer.number, "started" if speaking else "stopped")
+            for agent in agents:
+                submit(UserSpeech(agent=agent, speaking=speaking))
+
+        mic = Microphone(on_block, on_turn, self.vad)
+        try:
+            while not viewer.closed:
+                frame = await track.recv()
+                mic.push(frame, clock.now_ns())
+        except MediaStreamError:
+            pass  # the browser stopped sending
+        finally:
+            if mic.speaking:
+                on_turn(False)  # a viewer who leaves mid-sentence has stopped speaking
+
+    def _on_state(self, viewer: Viewer) -> None:
+        state = viewer.pc.connectionState
+        if state in ("failed", "closed"):
+            asyncio.ensure_future(self.close(viewer))
+        elif state == "connected" and viewer.watchdog is None:
+            viewer.watchdog = asyncio.ensure_future(self._watch_answers(viewer))
+
+    async def _watch_answers(self, viewer: Viewer) -> None:
+        """Close the viewer when its receiver reports stop coming. Every stream it receives counts: Chromium
+        reports on video every 0.2-1 s but on audio only every 2.5-7.5 s (libwebrtc's 5 s +- 50 %), so
+        watching one audio stream alone closed healthy pages."""
+        loop = asyncio.get_running_loop()
+        last = loop.time()
+        seen: dict[int, datetime] = {}
+        senders = [t.sender for t in viewer.pc.getTransceivers() if t.sender.track is not None]
+        while not viewer.closed:
+            await asyncio.sleep(1.0)  # a periodic look, not synchronisation
+            answered = False
+            for k, sender in enumerate(senders):
+                stamps = [s.timestamp for s in (await sender.getStats()).values() if s.type == "remote-inbound-rtp"]
+                if stamps and stamps[0] != seen.get(k):
+                    seen[k] = stamps[0]
+                    answered = True
+            if answered:
+                last = loop.time()
+            elif loop.time() - last > self.silent_timeout_s:
+                log.info("viewer %d: no answer for %g s; closing it", viewer.number, self.silent_timeout_s)
+                await self.close(viewer)
+
+    def _check_connected(self, viewer: Viewer) -> None:
+        if not viewer.closed and viewer.pc.connectionState != "connected":
+            log.info("viewer %d: not connected after %g s; closing it", viewer.number, self.connect_timeout_s)
+            asyncio.ensure_future(self.close(viewer))
+
+    async def close(self, viewer: Viewer) -> None:
+        if viewer.closed:
+            return
+        viewer.closed = True
+        self.open.pop(viewer.number, None)
+        self.backend.unwatch(viewer.number)
+        for track in viewer.tracks:
+            track.stop()
+        for task in (viewer.mic_task, viewer.watchdog):
+            if task is not None and task is not asyncio.current_task():
+                task.cancel()
+        await viewer.pc.close()
+        log.info("viewer %d left (%d watching)", viewer.number, len(self.open))
+
+    async def close_all(self) -> None:
+        for viewer in list(self.open.values()):
+            await self.close(viewer)
+
+
+def _offer_vp8_only(pc: RTCPeerConnection, video_sections: int) -> None:
+    """Make the answer send VP8 in each video section: the face streams are VP8, encoded once for every
+    viewer. aiortc gives a browser's offer the transceivers that already exist (in order) before it
+    makes new ones, so the video sections get these, whose codecs are set before the offer is read."""
+    vp8 = [c for c in RTCRtpSender.getCapabilities("video").codecs if c.mimeType.lower() in ("video/vp8", "video/rtx")]
+    for _ in range(video_sections):
+        pc.addTransceiver("video", direction="sendonly").setCodecPreferences(vp8)
+
+
+def _forward_keyframe_requests(sender: RTCRtpSender, track: FaceTrack) -> None:
+    """A browser's request for a keyframe (PLI, FIR) reaches aiortc's sender, which would have its own
+    encoder make one; the face's encoder is the shared stream's, so the request goes on to it."""
+    ask_encoder = sender._send_keyframe
+
+    def send_keyframe() -> None:
+        ask_encoder()
+        track.stream.request_keyframe()
+
+    sender._send_keyframe = send_keyframe  # type: ignore[method-assign]
+
+
+def _plain(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())[:200]
+    return text or type(exc).__name__
+

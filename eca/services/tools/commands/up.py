@@ -1,0 +1,89 @@
+"""`eca up`: start the broker and the services, watch them, stop them all on Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from eca.protocol.endpoints import BusConfigError, load_bus_config
+from eca.services.processes.web.options import add_arguments as add_web_arguments
+from eca.services.tools import cli_args
+from eca.services.tools.up import choose_services, run_up
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("up", help="run the broker and the services of one instance")
+    p.add_argument("--config", default=None, help="runtime config (default configs/default.toml)")
+    p.add_argument("--instance", default=None, help="bus instance name (default from the config)")
+    p.add_argument("--only", action="append", default=[], metavar="SERVICE", help="start only these")
+    p.add_argument("--without", action="append", default=[], metavar="SERVICE", help="do not start these")
+    p.add_argument("--quiet", action="store_true", help="no periodic bus summary")
+    p.add_argument("--seconds", type=cli_args.seconds, default=None, help="stop by itself after this long")
+    p.add_argument("--silent-audio", action="store_true",
+                   help="open no sound card: the voice is heard elsewhere (a pipecat transport, the web page)")
+    face = p.add_argument_group("renderer", "passed to the renderer (it picks a window where a display exists)")
+    face.add_argument("--headless", action="store_true", help="render offscreen (EGL) even where a display exists")
+    face.add_argument("--window", action="store_true", help="require a window (fail without a display)")
+    face.add_argument("--video", default=None, metavar="PATH", help="headless: write the face as an H.264 MP4")
+    face.add_argument("--png", default=None, metavar="DIR", help="headless: write PNG frames")
+    face.add_argument("--size", default=None, metavar="WxH", help="window or image size")
+    face.add_argument("--fps", type=float, default=None, help="frames per second")
+    face.add_argument("--view", choices=("full", "upper"), default=None, help="full face or upper face only")
+    web = p.add_argument_group("web", "the web front-end: the agents in a browser over WebRTC")
+    web.add_argument("--web", action="store_true", help="also serve the agents to browsers (the web service)")
+    add_web_arguments(web)
+    p.set_defaults(func=run)
+
+
+def renderer_args(args: argparse.Namespace) -> list[str]:
+    """The renderer's command-line arguments among `eca up`'s."""
+    argv = [f"--{flag}" for flag in ("headless", "window") if getattr(args, flag)]
+    for name in ("video", "png", "size", "fps", "view"):
+        value = getattr(args, name)
+        if value is not None:
+            argv += [f"--{name}", str(value)]
+    return argv
+
+
+def web_args(args: argparse.Namespace) -> list[str]:
+    """The web service's command-line arguments among `eca up`'s."""
+    argv = []
+    for name in ("web_host", "web_port", "web_token", "web_token_file"):
+        value = getattr(args, name)
+        if value is not None:
+            argv += [f"--{name.replace('_', '-')}", str(value)]
+    return argv
+
+
+def run(args: argparse.Namespace) -> int:
+    face_argv = renderer_args(args)
+    site_argv = web_args(args)
+    try:
+        config = load_bus_config(args.config, args.instance)
+        services = choose_services(config, args.only, args.without)
+        if site_argv and not args.web:
+            raise ValueError(f"web options ({' '.join(site_argv)}) given without --web")
+        if args.web:
+            from eca.services.processes.web.options import options_from as web_options_from
+
+            parser = argparse.ArgumentParser(add_help=False)
+            add_web_arguments(parser)
+            web_options_from(dict(config.raw.get("web", {})), parser.parse_args(site_argv))  # bad ones fail here
+            if "web" not in services:
+                services.append("web")
+            from eca.services.processes.renderer.window import display_available  # glfw loads only here
+
+            if not face_argv and "renderer" in services and not display_available():
+                services.remove("renderer")  # headless, the page is the face: no second drawing loop
+        if face_argv:
+            if "renderer" not in services:
+                raise ValueError(f"renderer options ({' '.join(face_argv)}) given, but the renderer is not started")
+            from eca.services.processes.renderer.options import options_from  # GL and video libraries load only here
+
+            options_from(config, face_argv)  # bad options fail here, before anything starts
+    except (BusConfigError, ValueError) as exc:  # a WebOptionsError too
+        print(f"eca up: {exc}", file=sys.stderr)
+        return 2
+    return run_up(config, services, view=not args.quiet, duration_s=args.seconds,
+                  extra_args={"renderer": face_argv, "web": site_argv,
+                              "audio": ["--silent"] if args.silent_audio else []})
