@@ -20,15 +20,9 @@ from eca.services.processes.renderer import (
     load_render_config,
     read_rgb,
 )
-from eca.services.processes.renderer.mesh import (
-    CURVE_POINTS,
-    EYE_RADIUS,
-    N_BONES,
-    TUBE_POINTS,
-    FacePoser,
-    eye_centre,
-    shader_template,
-)
+from eca.services.processes.renderer.curves import CURVE_POINTS, TUBE_POINTS, shader_template
+from eca.services.processes.renderer.geometry import EYE_RADIUS, N_BONES, eye_centre
+from eca.services.processes.renderer.poser import FacePoser
 from eca.services.processes.renderer.renderer import SURFACE, VERTEX_FORMAT
 from eca.services.processes.renderer.shaders import FACE_VERTEX
 
@@ -406,10 +400,10 @@ def test_the_compiled_facing_pass_selects_what_the_numpy_reference_does(ctx) -> 
 def test_the_warm_up_compiles_what_a_frame_runs(ctx) -> None:
     """kernels.warm_up (which setup runs) compiles each compiled function for the very argument types a
     renderer's frame passes it, so that no frame compiles anything."""
-    from eca.services.processes.renderer import kernels, mesh
+    from eca.services.processes.renderer import curves, kernels, poser
 
-    compiled = [kernels.static_frame_indices, mesh.brow_curves, mesh._mouth_shape, mesh._curve_rows,
-                mesh.curve_block, mesh._pose_bones]  # fmt: skip
+    compiled = [kernels.static_frame_indices, curves.brow_curves, curves._mouth_shape, curves._curve_rows,
+                curves.curve_block, poser._pose_bones]  # fmt: skip
     kernels.warm_up()
     before = [list(fn.signatures) for fn in compiled]
     r = Renderer(ctx, SIZE)

@@ -10,30 +10,28 @@ import pytest
 from eca.agent.face.flexors import N_FLEXORS
 from eca.agent.face.frame import FlexorFrame
 from eca.services.processes.renderer.config import load_render_config
-from eca.services.processes.renderer.mesh import (
-    BONE_ULID_L,
+from eca.services.processes.renderer.curves import (
     CURVE_POINTS,
-    EXTRUDED,
-    EYE_RADIUS,
     RING,
     SEGMENTS,
     STRIP_CODE,
     TUBE_CODE,
     TUBE_POINTS,
-    FacePoser,
-    RigidFacing,
-    Silhouette,
-    _ellipsoid,
     _on_face,
-    build_static_mesh,
     clean_flexors,
-    extruded_copy,
-    eye_centre,
-    lid_elevations,
     mouth_shape,
     shader_template,
-    skin,
 )
+from eca.services.processes.renderer.geometry import (
+    BONE_ULID_L,
+    EXTRUDED,
+    EYE_RADIUS,
+    _ellipsoid,
+    build_static_mesh,
+    eye_centre,
+)
+from eca.services.processes.renderer.outline import RigidFacing, Silhouette, extruded_copy
+from eca.services.processes.renderer.poser import FacePoser, lid_elevations, skin
 
 
 def flexors(**values: float) -> np.ndarray:

@@ -1,11 +1,11 @@
 """The renderer's per-frame arithmetic on the static mesh, compiled with numba.
 
 Each frame the renderer decides which static triangles may face the camera and which of their edges lie
-on the silhouette (mesh.RigidFacing, renderer.FrameIndices). That is a few thousand multiply-adds, yet
+on the silhouette (outline.RigidFacing, renderer.FrameIndices). That is a few thousand multiply-adds, yet
 done with numpy it took about 0.2 ms of a 4 ms software-GL frame, nearly all of it numpy's per-call
 cost on small arrays; as one compiled loop it takes about 25 microseconds. The numpy code stays as the
-reference the tests hold this to, operation for operation. (The per-frame posing in mesh.py is
-compiled too.)
+reference the tests hold this to, operation for operation. (The per-frame posing in poser.py
+and curves.py is compiled too.)
 
 Compiled on first use and cached on disk (numba's cache=True, beside the installed package), so only the
 first run of an install pays: every renderer calls ensure_compiled() before it draws, which says so in one
@@ -22,7 +22,9 @@ import numba
 import numpy as np
 
 from eca.agent.face.flexors import N_FLEXORS
-from eca.services.processes.renderer.mesh import CURVE_POINTS, N_BONES, TUBE_POINTS, FacePoser
+from eca.services.processes.renderer.curves import CURVE_POINTS, TUBE_POINTS
+from eca.services.processes.renderer.geometry import N_BONES
+from eca.services.processes.renderer.poser import FacePoser
 
 
 @numba.njit(cache=True)

@@ -2,7 +2,7 @@
 
 All GPU objects (programs, buffers, vertex arrays, the offscreen target) are made once in __init__;
 a frame writes a handful of uniforms, the few hundred numbers the vertex shader builds the brows and
-the mouth from (mesh.curve_block), the static triangles that face the camera and the outline quads
+the mouth from (curves.curve_block), the static triangles that face the camera and the outline quads
 along the static parts' silhouettes, so the same Renderer can draw every frame of a window, a
 headless test or a video.
 """
@@ -18,24 +18,19 @@ import numpy as np
 from eca.agent.face.flexors import N_FLEXORS
 from eca.services.processes.renderer.config import VIEWS, Framing, RenderConfig, load_render_config
 from eca.services.processes.renderer.context import check_size, create_offscreen_target
-from eca.services.processes.renderer.kernels import ensure_compiled, static_frame_indices
-from eca.services.processes.renderer.mesh import (
-    CURVE_POINTS,
+from eca.services.processes.renderer.curves import CURVE_POINTS, TUBE_POINTS, shader_template
+from eca.services.processes.renderer.geometry import (
     EYE_Y,
     IRIS_ANGLE,
     MATERIALS,
     N_BONES,
     PUPIL_ANGLE,
-    TUBE_POINTS,
-    FacePoser,
-    Pose,
-    RigidFacing,
-    Silhouette,
     build_static_mesh,
-    extruded_copy,
     eye_centre,
-    shader_template,
 )
+from eca.services.processes.renderer.kernels import ensure_compiled, static_frame_indices
+from eca.services.processes.renderer.outline import RigidFacing, Silhouette, extruded_copy
+from eca.services.processes.renderer.poser import FacePoser, Pose
 from eca.services.processes.renderer.shaders import (
     EYE_FRAGMENT,
     FLAT_FRAGMENT,
@@ -121,7 +116,7 @@ class Renderer:
         # Bones and camera go in one uniform block that every program reads: one write per frame.
         self._frame = np.zeros((N_BONES + 1, 4, 4), dtype=np.float32)
         self.frame_ubo = ctx.buffer(reserve=self._frame.nbytes, dynamic=True)
-        # The points from which the vertex shader builds the brows and the mouth (mesh.curve_block).
+        # The points from which the vertex shader builds the brows and the mouth (curves.curve_block).
         self._curves = np.zeros((CURVE_POINTS + TUBE_POINTS, 4), dtype=np.float32)
         self.curve_ubo = ctx.buffer(reserve=self._curves.nbytes, dynamic=True)
         for prog in self._programs:
@@ -421,7 +416,7 @@ class Renderer:
 class FrameIndices:
     """The static mesh's index buffers, rewritten each frame from which way its triangles face: for the
     surface, each named group's triangles that may face the camera; for the outline, the quads of the
-    silhouette edges (mesh.Silhouette).
+    silhouette edges (outline.Silhouette).
 
     Software GL shades the vertices of every triangle it is given and sets each up before it culls the
     back faces, and about half of the static triangles face away in any frame, so they are left out of

@@ -6,29 +6,18 @@ surface gets its own small program instead of one shader that branches on the ma
 
 from __future__ import annotations
 
-from eca.services.processes.renderer.mesh import (
-    CURVE_POINTS,
-    EXTRUDED,
-    HEAD_A,
-    HEAD_B,
-    HEAD_C,
-    HEAD_N,
-    HEAD_TAPER,
-    MAT,
-    N_BONES,
-    SEGMENTS,
-    TUBE_POINTS,
-)
+from eca.services.processes.renderer.curves import CURVE_POINTS, SEGMENTS, TUBE_POINTS
+from eca.services.processes.renderer.geometry import EXTRUDED, HEAD_A, HEAD_B, HEAD_C, HEAD_N, HEAD_TAPER, MAT, N_BONES
 
 FACE_VERTEX = """
 #version 330
 #define CURVES 1  // 0 for the static parts: no vertex of theirs is built from the Curves block
-#define EXTRUDED __EXTRUDED__  // mesh.EXTRUDED: added to the material of an outline quad's outer corners
-#define SEGMENTS __SEGMENTS__  // mesh.SEGMENTS: points per tube centre line and per strip edge
-#define CURVE_POINTS __CURVE_POINTS__  // mesh.CURVE_POINTS
-#define MAT_SKIN __MAT_SKIN__  // mesh.MAT: the head's two materials
+#define EXTRUDED __EXTRUDED__  // geometry.EXTRUDED: added to the material of an outline quad's outer corners
+#define SEGMENTS __SEGMENTS__  // curves.SEGMENTS: points per tube centre line and per strip edge
+#define CURVE_POINTS __CURVE_POINTS__  // curves.CURVE_POINTS
+#define MAT_SKIN __MAT_SKIN__  // geometry.MAT: the head's two materials
 #define MAT_HAIR __MAT_HAIR__
-// The head's surface (mesh._on_face): |x / (A t(y))|^N + |y / B|^N + |z / C|^N = 1, t(y) = 1 - T u^2.
+// The head's surface (curves._on_face): |x / (A t(y))|^N + |y / B|^N + |z / C|^N = 1, t(y) = 1 - T u^2.
 const float HEAD_A = __HEAD_A__, HEAD_B = __HEAD_B__, HEAD_C = __HEAD_C__;
 const float HEAD_N = __HEAD_N__, HEAD_TAPER = __HEAD_TAPER__;
 const float OUTLINE_FAR = 0.999999;  // NDC depth just short of the cleared 1.0, which the test must pass
@@ -36,12 +25,12 @@ layout(std140) uniform Frame {  // written once per frame, shared by every progr
     mat4 u_bones[__N_BONES__];  // rest head frame -> camera, per bone (the head's modelview times the bone)
     mat4 u_proj;
 };
-layout(std140) uniform Curves {  // written once per frame: the brows and the mouth (mesh.curve_block)
+layout(std140) uniform Curves {  // written once per frame: the brows and the mouth (curves.curve_block)
     // Per point of each tube's centre line and each strip's edges: (x, y, lift off the head, jaw weight);
     // then per tube centre-line point: (half height, half depth, section aspect, -).
     vec4 u_curves[CURVE_POINTS + __TUBE_POINTS__];
 };
-uniform vec3 u_palette[10]; // per material, mesh.MATERIALS order
+uniform vec3 u_palette[10]; // per material, geometry.MATERIALS order
 uniform vec3 u_light_v;     // toward the key light, camera space, unit
 uniform float u_outline;    // outline width in pixels (the outline pass)
 uniform vec2 u_viewport;
@@ -58,7 +47,7 @@ out vec3 v_aux;             // eye: rest direction
 out float v_ndl;            // n.l for the cel bands
 flat out vec3 v_color;      // one colour per triangle (its last vertex's): no need to interpolate it
 
-// The point (x, y) of the head's front, moved `lift` along the surface normal `n` (mesh._on_face).
+// The point (x, y) of the head's front, moved `lift` along the surface normal `n` (curves._on_face).
 vec3 on_face(vec4 q, out vec3 n) {
     float u = clamp(-q.y / HEAD_B, 0.0, 1.0);
     float taper = 1.0 - HEAD_TAPER * u * u;
@@ -90,7 +79,7 @@ void main() {
         pos = on_face(q, unused);
         w = q.w;
     } else if (code >= int(2.0 * EXTRUDED)) {
-        // A brow or lip: a tube of elliptic section around its centre line (mesh._tubes).
+        // A brow or lip: a tube of elliptic section around its centre line (curves._tubes).
         int k = int(in_pos.x + 0.5);
         int j = k % SEGMENTS;
         vec4 q = u_curves[k];
