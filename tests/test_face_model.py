@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from eca.agent.clock import nanoseconds
+from eca.agent.face.composed import ComposedFace, EyeAngles
 from eca.agent.face.emotions import load_emotion_table
 from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from eca.agent.face.model import FaceModel, eye_angles_deg, head_angles_deg
+from eca.agent.face.model import FaceModel
 
 S = nanoseconds
 TABLE = load_emotion_table()
@@ -86,13 +87,15 @@ def test_head_reaches_its_target_at_the_duration() -> None:
     model.move_head(-0.5, 0.3, 0.2, 1.5, S(2.0))
     frame = model.frame_at_s(3.5)
     assert (frame.get("turn"), frame.get("nod"), frame.get("tilt")) == pytest.approx((-0.5, 0.3, 0.2))
-    assert head_angles_deg(frame) == pytest.approx((-20.0, 7.5, 4.0))  # 40, 25, 20 deg per unit
+    face = model.compose(S(3.5))
+    assert (face.head_yaw_deg, face.head_pitch_deg, face.head_roll_deg) == pytest.approx((-20.0, 7.5, 4.0))
 
 
 def test_head_moves_in_degrees_use_the_flexor_units() -> None:
     model = _quiet()
     model.move_head_deg(20.0, -5.0, 10.0, 0.0, 0)
-    assert head_angles_deg(model.frame_at(0)) == pytest.approx((20.0, -5.0, 10.0))
+    face = model.compose(0)
+    assert (face.head_yaw_deg, face.head_pitch_deg, face.head_roll_deg) == pytest.approx((20.0, -5.0, 10.0))
 
 
 def test_eyes_convert_degrees_to_look_flexors_and_clip_at_the_eye_range() -> None:
@@ -101,7 +104,9 @@ def test_eyes_convert_degrees_to_look_flexors_and_clip_at_the_eye_range() -> Non
     frame = model.frame_at_s(1.0)
     assert frame.get("look_x") == pytest.approx(0.5) and frame.get("look_y") == pytest.approx(-0.2)
     assert frame.get("blink_l") == frame.get("blink_r") == 0.25
-    assert eye_angles_deg(frame) == pytest.approx((15.0, -6.0))
+    face = model.compose(S(1.0), role="talking")
+    assert face.left_eye == face.right_eye == EyeAngles(15.0, -6.0) and face.lid == 0.25
+    assert face.role == "talking" and face.emotion == "natural" and face.flexors is face.frame.values
     model.set_eyes(80.0, None)
     frame = model.frame_at_s(1.0)
     assert frame.get("look_x") == 1.0 and frame.get("look_y") == 0.0 and frame.get("blink_l") == 0.0
@@ -190,3 +195,28 @@ def test_a_raw_expression_settles_like_an_emotion_and_leaves_dont_care_flexors_a
         0.95 * -0.6 + 0.05 * TABLE.pose("happy")[FLEXOR_INDEX["brow_l"]]
     )
     assert model.frame_at_s(9.0).get("smile_l") == pytest.approx(0.0, abs=1e-6)  # happy is gone: natural again
+
+
+def test_the_composed_face_keeps_the_gaze_unclipped_and_converts_flexors_once() -> None:
+    """The eyes are the gaze model's angles (beyond the drawn range too: a rig has its own); the head's
+    angles are the flexors times the units, and a frame alone gives the eyes from its look flexors."""
+    model = _quiet()
+    model.set_eyes(40.0, 5.0, lid=0.0)
+    face = model.compose(S(1.0))
+    assert face.left_eye.yaw_deg == 40.0 and face.frame.get("look_x") == 1.0
+    alone = ComposedFace.from_frame(face.frame, model.units)
+    assert alone.left_eye == EyeAngles(30.0, pytest.approx(5.0))
+    turned = face.with_flexors(face.frame.with_values(turn=0.5).values, model.units)
+    assert turned.head_yaw_deg == pytest.approx(20.0) and turned.left_eye == face.left_eye
+
+
+def test_eyes_that_hold_the_attention_make_up_for_the_head_shown() -> None:
+    """Aimed from the head turned toward the person attended, the eyes are counter-rotated by what the head
+    shown lacks of that turn (on its way there), so eyes + head point where the gaze aims."""
+    model = _quiet()
+    model.attend(20.0, 0.0, 1.0, 0)  # the head turns 20 degrees over a second
+    model.set_eyes(0.0, 0.0, 0.0)
+    face = model.compose(S(0.5), eyes_hold_attention=True)
+    assert 0.0 < face.head_yaw_deg < 20.0
+    assert face.left_eye.yaw_deg + face.head_yaw_deg == pytest.approx(20.0)
+    assert face.frame.get("look_x") == pytest.approx(face.left_eye.yaw_deg / model.units.look_x_deg)

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from eca.agent.conversation_animator import ConversationAnimator
-from eca.agent.face.flexors import FLEXOR_INDEX
 from eca.agent.gaze.situated import USER, SituatedParams
 from eca.agent.gaze_check import NOBODY, GazeCheck, LookCounts, check_gaze, looked_at
 from eca.agent.script import load_scripts, parse_dialogue
@@ -81,12 +80,11 @@ def _measure(params: SituatedParams, turns: int = 240, seed: int = 3, fps: float
     n = int(dialogue.timeline.length_s * fps)
     yaw, pitch = np.empty((3, n)), np.empty((3, n))
     speaker, addressees = [], []
-    turn, nod = FLEXOR_INDEX["turn"], FLEXOR_INDEX["nod"]
     for k in range(n):
         frame = animator.frame_at(k / fps)
         for a, face in enumerate(frame.faces):
-            yaw[a, k] = face.eye_yaw_deg + face.flexors[turn] * 40.0  # configs/flexor_units.toml [head]
-            pitch[a, k] = face.eye_pitch_deg + face.flexors[nod] * 25.0
+            yaw[a, k] = face.left_eye.yaw_deg + face.head_yaw_deg  # gaze = eyes in the head + head
+            pitch[a, k] = face.left_eye.pitch_deg + face.head_pitch_deg
         speaker.append(frame.speaker)
         addressees.append(frame.addressees)
     return check_gaze(AGENTS, speaker, addressees, yaw, pitch, params=params)

@@ -66,3 +66,17 @@ def test_every_process_run_starts_lives_in_processes() -> None:
     from eca.services.processes.run import SERVICES
 
     assert all(within(target.split(":")[0], "eca.services.processes") for target in SERVICES.values())
+
+
+@pytest.mark.parametrize("folder", ["services/processes/web", "services/pipecat"])
+def test_outputs_that_draw_use_the_drawing_seam_not_the_renderers_insides(folder: str) -> None:
+    """The web service and the pipecat face draw through `eca.services.processes.renderer`'s exported names (the
+    FaceDrawer seam, the stage, canvases); none of them reaches into a module of the 2D face."""
+    inside = [f"{path.relative_to(REPO_ROOT)} imports {module}" for path in sorted((PACKAGE / folder).rglob("*.py"))
+              for module in sorted(imported_modules(path))
+              if module.startswith("eca.services.processes.renderer.")
+              and module.removeprefix("eca.services.processes.renderer.") not in EXPORTED]
+    assert not inside, "\n".join(inside)
+
+
+EXPORTED = set(__import__("eca.services.processes.renderer", fromlist=["__all__"]).__all__)

@@ -27,14 +27,14 @@ from eca.protocol.messages import (
     Saccade,
 )
 from eca.protocol.topics import topic_for
-from eca.services.processes.renderer import bus_scene
-from eca.services.processes.renderer.bus_scene import KEEP_EYE_SAMPLES, BusScenes
 from eca.services.processes.renderer.options import RendererOptions
 from eca.services.processes.renderer.outputs import DrawnFrame, OffscreenCanvas, SinkOutput
-from eca.services.processes.renderer.schedule import FrameSchedule
 from eca.services.processes.renderer.service import RendererService
 from eca.services.processes.renderer.video import PngWriter
 from eca.services.processes.runtime import Service
+from eca.services.processes.scene import bus_scene
+from eca.services.processes.scene.bus_scene import KEEP_EYE_SAMPLES, BusScenes
+from eca.services.processes.scene.schedule import FrameSchedule
 from tests.support.bus import BrokerThread, private_bus_config
 
 S = 1_000_000_000
@@ -303,8 +303,7 @@ def test_every_output_gets_each_drawn_frame_with_its_slot_and_display_time(egl: 
 @pytest.mark.gl
 def test_the_parts_draw_a_face_for_a_service_of_their_own(egl: None, tmp_path: Path) -> None:
     # The web service's way: its own scenes, schedule, stage and outputs, no renderer service.
-    from eca.services.processes.renderer.renderer import Renderer
-    from eca.services.processes.renderer.stage import Stage
+    from eca.services.processes.renderer import Stage, make_drawer
 
     with private_bus_config(agents=["ada", "bob"]) as config:
         svc = Service(config)
@@ -313,7 +312,7 @@ def test_the_parts_draw_a_face_for_a_service_of_their_own(egl: None, tmp_path: P
         clock = VirtualClock()
         canvas = OffscreenCanvas((128, 48))
         try:
-            stage = Stage(Renderer(canvas.ctx, size=(128, 48)), scenes.views, fps=10.0)
+            stage = Stage(make_drawer(canvas.ctx, (128, 48)), scenes.views, fps=10.0)
             schedule = FrameSchedule(clock, 10.0, total=3)
             output = SinkOutput(PngWriter(tmp_path))
             while not schedule.finished:
@@ -325,7 +324,7 @@ def test_the_parts_draw_a_face_for_a_service_of_their_own(egl: None, tmp_path: P
             output.close()
         finally:
             canvas.close()
-    assert [v.frame is not None for v in scenes.views] == [True, True]
+    assert [v.face is not None for v in scenes.views] == [True, True]
     written = sorted(tmp_path.glob("frame_*.png"))
     assert [p.name for p in written] == ["frame_000000.png", "frame_000001.png", "frame_000002.png"]
     img = np.asarray(Image.open(written[-1])).astype(float)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from eca.agent.clock import NS_PER_S, VirtualClock
-from eca.services.processes.renderer.schedule import FrameSchedule
+from eca.services.processes.scene.schedule import FrameSchedule
 from eca.services.processes.web.calibration import (
     BLACK_LUMA,
     CLICK_S,

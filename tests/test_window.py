@@ -118,7 +118,7 @@ def window_scenario() -> None:
             assert svc.window.frames >= 3
             assert svc.window.framebuffer_size() == (320, 240)
             screen = svc.window.screen
-            svc.draw([v.frame for v in svc.views], screen)  # the last frame again, read back before a swap
+            svc.draw([v.face for v in svc.views], screen)  # the last frame again, read back before a swap
             pixels = read_rgb(screen)
             assert pixels.shape == (240, 320, 3) and pixels.std() > 10  # a face, not a cleared window
             # a key press, as glfw delivers it, goes out as a command; the face changes when the

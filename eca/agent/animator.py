@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from eca.agent.clock import nanoseconds
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.model import FaceModel
 from eca.agent.face.settings import load_flexor_units
 from eca.agent.gaze.backchannel import USER, Backchannel, BackchannelParams, ListenerBlink
@@ -33,21 +34,6 @@ class Utterance:
     start_s: float
     samples: np.ndarray
     track: MouthTrack | None
-
-
-@dataclass(frozen=True)
-class AnimatedFrame:
-    """The face at one time: flexor values (FLEXOR_NAMES order), the eyes in degrees in the head frame
-    (yaw + = the agent's right, pitch + = up) and lid (0 open .. 1 closed), and the agent's role and
-    emotion in force (the emotion last set; the face blends toward it over that cue's transition)."""
-
-    flexors: np.ndarray
-    eye_yaw_deg: float
-    eye_pitch_deg: float
-    lid: float
-    role: str
-    emotion: str
-    emotion_intensity: float
 
 
 AgentCue = RoleCue | EmotionCue | HeadCue | GazeCue
@@ -150,7 +136,7 @@ class TimelineAnimator:
         self.follower = CueFollower(self.face, self.gaze, 0, eyes, head_degrees())
         self.responses = ListenerResponses((agent,), (self.face,), self.gaze, seed, speech, backchannel)
 
-    def frame_at(self, t_s: float) -> AnimatedFrame:
+    def frame_at(self, t_s: float) -> ComposedFace:
         """The face at `t_s`, every cue up to it applied; times must not go back."""
         t_ns = nanoseconds(t_s)
         while self.next_cue < len(self.cues) and nanoseconds(self.cues[self.next_cue].t_s) <= t_ns:
@@ -159,9 +145,6 @@ class TimelineAnimator:
             self.next_cue += 1
         self.responses.advance(t_ns)
         tick = self.gaze.tick(t_ns)
-        yaw, pitch, lid = float(tick.yaw_deg[0]), float(tick.pitch_deg[0]), float(tick.lid[0])
-        self.face.set_eyes(yaw, pitch, lid)
+        self.face.set_eyes(float(tick.yaw_deg[0]), float(tick.pitch_deg[0]), float(tick.lid[0]))
         self.face.set_mouth(mouth_at(self.utterances, self.sample_rate, t_s))
-        emotion, intensity = self.face.emotion
-        return AnimatedFrame(self.face.frame_at(t_ns).values, yaw, pitch, lid, self.gaze.role_of(0), emotion,
-                             intensity)
+        return self.face.compose(t_ns, role=self.gaze.role_of(0))

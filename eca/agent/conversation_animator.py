@@ -34,7 +34,6 @@ import numpy as np
 from eca.agent.animator import (
     FACE_IDLE_SEED,
     AgentCue,
-    AnimatedFrame,
     CueFollower,
     ListenerResponses,
     SpeechEvent,
@@ -43,7 +42,7 @@ from eca.agent.animator import (
     mouth_at,
 )
 from eca.agent.clock import nanoseconds
-from eca.agent.face.flexors import FLEXOR_INDEX
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.model import FaceModel
 from eca.agent.gaze.backchannel import BackchannelParams
 from eca.agent.gaze.engine import GazeEngine
@@ -51,16 +50,13 @@ from eca.agent.gaze.events import GazeTick
 from eca.agent.gaze.situated import USER, Action, Conversation, SituatedParams, apply
 from eca.agent.script import Timeline, TurnCue
 
-_HEAD = np.array([FLEXOR_INDEX["turn"], FLEXOR_INDEX["nod"]])
-_LOOK = np.array([FLEXOR_INDEX["look_x"], FLEXOR_INDEX["look_y"]])
-
 
 @dataclass(frozen=True)
 class ConversationFrame:
     """Every agent's face at one time (seat order), and whose turn it is: `speaker` (an agent or the user)
     speaking to `addressees`, or None between turns and in silences."""
 
-    faces: tuple[AnimatedFrame, ...]
+    faces: tuple[ComposedFace, ...]
     speaker: str | None
     addressees: tuple[str, ...]
 
@@ -90,9 +86,6 @@ class ConversationAnimator:
         head_deg = head_degrees()
         self.followers = [CueFollower(face, self.gaze, k, eyes, head_deg) for k, face in enumerate(self.faces)]
         self.conversation = Conversation(self.agents, seed, situated)
-        units = self.faces[0].units
-        self._degrees = np.array([units.turn_deg, units.nod_deg])
-        self._eye_range = np.array([units.look_x_deg, units.look_y_deg])
         self.turn: TurnCue | None = None
         self.responses = ListenerResponses(self.agents, self.faces, self.gaze, seed, speech, backchannel)
 
@@ -123,19 +116,10 @@ class ConversationAnimator:
         for head in apply(self.gaze, actions, self.index):
             self.faces[self.index[head.agent]].attend(head.yaw_deg, head.pitch_deg, head.duration_s, head.t_ns)
 
-    def _face(self, k: int, tick: GazeTick, t_s: float) -> AnimatedFrame:
+    def _face(self, k: int, tick: GazeTick, t_s: float) -> ComposedFace:
         face = self.faces[k]
-        t_ns = tick.t_ns
-        lid = float(tick.lid[k])
-        face.set_eyes(float(tick.yaw_deg[k]), float(tick.pitch_deg[k]), lid)
+        face.set_eyes(float(tick.yaw_deg[k]), float(tick.pitch_deg[k]), float(tick.lid[k]))
         face.set_mouth(mouth_at(self.utterances[k], self.sample_rate, t_s))
-        values = face.frame_at(t_ns).values.copy()
-        # The head the gaze model aims the eyes from, less the head shown (degrees): the eyes make up for it.
-        offset = (face.attention.target[:2] - values[_HEAD]) * self._degrees
-        yaw, pitch = np.clip((tick.yaw_deg[k], tick.pitch_deg[k]) + offset, -self._eye_range, self._eye_range)
-        face.set_eyes(float(yaw), float(pitch), lid)
-        # No layer above the gaze moves the eyes (agent/face/compositor.py), so the eyes made up for the head
-        # replace those of the frame already composed: the head does not depend on them.
-        values[_LOOK] = (yaw, pitch) / self._eye_range
-        emotion, intensity = face.emotion
-        return AnimatedFrame(values, float(yaw), float(pitch), lid, self.gaze.role_of(k), emotion, intensity)
+        # The eyes were aimed from the head turned toward the person attended: shown counter-rotated for the
+        # head shown (FaceModel.compose).
+        return face.compose(tick.t_ns, role=self.gaze.role_of(k), eyes_hold_attention=True)

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from eca.agent.clock import nanoseconds
+from eca.agent.face.composed import ComposedFace, EyeAngles
 from eca.agent.face.compositor import DEFAULT_LAYERS, Compositor
 from eca.agent.face.emotions import (
     NATURAL,
@@ -28,6 +29,8 @@ from eca.agent.face.settings import FaceSettings, FlexorUnits, load_face_setting
 
 MOUTH_FLEXORS: tuple[str, ...] = ("say_ah", "say_oo", "say_ee", "say_mm", "say_ff")
 _LOOK_X, _LOOK_Y = FLEXOR_INDEX["look_x"], FLEXOR_INDEX["look_y"]
+_HEAD = np.array([FLEXOR_INDEX["turn"], FLEXOR_INDEX["nod"]])
+_LOOK = np.array([_LOOK_X, _LOOK_Y])
 _BLINKS = np.array([FLEXOR_INDEX["blink_l"], FLEXOR_INDEX["blink_r"]])
 _MOUTH = np.array([FLEXOR_INDEX[name] for name in MOUTH_FLEXORS])
 
@@ -68,6 +71,8 @@ class FaceModel:
         self.compositor.set_action("gaze", self._gaze)
         self.compositor.set_action("mouth", self._mouth)
         self.compositor.set_action("blink", self._blink)
+        self._eyes_deg: tuple[float, float] | None = None  # the gaze last set, in degrees, unclipped
+        self._lid = 0.0
         self.idle = IdleNoise(self.settings.idle_amplitude, self.settings.idle_rate_hz, seed)
         self.compositor.set_action("idle", self.idle if idle_noise else None)
         self._emotion: tuple[str, float] = (NATURAL, 1.0)
@@ -115,13 +120,16 @@ class FaceModel:
         closure in [0, 1] for both eyes (None = no blink layer). Angles beyond the eye's range clip."""
         self._gaze.vector[_LOOK_X] = self._degrees_to_flexor(yaw_deg, self.units.look_x_deg, "gaze yaw")
         self._gaze.vector[_LOOK_Y] = self._degrees_to_flexor(pitch_deg, self.units.look_y_deg, "gaze pitch")
+        self._eyes_deg = None if yaw_deg is None or pitch_deg is None else (float(yaw_deg), float(pitch_deg))
         if lid is None:
             self._blink.vector[_BLINKS] = np.nan
+            self._lid = 0.0
         else:
             closure = check_flexor_value("blink_l", lid)
             if closure < 0:
                 raise ValueError(f"lid closure must lie in [0, 1], got {lid!r}")
             self._blink.vector[_BLINKS] = closure
+            self._lid = closure
 
     @staticmethod
     def _degrees_to_flexor(angle_deg: float | None, deg_per_unit: float, what: str) -> float:
@@ -146,17 +154,32 @@ class FaceModel:
     def frame_at(self, t_ns: int) -> FlexorFrame:
         return self.compositor.frame_at(t_ns)
 
+    def compose(self, t_ns: int, role: str = "", eyes_hold_attention: bool = False) -> ComposedFace:
+        """The composed face at t_ns (agent/face/composed.py): the flexor frame, and the head and eyes in
+        degrees. The eyes are the gaze last set (set_eyes), unclipped.
+
+        eyes_hold_attention: the gaze was aimed from the head turned toward the person attended (attend(),
+        agent/gaze/situated.py), but the head shown differs from it: on its way there, and by what the other
+        head layers add (an emotion's posture, a scripted move, a nod, idle noise). The eyes are then shown
+        counter-rotated by that difference, within their range, so that eyes plus head point where the gaze
+        model aims, as the vestibulo-ocular reflex holds a gaze (Freedman & Sparks 1997)."""
+        frame = self.frame_at(t_ns)
+        eyes = self._eyes_deg
+        if eyes_hold_attention and eyes is not None:
+            u = self.units
+            values = frame.values.copy()
+            offset = (self.attention.target[:2] - values[_HEAD]) * np.array([u.turn_deg, u.nod_deg])
+            eye_range = np.array([u.look_x_deg, u.look_y_deg])
+            yaw, pitch = np.clip(eyes + offset, -eye_range, eye_range)
+            self.set_eyes(float(yaw), float(pitch), self._lid)
+            # No layer above the gaze moves the eyes (agent/face/compositor.py), so the eyes made up for the
+            # head replace those of the frame already composed: the head does not depend on them.
+            values[_LOOK] = (yaw, pitch) / eye_range
+            frame = FlexorFrame.composed(values, t_ns)
+            eyes = (float(yaw), float(pitch))
+        emotion, intensity = self._emotion
+        return ComposedFace.from_frame(frame, self.units, None if eyes is None else EyeAngles(*eyes),
+                                       lid=self._lid, role=role, emotion=emotion, emotion_intensity=intensity)
+
     def frame_at_s(self, t_s: float) -> FlexorFrame:
         return self.frame_at(nanoseconds(t_s))
-
-
-def head_angles_deg(frame: FlexorFrame, units: FlexorUnits | None = None) -> tuple[float, float, float]:
-    """(yaw, pitch, roll) of the head in degrees: yaw to the agent's right, pitch chin-up, roll right."""
-    u = units if units is not None else load_flexor_units()
-    return frame.get("turn") * u.turn_deg, frame.get("nod") * u.nod_deg, frame.get("tilt") * u.tilt_deg
-
-
-def eye_angles_deg(frame: FlexorFrame, units: FlexorUnits | None = None) -> tuple[float, float]:
-    """(yaw, pitch) of the eyes in the head, in degrees: yaw to the agent's right, pitch up."""
-    u = units if units is not None else load_flexor_units()
-    return frame.get("look_x") * u.look_x_deg, frame.get("look_y") * u.look_y_deg

@@ -1,7 +1,7 @@
 """The live scene of one agent: the latest inputs from the bus in, the face at any display time out.
 
 A renderer feeds a `LiveScene` every message it receives about its agent (plain values, no bus types)
-and asks for `frame_at(t_ns)` at each frame's display time:
+and asks for `compose(t_ns)` (a ComposedFace) at each frame's display time:
 
 - emotion and head: applied at their own timestamps, so the transition runs from when the state changed,
   not from when the renderer heard of it (a renderer that starts late shows a settled face at once);
@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.frame import FlexorFrame
 from eca.agent.face.model import MOUTH_FLEXORS, FaceModel
 from eca.agent.gaze.params import default_eye_mode
@@ -335,13 +336,17 @@ class LiveScene:
         row = best[2].weights_at(best[1])
         return {name: float(v) for name, v in zip(MOUTH_FLEXORS, row, strict=True)}
 
-    def frame_at(self, t_ns: int) -> FlexorFrame:
-        """The composed face at display time t_ns."""
+    def compose(self, t_ns: int) -> ComposedFace:
+        """The composed face at display time t_ns (agent/face/composed.py), with the role in force."""
         t = int(t_ns)
         yaw, pitch, lid = self.eyes_at(t)
         self.model.set_eyes(yaw, pitch, lid)
         self.model.set_mouth(self.mouth_at(t))
-        return self.model.frame_at(t)
+        return self.model.compose(t, role=self.role)
+
+    def frame_at(self, t_ns: int) -> FlexorFrame:
+        """The composed face's flexor frame at display time t_ns."""
+        return self.compose(t_ns).frame
 
     def prune(self, t_ns: int) -> None:
         """Forget inputs no frame at or after t_ns - history can need (call with the frame time)."""

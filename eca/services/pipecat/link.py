@@ -3,7 +3,7 @@
 ZeroMQ sockets must stay on the thread that made them, and drawing needs its GL context current on one
 thread, so both live on a thread of their own (`LinkThread`), which runs an eca `Service` loop
 (`FaceLink`, named `pipecat` in its heartbeats) exactly as the web service does: it follows the agent's
-states, events and eye streams into a live scene (`BusScenes`, services/processes/renderer/), draws the face
+states, events and eye streams into a live scene (`BusScenes`, services/processes/scene/), draws the face
 headless at every frame slot (`Stage`, `OffscreenCanvas`) and hands each picture to the pipeline. The
 pipeline's side (pipecat's asyncio loop) never touches a socket: what it has for eca (the TTS audio, the
 user's turns, interruptions, tool commands) goes into a queue, and a byte on a pipe wakes the thread's
@@ -63,13 +63,10 @@ from eca.protocol.messages import (
     UserSpeech,
 )
 from eca.services.pipecat.voice import HeardVoice
-from eca.services.processes.renderer.bus_scene import BusScenes
-from eca.services.processes.renderer.context import read_rgb
-from eca.services.processes.renderer.outputs import OffscreenCanvas
-from eca.services.processes.renderer.renderer import Renderer
-from eca.services.processes.renderer.schedule import FrameSchedule
-from eca.services.processes.renderer.stage import Stage
+from eca.services.processes.renderer import OffscreenCanvas, Stage, make_drawer, read_rgb
 from eca.services.processes.runtime import Service
+from eca.services.processes.scene.bus_scene import BusScenes
+from eca.services.processes.scene.schedule import FrameSchedule
 
 log = logging.getLogger("pipecat-face")
 
@@ -261,7 +258,7 @@ class FaceLink(Service):
         if self.options.video:
             size = (self.options.width, self.options.height)
             self._canvas = OffscreenCanvas(size)
-            self._stage = Stage(Renderer(self._canvas.ctx, size=size), self.scenes.views, fps=self.options.fps)
+            self._stage = Stage(make_drawer(self._canvas.ctx, size), self.scenes.views, fps=self.options.fps)
             self._schedule = FrameSchedule(self.clock, self.options.fps)
 
     def teardown(self) -> None:
@@ -536,11 +533,11 @@ class FaceLink(Service):
         covered = self.voice.covered_until_ns()
         if covered is not None and covered <= target_ns <= covered + self.push_latency_ns + _DUE_SOON_NS:
             target_ns = covered - 1
-        frames = self._stage.compose(target_ns)
+        faces = self._stage.compose(target_ns)
         screen = self._canvas.screen
-        self._stage.draw(frames, screen)
+        self._stage.draw(faces, screen)
         rgb = read_rgb(screen)
-        mouth = {name: float(frames[0].get(name)) for name in MOUTH_FLEXORS}
+        mouth = {name: float(faces[0].frame.get(name)) for name in MOUTH_FLEXORS}
         self.frames_drawn += 1
         if self.on_picture is not None:
             self.on_picture(Picture(target_ns, rgb.tobytes(), self.options.width, self.options.height, mouth, now,

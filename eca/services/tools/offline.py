@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from eca.agent.animator import SpeechEvent, TimelineAnimator, Utterance
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.flexors import FLEXOR_NAMES
 from eca.agent.gaze.backchannel import BackchannelParams
 from eca.agent.gaze.params import default_eye_mode
@@ -167,8 +168,8 @@ def mux_audio(video_path: Path, audio: np.ndarray, out_path: Path) -> None:
 
 
 def animate(timeline: Timeline, agent: str, settings: RenderSettings, voices: VoiceCache | None,
-            on_frame: Callable[[int, np.ndarray], None] | None = None) -> RenderedTimeline:
-    """Every frame's flexors (and eye angles) for the timeline; `on_frame(k, flexors)` sees each."""
+            on_frame: Callable[[int, ComposedFace], None] | None = None) -> RenderedTimeline:
+    """Every frame's flexors (and eye angles) for the timeline; `on_frame(k, face)` sees each composed face."""
     lines = _lines(timeline, agent, voices)
     utterances = [u for u, _ in lines]
     audio = mix(utterances, timeline.length_s)
@@ -187,11 +188,11 @@ def animate(timeline: Timeline, agent: str, settings: RenderSettings, voices: Vo
     for k, t in enumerate(t_s):
         frame = animator.frame_at(float(t))
         flexors[k] = frame.flexors
-        eyes[k] = frame.eye_yaw_deg, frame.eye_pitch_deg, frame.lid
+        eyes[k] = frame.left_eye.yaw_deg, frame.left_eye.pitch_deg, frame.lid
         roles.append(frame.role)
         emotions.append(frame.emotion)
         intensity[k] = frame.emotion_intensity
         if on_frame is not None:
-            on_frame(k, flexors[k])
+            on_frame(k, frame)
     return RenderedTimeline(t_s, eyes[:, 0], eyes[:, 1], eyes[:, 2], flexors, tuple(roles), tuple(emotions),
                             intensity, audio)

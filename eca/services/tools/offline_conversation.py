@@ -16,6 +16,7 @@ import numpy as np
 
 from eca.agent.animator import SpeechEvent, Utterance
 from eca.agent.conversation_animator import ConversationAnimator
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.flexors import FLEXOR_NAMES
 from eca.agent.gaze.backchannel import BackchannelParams
 from eca.agent.gaze.situated import SituatedParams
@@ -85,9 +86,9 @@ def gather_lines(timeline: Timeline, agents: Sequence[str], voices: VoiceCache |
 
 def animate_conversation(
     timeline: Timeline, agents: Sequence[str], settings: RenderSettings, voices: VoiceCache | None,
-    on_frame: Callable[[int, list[np.ndarray]], None] | None = None, situated: SituatedParams | None = None,
+    on_frame: Callable[[int, list[ComposedFace]], None] | None = None, situated: SituatedParams | None = None,
 ) -> RenderedConversation:
-    """Every frame of every agent; `on_frame(k, flexors per agent)` sees each frame."""
+    """Every frame of every agent; `on_frame(k, the composed face of each agent)` sees each frame."""
     agents = tuple(agents)
     backchannel = BackchannelParams.load()
     heard, spoken, speech = gather_lines(timeline, agents, voices, backchannel.min_pause_s)
@@ -110,14 +111,14 @@ def animate_conversation(
         frame = animator.frame_at(float(t))
         for a, face in enumerate(frame.faces):
             flexors[a, k] = face.flexors
-            eyes[a, k] = face.eye_yaw_deg, face.eye_pitch_deg, face.lid
+            eyes[a, k] = face.left_eye.yaw_deg, face.left_eye.pitch_deg, face.lid
             intensity[a, k] = face.emotion_intensity
             roles[a].append(face.role)
             emotions[a].append(face.emotion)
         speakers.append(frame.speaker or "")
         addressees.append(frame.addressees)
         if on_frame is not None:
-            on_frame(k, [flexors[a, k] for a in range(n)])
+            on_frame(k, list(frame.faces))
     faces = tuple(RenderedTimeline(t_s, eyes[a, :, 0], eyes[a, :, 1], eyes[a, :, 2], flexors[a], tuple(roles[a]),
                                    tuple(emotions[a]), intensity[a]) for a in range(n))
     return RenderedConversation(agents, t_s, tuple(speakers), tuple(addressees), faces, audio)

@@ -11,8 +11,10 @@ from typing import TypeVar
 
 import numpy as np
 
+from eca.agent.face.composed import ComposedFace
+
 R = TypeVar("R")
-FrameSink = Callable[[int, Sequence[np.ndarray]], None]  # frame index, each panel's flexors
+FrameSink = Callable[[int, Sequence[ComposedFace]], None]  # frame index, each panel's composed face
 
 
 def panel_widths(width: int, n_panels: int) -> list[int]:
@@ -32,8 +34,7 @@ def render_panels(animate: Callable[[FrameSink], R], audio_of: Callable[[R], np.
     write its CSV. Output folders are made first, so a bad place fails before any drawing."""
     from tqdm import tqdm
 
-    from eca.services.processes.renderer.context import create_headless_context, create_offscreen_target, read_rgb
-    from eca.services.processes.renderer.renderer import Renderer
+    from eca.services.processes.renderer import create_headless_context, create_offscreen_target, make_drawer, read_rgb
     from eca.services.processes.renderer.video import VideoWriter
     from eca.services.tools.offline import mux_audio
 
@@ -42,7 +43,7 @@ def render_panels(animate: Callable[[FrameSink], R], audio_of: Callable[[R], np.
     for folder in {output.parent, *([csv_path.parent] if csv_path is not None else [])}:
         folder.mkdir(parents=True, exist_ok=True)
     ctx = create_headless_context()
-    renderer = Renderer(ctx, (widths[0], height))
+    drawer = make_drawer(ctx, (widths[0], height))
     targets = {w: create_offscreen_target(ctx, (w, height)) for w in set(widths)}
     with tempfile.TemporaryDirectory(prefix="eca-render-") as tmp:
         silent = Path(tmp) / "video.mp4"
@@ -50,10 +51,10 @@ def render_panels(animate: Callable[[FrameSink], R], audio_of: Callable[[R], np.
         bar = tqdm(desc=label, unit="frame", total=int(length_s * fps) + 1, disable=not sys.stderr.isatty(),
                    leave=False)
 
-        def draw(k: int, panels: Sequence[np.ndarray]) -> None:
+        def draw(k: int, panels: Sequence[ComposedFace]) -> None:
             pictures = []
-            for values, width in zip(panels, widths, strict=True):
-                renderer.render(values, targets[width], view=view)
+            for face, width in zip(panels, widths, strict=True):
+                drawer.draw(face, targets[width], view=view)
                 pictures.append(read_rgb(targets[width]))
             writer.write(pictures[0] if len(pictures) == 1 else np.hstack(pictures), k)
             bar.update(1)

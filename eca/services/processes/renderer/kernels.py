@@ -137,7 +137,7 @@ def warm_up() -> float:
 
 
 
-NOTICE_AFTER_S = 0.5  # loading from the cache takes less; compiling takes 5-30 s
+NOTICE_AFTER_S = 2.0  # loading from the cache takes under a second even on a loaded machine; compiling 5-30 s
 _compiled = threading.Lock()
 _done = False
 

@@ -24,10 +24,10 @@ from typing import TYPE_CHECKING, Any
 
 import moderngl
 
-from eca.agent.face.frame import FlexorFrame
+from eca.agent.face.composed import ComposedFace
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import FaceFrame
-from eca.services.processes.renderer.bus_scene import AgentView, BusScenes
+from eca.services.processes.renderer.drawer import make_drawer
 from eca.services.processes.renderer.options import RendererOptions, options_from
 from eca.services.processes.renderer.outputs import (
     Canvas,
@@ -39,10 +39,11 @@ from eca.services.processes.renderer.outputs import (
     file_outputs,
     output_name,
 )
-from eca.services.processes.renderer.renderer import Renderer, RenderToggles
-from eca.services.processes.renderer.schedule import FrameSchedule
+from eca.services.processes.renderer.renderer import RenderToggles
 from eca.services.processes.renderer.stage import Stage
 from eca.services.processes.runtime import Service
+from eca.services.processes.scene.bus_scene import AgentView, BusScenes
+from eca.services.processes.scene.schedule import FrameSchedule
 
 if TYPE_CHECKING:
     from eca.services.processes.renderer.window import AgentStatus, Window
@@ -133,7 +134,7 @@ class RendererService(Service):
 
     def _use_canvas(self, canvas: Canvas) -> None:
         self.canvas = canvas
-        self.stage = Stage(Renderer(canvas.ctx, size=self.options.size), self.views, fps=self.options.fps,
+        self.stage = Stage(make_drawer(canvas.ctx, self.options.size), self.views, fps=self.options.fps,
                            facing_turn=self.options.facing_turn, trail_s=self.options.trail_s)
 
     # --- the frame loop ------------------------------------------------------------------------
@@ -162,21 +163,21 @@ class RendererService(Service):
 
     def render_frame(self, index: int, display_ns: int) -> None:
         assert self.stage is not None and self.canvas is not None
-        frames = self.stage.compose(display_ns)
+        faces = self.stage.compose(display_ns)
         target = self.canvas.screen
-        self.draw(frames, target)
+        self.draw(faces, target)
         drawn = DrawnFrame(target, index, display_ns)
         for output in self.outputs:
             output.present(drawn)
         self.frame_count += 1
         if self.options.publish_frames:
-            for v, frame in zip(self.views, frames, strict=True):
-                self.publish(FaceFrame(agent=v.agent, frame_ns=display_ns, flexors=frame.as_dict()))
+            for v, face in zip(self.views, faces, strict=True):
+                self.publish(FaceFrame(agent=v.agent, frame_ns=display_ns, flexors=face.frame.as_dict()))
 
-    def draw(self, frames: Sequence[FlexorFrame], target: moderngl.Framebuffer) -> None:
+    def draw(self, faces: Sequence[ComposedFace], target: moderngl.Framebuffer) -> None:
         """Draw the agents side by side into target as the keys have set the view and toggles."""
         assert self.stage is not None
-        self.stage.draw(frames, target, view=self.view, toggles=self.toggles)
+        self.stage.draw(faces, target, view=self.view, toggles=self.toggles)
 
     # --- keys (window mode) -----------------------------------------------------------------------
 

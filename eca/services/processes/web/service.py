@@ -29,14 +29,17 @@ from aiohttp import web
 
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import Message, VoiceBlock
-from eca.services.processes.renderer.bus_scene import BusScenes
-from eca.services.processes.renderer.context import HeadlessContextError
-from eca.services.processes.renderer.outputs import OffscreenCanvas
-from eca.services.processes.renderer.renderer import Renderer
-from eca.services.processes.renderer.schedule import FrameSchedule
-from eca.services.processes.renderer.stage import Stage
-from eca.services.processes.renderer.yuv import YuvTarget
+from eca.services.processes.renderer import (
+    FaceDrawer,
+    HeadlessContextError,
+    OffscreenCanvas,
+    Stage,
+    YuvTarget,
+    make_drawer,
+)
 from eca.services.processes.runtime import CannotStart, Rejected, Service
+from eca.services.processes.scene.bus_scene import BusScenes
+from eca.services.processes.scene.schedule import FrameSchedule
 from eca.services.processes.web.encoding import EncodedStreams
 from eca.services.processes.web.event_loop import EventLoopThread
 from eca.services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
@@ -88,7 +91,7 @@ class WebService(Service):
         self._draw_times: deque[int] = deque(maxlen=31)
         self._canvas: OffscreenCanvas | None = None
         self._yuv: YuvTarget | None = None
-        self._renderer: Renderer | None = None
+        self._drawer: FaceDrawer | None = None
         self._stages: dict[str, Stage] = {}
         self._events: EventLoopThread | None = None
         self._runner: web.AppRunner | None = None
@@ -259,8 +262,8 @@ class WebService(Service):
             # frames at k / fps of the master clock, whoever watches: at a whole-number rate every whole
             # second is a frame's time (the calibration markers, web/calibration.py, rely on it)
             self._schedule = FrameSchedule(self.clock, plan.fps, t0_ns=0)
-        assert self._renderer is not None
-        self._stages = {v.agent: Stage(self._renderer, [v], fps=plan.fps) for v in self.scenes.views
+        assert self._drawer is not None
+        self._stages = {v.agent: Stage(self._drawer, [v], fps=plan.fps) for v in self.scenes.views
                         if v.agent in plan.agents}
         self.log.info("drawing %s at %dx%d, %g fps", ", ".join(plan.agents), plan.width, plan.height, plan.fps)
 
@@ -272,15 +275,15 @@ class WebService(Service):
             return
         self._release_drawing()
         self._canvas = OffscreenCanvas(size)
-        self._renderer = Renderer(self._canvas.ctx, size=size)
+        self._drawer = make_drawer(self._canvas.ctx, size)
         self._yuv = YuvTarget(self._canvas.ctx, size)
-        warm_up = Stage(self._renderer, self.scenes.views[:1], fps=self.options.fps)
+        warm_up = Stage(self._drawer, self.scenes.views[:1], fps=self.options.fps)
         warm_up.draw(warm_up.compose(self.clock.now_ns()), self._yuv.fbo)
         self._yuv.read()
 
     def _release_drawing(self) -> None:
         self._stages = {}
-        self._renderer = None
+        self._drawer = None
         if self._yuv is not None:
             self._yuv.release()
             self._yuv = None

@@ -78,10 +78,12 @@ def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings:
                  output: Path, csv_path: Path | None, label: str = "render") -> Any:
     """Render the timeline to `output` (MP4 with audio) and the CSV; returns the RenderedTimeline."""
     from eca.services.tools.offline import animate, write_flexor_csv
-    from eca.services.tools.video_render import render_panels
+    from eca.services.tools.video_render import FrameSink, render_panels
 
-    return render_panels(lambda draw: animate(timeline, agent, settings, voices, on_frame=lambda k, f: draw(k, (f,))),
-                         lambda result: result.audio, 1, settings.size, settings.fps, timeline.length_s,
+    def animate_one(draw: FrameSink) -> Any:
+        return animate(timeline, agent, settings, voices, on_frame=lambda k, face: draw(k, (face,)))
+
+    return render_panels(animate_one, lambda result: result.audio, 1, settings.size, settings.fps, timeline.length_s,
                          settings.view, output, csv_path, write_flexor_csv, label)
 
 

@@ -11,11 +11,15 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from eca.agent.config import ConfigError
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.emotions import PAPER_EMOTIONS, EmotionTable, load_emotion_table
 from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
+from eca.agent.face.frame import FlexorFrame
+from eca.agent.face.settings import load_flexor_units
 from eca.services.processes.renderer import (
+    FaceDrawer,
+    FlexorFaceDrawer,
     HeadlessContextError,
-    Renderer,
     RenderToggles,
     create_headless_context,
     load_render_config,
@@ -121,22 +125,23 @@ def pose_flexors(
 
 
 def render_image(
-    renderer: Renderer,
+    drawer: FaceDrawer,
     flexors: np.ndarray,
     size: tuple[int, int],
     view: str = "full",
     toggles: RenderToggles | None = None,
 ) -> Image.Image:
-    """Render into the renderer's target (size x supersample) and filter down to `size`."""
-    renderer.render(flexors, view=view, toggles=toggles)
-    image = Image.fromarray(read_rgb(renderer.fbo))
+    """Draw the face of `flexors` into the drawer's own target (size x supersample) and filter it down to
+    `size`."""
+    face = ComposedFace.from_frame(FlexorFrame(flexors), load_flexor_units())
+    image = Image.fromarray(read_rgb(drawer.draw(face, view=view, toggles=toggles)))
     if image.size != size:
         image = image.resize(size, Image.Resampling.LANCZOS)
     return image
 
 
 def contact_sheet(
-    renderer: Renderer,
+    drawer: FlexorFaceDrawer,
     table: EmotionTable,
     cell: tuple[int, int],
     intensity: float = 1.0,
@@ -150,13 +155,13 @@ def contact_sheet(
     label_h = max(18, height // 8)
     cols = 3
     rows = (len(names) + cols - 1) // cols
-    bg = tuple(int(round(c * 255)) for c in renderer.config.colors["background"])
+    bg = tuple(int(round(c * 255)) for c in drawer.renderer.config.colors["background"])
     sheet = Image.new("RGB", (cols * width, rows * (height + label_h)), bg)
     draw = ImageDraw.Draw(sheet)
     for i, name in enumerate(names):
         f = np.nan_to_num(table.pose(name, intensity), nan=0.0)
         x, y = (i % cols) * width, (i // cols) * (height + label_h)
-        sheet.paste(render_image(renderer, f, cell, view, toggles), (x, y))
+        sheet.paste(render_image(drawer, f, cell, view, toggles), (x, y))
         label = name if intensity == 1.0 else f"{name} {intensity:g}"
         draw.text((x + width / 2, y + height + label_h / 2), label, fill=(30, 30, 40), font=font, anchor="mm")
     return sheet
@@ -208,11 +213,11 @@ def _run(args: argparse.Namespace) -> int:
     )
     ctx = create_headless_context()
     try:
-        renderer = Renderer(ctx, (size[0] * supersample, size[1] * supersample), config)
+        drawer = FlexorFaceDrawer(ctx, (size[0] * supersample, size[1] * supersample), config)
         if args.sheet:
-            image = contact_sheet(renderer, table, size, args.intensity, args.view, toggles)
+            image = contact_sheet(drawer, table, size, args.intensity, args.view, toggles)
         else:
-            image = render_image(renderer, flexors, size, args.view, toggles)
+            image = render_image(drawer, flexors, size, args.view, toggles)
         image.save(output)
     finally:
         ctx.release()

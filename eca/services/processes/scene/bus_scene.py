@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from eca.agent.face.frame import FlexorFrame
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.scene import LiveScene
 from eca.protocol.messages import (
     AttentionState,
@@ -50,7 +50,7 @@ class AgentView:
     agent: str
     scene: LiveScene
     trail: deque[tuple[float, float]] = field(default_factory=deque)  # recent (look_x, look_y)
-    frame: FlexorFrame | None = None
+    face: ComposedFace | None = None  # what the stage last composed
 
 
 class BusScenes:
