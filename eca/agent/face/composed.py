@@ -60,16 +60,18 @@ class ComposedFace:
         return self.frame.values
 
     @classmethod
-    def from_frame(cls, frame: FlexorFrame, units: FlexorUnits, eyes: EyeAngles | None = None, *,
-                   lid: float = 0.0, role: str = "", emotion: str = "", emotion_intensity: float = 0.0,
-                   ) -> ComposedFace:
+    def from_frame(cls, frame: FlexorFrame, units: FlexorUnits,
+                   eyes: EyeAngles | tuple[EyeAngles, EyeAngles] | None = None, *, lid: float = 0.0,
+                   role: str = "", emotion: str = "", emotion_intensity: float = 0.0) -> ComposedFace:
         """The face of a flexor frame: the head's angles from its flexors and the units; the eyes `eyes`
-        (both), or from the frame's look flexors when None."""
+        (one direction for both, or (left, right) with a vergence), or from the frame's look flexors when
+        None."""
         v = frame.values
         if eyes is None:
             eyes = EyeAngles(float(v[_LOOK_X]) * units.look_x_deg, float(v[_LOOK_Y]) * units.look_y_deg)
+        left, right = eyes if isinstance(eyes, tuple) else (eyes, eyes)
         return cls(frame, float(v[_TURN]) * units.turn_deg, float(v[_NOD]) * units.nod_deg,
-                   float(v[_TILT]) * units.tilt_deg, eyes, eyes, float(lid), role, emotion,
+                   float(v[_TILT]) * units.tilt_deg, left, right, float(lid), role, emotion,
                    float(emotion_intensity))
 
     def with_flexors(self, values: np.ndarray, units: FlexorUnits) -> ComposedFace:
