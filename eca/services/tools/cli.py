@@ -10,10 +10,15 @@ import sys
 from eca.services.tools import commands
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, or with `only` (a command's module name) of that one alone: a command's
+    module imports what it runs (GL, video, plotting), and a long-running `eca up` must not carry all of that
+    (about 130 MB) for commands it never runs."""
     parser = argparse.ArgumentParser(prog="eca", description="A live conversational-agent face.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if only is not None and info.name != only:
+            continue
         try:
             module = importlib.import_module(f"{commands.__name__}.{info.name}")
         except Exception as exc:  # one broken command must not take every other command down
@@ -34,8 +39,11 @@ def _register_broken(sub: argparse._SubParsersAction, name: str, exc: Exception)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else argv
+    named = words[0].replace("-", "_") if words and not words[0].startswith("-") else None
+    known = {info.name for info in pkgutil.iter_modules(commands.__path__)}
+    parser = build_parser(named if named in known else None)  # help and mistakes: every command
+    args = parser.parse_args(words)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
