@@ -51,9 +51,10 @@ BOT = Path(__file__).resolve().parent.parent / "examples" / "pipecat_bot.py"
 
 @pytest.fixture(scope="module")
 def user_says(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The fake microphone: five seconds of silence (the bot and its eca start meanwhile), then the user."""
+    """The fake microphone: ten seconds of silence (the bot and its eca start meanwhile: on a loaded machine the
+    first frames can take six), then the user."""
     return user_speech_wav(tmp_path_factory.mktemp("microphone") / "user.wav", "Hello there. How are you today?",
-                           before_s=5.0, after_s=10.0)
+                           before_s=10.0, after_s=10.0)
 
 
 def test_the_bot_answers_the_user_with_its_face_and_voice(user_says: Path, tmp_path: Path) -> None:
@@ -77,6 +78,8 @@ def test_the_bot_answers_the_user_with_its_face_and_voice(user_says: Path, tmp_p
                 frames = wait_for_frames(driver, 30, 20.0)
                 counted_from = time.monotonic()
                 quiet = audio_energy(driver)  # no greeting: nothing was said yet
+                assert not any("bot: reply" in line for line in reader.lines), "the page connected too late to hear " \
+                    "the silence before the user spoke"
                 reader.wait_for("bot: reply 1:", 40.0)  # the user's turn ended: the bot answers
                 # Its voice reaches the browser: the audio energy the page has received grows.
                 loud = poll(lambda: audio_energy(driver) - quiet, lambda energy: energy > 0.01, 15.0) or 0.0
