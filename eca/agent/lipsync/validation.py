@@ -9,7 +9,7 @@ only: that is the closure, with the lips pressed; the second half is the release
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 from eca.agent.lipsync.estimator import MouthKey
@@ -44,9 +44,40 @@ class Agreement:
 
 def score(keys: Iterable[MouthKey], phonemes: Sequence[tuple[str, int]], sample_rate: int) -> Agreement:
     """`phonemes`: (mnemonic, first sample) in time order, as espeak's phoneme events give them."""
+    counts: dict[str, Counter[str]] = {c: Counter() for c in CLASSES}
+    for key, cls in labelled(keys, phonemes, sample_rate):
+        counts[cls][key.viseme] += 1
+    return Agreement(counts)
+
+
+# The Oculus visemes (agent/rig) that show each scored class. Five mouth weights tell the classes apart, not the
+# consonants within one (eca/agent/rig/visemes.py): a fricative may show as FF, SS, TH or CH.
+CLASS_VISEMES: dict[str, frozenset[str]] = {
+    "open": frozenset({"aa"}),
+    "rounded": frozenset({"ou", "oh"}),
+    "spread": frozenset({"ih", "E"}),
+    "closed": frozenset({"PP"}),
+    "fricative": frozenset({"FF", "SS", "TH", "CH"}),
+}
+
+
+def score_visemes(keys: Iterable[MouthKey], phonemes: Sequence[tuple[str, int]], sample_rate: int,
+                  viseme_of: Callable[[Sequence[MouthKey]], Sequence[str]]) -> Agreement:
+    """As `score`, for the viseme a rig is sent: `viseme_of` gives each key's strongest viseme (from its mouth
+    weights, through the retargeting); a key agrees when that viseme shows its phoneme's class."""
+    pairs = list(labelled(keys, phonemes, sample_rate))
+    shown = viseme_of([key for key, _ in pairs])
+    counts: dict[str, Counter[str]] = {c: Counter() for c in CLASSES}
+    for (_, cls), viseme in zip(pairs, shown, strict=True):
+        counts[cls][cls if viseme in CLASS_VISEMES[cls] else viseme] += 1
+    return Agreement(counts)
+
+
+def labelled(keys: Iterable[MouthKey], phonemes: Sequence[tuple[str, int]],
+             sample_rate: int) -> Iterator[tuple[MouthKey, str]]:
+    """Each scored key with the class of the phoneme at the middle of its block (see the module docstring)."""
     starts = [p[1] for p in phonemes]
     half_block = sample_rate // 200
-    counts: dict[str, Counter[str]] = {c: Counter() for c in CLASSES}
     j = -1
     for key in keys:
         mid = key.sample_index + half_block
@@ -60,5 +91,4 @@ def score(keys: Iterable[MouthKey], phonemes: Sequence[tuple[str, int]], sample_
             continue
         if name in _STOPS and j + 1 < len(starts) and mid > (starts[j] + starts[j + 1]) / 2:
             continue
-        counts[cls][key.viseme] += 1
-    return Agreement(counts)
+        yield key, cls
