@@ -80,3 +80,13 @@ def test_outputs_that_draw_use_the_drawing_seam_not_the_renderers_insides(folder
 
 
 EXPORTED = set(__import__("eca.services.processes.renderer", fromlist=["__all__"]).__all__)
+
+
+def test_the_rig_service_composes_without_gl() -> None:
+    """The rig service follows the scenes (scene/) and retargets them; it draws nothing, so it imports neither the
+    renderer nor a GL or window library, and runs where no GPU or display is."""
+    drawing = ("eca.services.processes.renderer", "moderngl", "glfw")
+    wrong = [f"{path.relative_to(REPO_ROOT)} imports {module}"
+             for path in sorted((PACKAGE / "services/processes/rig").rglob("*.py"))
+             for module in sorted(imported_modules(path)) if any(within(module, d) for d in drawing)]
+    assert not wrong, "\n".join(wrong)

@@ -89,9 +89,11 @@ def value_strategy(spec: FieldSpec, kind: Any | None = None) -> st.SearchStrateg
     size = min(spec.max_len or 8, 8)
     if origin is list:
         item = typing.get_args(kind)[0]
+        fewest = spec.min_len or 0  # a list of a fixed length (a rig frame's weights) has exactly that many
         if typing.get_origin(item) is Literal:
-            return st.lists(st.sampled_from(typing.get_args(item)), max_size=size)
-        return st.lists(_scalar(dataclasses.replace(spec, max_len=spec.item_max_len), item), max_size=size)
+            return st.lists(st.sampled_from(typing.get_args(item)), min_size=fewest, max_size=max(size, fewest))
+        return st.lists(_scalar(dataclasses.replace(spec, max_len=spec.item_max_len), item), min_size=fewest,
+                        max_size=max(size, fewest))
     if origin is dict:
         item = typing.get_args(kind)[1]
         if typing.get_origin(item) is list:
@@ -175,6 +177,9 @@ def _smallest(spec: FieldSpec) -> Any:
     origin = typing.get_origin(kind)
     if origin is Literal:
         return typing.get_args(kind)[0]
+    if origin is list:  # a required list is one of a fixed length: that many of the item's smallest value
+        item = typing.get_args(kind)[0]
+        return [item(spec.lo if spec.lo is not None else 0)] * (spec.min_len or 0)
     if kind in (int, float):
         return kind(spec.lo if spec.lo is not None else 0)
     return {str: "r1", bytes: b"\x00\x01", bool: False}[kind]
@@ -281,10 +286,14 @@ def out_of_range_values(spec: FieldSpec) -> list[Any]:
     if origin is list:
         out: list[Any] = [[0] * (spec.max_len + 1)] if spec.max_len is not None else []
         item = typing.get_args(kind)[0]
+        fill: list[Any] = []
+        if spec.min_len:  # one short of a fixed length
+            fill = [item(spec.lo if spec.lo is not None else 0)] * (spec.min_len - 1)
+            out.append(fill)
         if spec.lo is not None:
-            out.append([item(spec.lo), item(spec.lo) - 1])
+            out.append([item(spec.lo), *fill[1:], item(spec.lo) - 1])
         if spec.hi is not None:
-            out.append([item(spec.hi) + 1])
+            out.append([*fill, item(spec.hi) + 1])
         return out
     if origin is dict:
         out = [{f"k{i}": [] for i in range((spec.max_len or 0) + 1)}] if spec.max_len is not None else []
@@ -590,7 +599,7 @@ def test_the_protocol_document_has_a_table_for_every_message_and_field() -> None
                 continue
             if ("**required**" in row) != spec.required:
                 problems.append(f"{cls.TYPE}.{spec.name}: required is {spec.required} but the row says otherwise")
-            for limit in (spec.lo, spec.hi, spec.max_len):
+            for limit in (spec.lo, spec.hi, spec.max_len, spec.min_len):
                 if limit is not None and _doc_number(limit) not in row:
                     problems.append(f"{cls.TYPE}.{spec.name}: limit {limit} ({_doc_number(limit)}) not in the row")
             if typing.get_origin(spec.kind) is Literal:

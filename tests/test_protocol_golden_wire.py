@@ -27,7 +27,7 @@ def _sample(name: str, kind: Any, spec: FieldSpec) -> Any:
     if origin is Literal:
         return typing.get_args(kind)[-1]
     if origin is list:
-        return [_sample(name, typing.get_args(kind)[0], spec)]
+        return [_sample(name, typing.get_args(kind)[0], spec)] * (spec.min_len or 1)
     if origin is dict:
         return {"say_ah": _sample(name, typing.get_args(kind)[1], spec)}
     if name == "agent":

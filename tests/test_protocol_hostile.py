@@ -158,3 +158,33 @@ def test_a_rejected_message_holds_no_frames_of_the_reader() -> None:
         got = parse_frames([b"cmd.ada.set_emotion", payload])
         assert got.error is not None
         assert got.error.__traceback__ is None and got.error.__context__ is None and got.error.__cause__ is None
+
+
+def _rig_map() -> dict[str, Any]:
+    from eca.protocol.messages import RigPose
+
+    frame = RigPose(agent="ada", frame_ns=1, arkit=[0.0] * 52, head_deg=[0.0] * 3, eyes_deg=[0.0] * 4,
+                    visemes=[1.0] + [0.0] * 14, vrm=[0.0] * 17 + [1.0])
+    return dict(msgpack.unpackb(encode(frame)))
+
+
+@pytest.mark.parametrize("field, value, kind", [
+    ("arkit", [0.5] * 51, "out_of_range"),                 # one weight short of the fixed 52
+    ("arkit", [0.5] * 53, "out_of_range"),
+    ("arkit", [0.5] * 51 + [1.5], "out_of_range"),         # a weight over 1
+    ("arkit", [0.5] * 51 + [float("nan")], "not_finite"),
+    ("arkit", [0.5] * 200_000, "out_of_range"),          # a long list is refused by its length
+    ("head_deg", [0.0, 0.0, 400.0], "out_of_range"),
+    ("eyes_deg", [0.0, 0.0, 0.0, -91.0], "out_of_range"),
+    ("visemes", {"sil": 1.0}, "wrong_type"),
+    ("vrm", "neutral", "wrong_type"),
+    ("frame_ns", -1, "out_of_range"),
+])
+def test_a_hostile_rig_frame_is_one_short_error_naming_its_field(field: str, value: Any, kind: str) -> None:
+    """A rig frame's lists have fixed lengths and ranges: a client that indexes them can trust any frame that
+    decodes, and one that does not is refused in a sentence, however large it is."""
+    raw = _rig_map()
+    raw[field] = value
+    problem = decode_problem(raw)
+    assert problem.kind == kind and problem.field.startswith(field), (problem.kind, problem.field)
+    assert field in str(problem) and len(str(problem)) < 200

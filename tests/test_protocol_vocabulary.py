@@ -25,3 +25,10 @@ def test_the_gaze_model_and_the_scripts_read_the_one_vocabulary() -> None:
     assert params.MODES == vocab.EYE_MODES == scene.EYE_MODES == vocabulary.EYE_MODES
     assert params.ROLES == vocab.ROLES == scene.ROLES == vocabulary.ROLES
     assert params.KINDS == vocabulary.SACCADE_KINDS
+
+
+def test_the_rig_frame_s_list_lengths_are_the_rig_models_vocabularies() -> None:
+    from eca.agent.rig import names
+
+    assert (messages.RIG_ARKIT, messages.RIG_VISEMES, messages.RIG_VRM) == (
+        len(names.ARKIT_NAMES), len(names.VISEME_NAMES), len(names.VRM_NAMES))

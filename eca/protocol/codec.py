@@ -56,6 +56,7 @@ class FieldSpec:
     hi: float | None
     max_len: int | None
     item_max_len: int | None = None  # each string of a list of strings
+    min_len: int | None = None  # the fewest entries of a list
 
 
 _SPECS: dict[type[Message], tuple[FieldSpec, ...]] = {}
@@ -69,7 +70,7 @@ def field_specs(cls: type[Message]) -> tuple[FieldSpec, ...]:
         specs = _SPECS[cls] = tuple(
             FieldSpec(f.name, hints[f.name], f.default is missing and f.default_factory is missing,
                       f.metadata.get("lo"), f.metadata.get("hi"), f.metadata.get("max_len"),
-                      f.metadata.get("item_max_len"))
+                      f.metadata.get("item_max_len"), f.metadata.get("min_len"))
             for f in dataclasses.fields(cls))
     return specs
 
@@ -282,7 +283,8 @@ def _compile(spec: FieldSpec, kind: Any) -> Check:
     if origin is Literal:
         return _choice(typing.get_args(kind))
     if origin is list:
-        return _sequence(spec, _compile(dataclasses.replace(spec, max_len=spec.item_max_len), typing.get_args(kind)[0]))
+        item_spec = dataclasses.replace(spec, max_len=spec.item_max_len, min_len=None)
+        return _sequence(spec, _compile(item_spec, typing.get_args(kind)[0]))
     if origin is dict:
         # the field's length limit is on the map; its values are bounded by the message size cap
         return _mapping(spec, _compile(dataclasses.replace(spec, max_len=None), typing.get_args(kind)[1]))
@@ -304,12 +306,16 @@ def _choice(allowed: tuple[str, ...]) -> Check:
 
 def _sequence(spec: FieldSpec, item: Check) -> Check:
     max_len = spec.max_len
+    min_len = spec.min_len or 0
 
     def check(v: Any) -> Any:
         if type(v) is not list:
             raise _Bad("wrong_type", f"expected a list, got {_type_name(v)}")
         if max_len is not None and len(v) > max_len:
             raise _Bad("out_of_range", f"length {len(v)} is over the maximum {max_len}")
+        if len(v) < min_len:
+            exactly = "exactly " if min_len == max_len else "at least "
+            raise _Bad("out_of_range", f"length {len(v)} is short: it must have {exactly}{min_len} entries")
         out = []
         for i, x in enumerate(v):
             try:

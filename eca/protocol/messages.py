@@ -25,12 +25,14 @@ MAX_ADDRESSEES = 16  # the people one say can be addressed to
 
 
 def bounded(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
-            max_len: int | None = None, item_max_len: int | None = None, doc: str = "") -> Any:
+            max_len: int | None = None, item_max_len: int | None = None, min_len: int | None = None,
+            doc: str = "") -> Any:
     """A dataclass field with the limits the codec enforces and the protocol document prints.
 
     `max_len` bounds a string's characters or a list's or map's entries; `item_max_len` the characters
-    of each string in a list of strings."""
-    meta = {"lo": lo, "hi": hi, "max_len": max_len, "item_max_len": item_max_len, "doc": doc}
+    of each string in a list of strings; `min_len` the fewest entries of a list (with `max_len` equal to it:
+    a list of exactly that many, such as a rig frame's 52 ARKit weights)."""
+    meta = {"lo": lo, "hi": hi, "max_len": max_len, "item_max_len": item_max_len, "min_len": min_len, "doc": doc}
     if isinstance(default, list | dict):
         factory = type(default)
         return dataclasses.field(default_factory=factory, metadata=meta)
@@ -470,6 +472,37 @@ class FaceFrame(Message):
     frame_ns: int = bounded(lo=0, hi=2**63 - 1, doc="the display time this frame was composed for")
     flexors: dict[str, float] = bounded({}, lo=-1.0, hi=1.0, max_len=64,
                                         doc="flexor name -> value in [-1, 1]")
+
+
+# The lengths of a rig frame's weight lists: ARKit's 52 blendshapes, the 15 Oculus visemes and VRM 1.0's 18
+# expression presets; their names and order are in docs/protocol.md (the models' eca/agent/rig/names.py, which
+# tests/test_protocol_vocabulary.py holds alike, since the protocol imports no model).
+RIG_ARKIT, RIG_VISEMES, RIG_VRM = 52, 15, 18
+
+
+@dataclass(frozen=True, kw_only=True)
+class RigPose(Message):
+    """The agent's composed face at `frame_ns` as the weights and angles the world's rigs take (the rig service,
+    at its rate): for a client that drives an avatar of its own, in any engine, from the bus. Every list has a
+    fixed length and order (docs/protocol.md), so a client indexes it without names."""
+
+    TYPE = "rig"
+    CATEGORY = "stream"
+    frame_ns: int = bounded(lo=0, hi=2**63 - 1,
+                            doc="the frame's time on the master clock: the monotonic clock the audio service's "
+                                "clock anchors map the voice onto, so the face aligns with the voice")
+    arkit: list[float] = bounded(lo=0.0, hi=1.0, min_len=RIG_ARKIT, max_len=RIG_ARKIT,
+                                 doc="the 52 ARKit blendshape weights, in Unreal's EARFaceBlendShape order")
+    head_deg: list[float] = bounded(lo=-180.0, hi=180.0, min_len=3, max_len=3,
+                                    doc="head yaw (+ = the agent's right), pitch (+ = chin up), roll (+ = toward the "
+                                        "right shoulder), degrees")
+    eyes_deg: list[float] = bounded(lo=-90.0, hi=90.0, min_len=4, max_len=4,
+                                    doc="left eye yaw, left eye pitch, right eye yaw, right eye pitch, in the head, "
+                                        "degrees (yaw + = the agent's right, pitch + = up)")
+    visemes: list[float] = bounded(lo=0.0, hi=1.0, min_len=RIG_VISEMES, max_len=RIG_VISEMES,
+                                   doc="the 15 Oculus visemes (sil first), summing to 1")
+    vrm: list[float] = bounded(lo=0.0, hi=1.0, min_len=RIG_VRM, max_len=RIG_VRM,
+                               doc="VRM 1.0's 18 expression presets (happy ... neutral)")
 
 
 MAX_AUDIO_BLOCK_BYTES = 65_536  # a voice or microphone block: 10-20 ms of mono 16-bit audio is far less

@@ -17,6 +17,7 @@ SERVICES: dict[str, str] = {
     "audio": "eca.services.processes.audio.service:AudioService",
     "renderer": "eca.services.processes.renderer.service:RendererService",
     "web": "eca.services.processes.web.service:WebService",
+    "rig": "eca.services.processes.rig.service:RigService",
 }
 
 

@@ -11,7 +11,7 @@ import zmq
 
 from eca.protocol.bus import BusTimeout, Received, Subscriber
 from eca.protocol.endpoints import BusConfigError, load_bus_config
-from eca.protocol.messages import Heartbeat
+from eca.protocol.messages import Heartbeat, RigPose
 from eca.protocol.topics import CATEGORIES
 from eca.services.tools import cli_args
 
@@ -86,8 +86,30 @@ def format_line(got: Received, as_json: bool, color: bool) -> str:
                 else v) for k, v in vars(msg).items()}
     if as_json:
         return json.dumps({"topic": got.topic, **body})
-    fields = " ".join(f"{k}={v}" for k, v in body.items() if k not in ("agent", "t_ns"))
+    if isinstance(msg, RigPose):
+        fields = rig_summary(msg)
+    else:
+        fields = " ".join(f"{k}={v}" for k, v in body.items() if k not in ("agent", "t_ns"))
     line = f"{msg.t_ns / 1e9:.3f} {got.topic} {fields}"
     if got.topic.startswith("error."):
         return f"\033[31mERROR {line}\033[0m" if color else f"ERROR {line}"
     return line
+
+
+RIG_TOP = 3  # the strongest ARKit weights a rig frame's line shows
+
+
+def rig_summary(msg: RigPose) -> str:
+    """A rig frame in one short line: its time, head and eye angles, the strongest ARKit weights, the leading
+    viseme and VRM emotion (not its 92 numbers; `--json` gives them all)."""
+    from eca.agent.rig.names import ARKIT_NAMES, VISEME_NAMES, VRM_NAMES
+
+    yaw, pitch, roll = msg.head_deg
+    ly, lp, ry, rp = msg.eyes_deg
+    top = sorted(range(len(msg.arkit)), key=lambda i: -msg.arkit[i])[:RIG_TOP]
+    weights = " ".join(f"{ARKIT_NAMES[i]}={msg.arkit[i]:.2f}" for i in top if msg.arkit[i] >= 0.01) or "-"
+    viseme = max(range(len(msg.visemes)), key=lambda i: msg.visemes[i])
+    vrm = max(range(5), key=lambda i: msg.vrm[i])  # the five emotions lead VRM's list
+    return (f"frame={msg.frame_ns / 1e9:.3f} head={yaw:+.1f}/{pitch:+.1f}/{roll:+.1f} "
+            f"eyes=L{ly:+.1f}/{lp:+.1f},R{ry:+.1f}/{rp:+.1f} top {weights} "
+            f"viseme {VISEME_NAMES[viseme]}={msg.visemes[viseme]:.2f} vrm {VRM_NAMES[vrm]}={msg.vrm[vrm]:.2f}")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from eca.protocol.endpoints import BusConfigError, load_bus_config
+from eca.protocol.endpoints import BusConfig, BusConfigError, load_bus_config
+from eca.services.processes.rig.options import add_arguments as add_rig_arguments
 from eca.services.processes.web.options import add_arguments as add_web_arguments
 from eca.services.tools import cli_args
 from eca.services.tools.up import choose_services, run_up
@@ -32,6 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     web = p.add_argument_group("web", "the web front-end: the agents in a browser over WebRTC")
     web.add_argument("--web", action="store_true", help="also serve the agents to browsers (the web service)")
     add_web_arguments(web)
+    rig = p.add_argument_group("rig", "the rig service: the agents' faces as ARKit/VRM weights and head and eye angles "
+                                      "for avatar programs (any --rig-... option starts it)")
+    rig.add_argument("--rig", action="store_true", help="also start the rig service (on the bus only, unless sent on)")
+    add_rig_arguments(rig, prefix="rig-")
     p.set_defaults(func=run)
 
 
@@ -55,6 +60,23 @@ def web_args(args: argparse.Namespace) -> list[str]:
     return argv
 
 
+def rig_args(args: argparse.Namespace, config: BusConfig, services: list[str]) -> list[str]:
+    """The rig service's command-line arguments among `eca up`'s, checked (the receivers' hosts resolved) before
+    anything starts; the rig service joins `services` when asked for. A bad option raises RigOptionsError."""
+    from eca.services.processes.rig.options import argv_from, flag_names, given, options_from, plan
+
+    cli = given(args, prefix="rig_")
+    if not (args.rig or cli or "rig" in services):
+        return []
+    if "rig" in args.without:
+        raise ValueError("rig options given, but --without rig")
+    options = options_from(dict(config.raw.get("rig", {})), cli, prefix="rig-")
+    plan(options, config.agents, flag_names(cli, "rig-", f"{config.config_path} [rig]"))  # bad ones fail here
+    if "rig" not in services:
+        services.append("rig")
+    return argv_from(cli)
+
+
 def run(args: argparse.Namespace) -> int:
     face_argv = renderer_args(args)
     site_argv = web_args(args)
@@ -75,15 +97,16 @@ def run(args: argparse.Namespace) -> int:
 
             if not face_argv and "renderer" in services and not display_available():
                 services.remove("renderer")  # headless, the page is the face: no second drawing loop
+        rig_argv = rig_args(args, config, services)
         if face_argv:
             if "renderer" not in services:
                 raise ValueError(f"renderer options ({' '.join(face_argv)}) given, but the renderer is not started")
             from eca.services.processes.renderer.options import options_from  # GL and video libraries load only here
 
             options_from(config, face_argv)  # bad options fail here, before anything starts
-    except (BusConfigError, ValueError) as exc:  # a WebOptionsError too
+    except (BusConfigError, ValueError) as exc:  # a WebOptionsError or RigOptionsError too
         print(f"eca up: {exc}", file=sys.stderr)
         return 2
     return run_up(config, services, view=not args.quiet, duration_s=args.seconds,
-                  extra_args={"renderer": face_argv, "web": site_argv,
+                  extra_args={"renderer": face_argv, "web": site_argv, "rig": rig_argv,
                               "audio": ["--silent"] if args.silent_audio else []})
