@@ -114,8 +114,8 @@ def test_the_picture_is_split_among_the_faces() -> None:
 
 
 @pytest.mark.gl
-def test_eca_render_draws_three_faces_side_by_side_and_writes_one_csv(script: Path, tmp_path: Path,
-                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+def test_eca_render_draws_three_faces_side_by_side_and_writes_the_csvs(script: Path, tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out" / "three.mp4"
     assert eca(["render", str(script), "-o", str(out), "--size", "192x48", "--fps", "5", "--no-voice"]) == 0
     assert "agents ada, bob, cy" in capsys.readouterr().out
@@ -126,6 +126,9 @@ def test_eca_render_draws_three_faces_side_by_side_and_writes_one_csv(script: Pa
         frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
         kinds = sorted(s.type for s in container.streams)
     assert kinds == ["audio", "video"] and len(frames) == len(rows[1:]) // 3
+    for agent in AGENTS:  # the rig frames: a Live Link Face CSV per agent beside the CSV, a line per frame
+        rig = list(csv.reader(open(out.parent / f"three_rig_{agent}.csv")))
+        assert rig[0][:3] == ["Timecode", "BlendShapeCount", "EyeBlinkLeft"] and len(rig[1:]) == len(frames)
     picture = frames[len(frames) // 2].astype(int)
     assert picture.shape == (48, 192, 3)
     background = picture[2, 2]

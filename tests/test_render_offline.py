@@ -172,6 +172,25 @@ def test_the_csv_header_and_rows_read_back_in_the_documented_units(tmp_path: Pat
     assert all(len(v.split(".")[1]) == 6 for v in lines[1].split(",") if v[-1].isdigit())
 
 
+def test_the_rig_frames_are_written_beside_the_csv_unless_turned_off(tmp_path: Path, capsys) -> None:
+    script = tmp_path / "bob.xml"
+    script.write_text(BOB_DIALOGUE)
+    out = tmp_path / "bob.mp4"
+    assert fast_render([str(script), "-o", str(out)]) == 0
+    rig = tmp_path / "bob_rig_bob.csv"
+    assert str(rig) in capsys.readouterr().out
+    flexor_lines, rig_lines = out.with_suffix(".csv").read_text().splitlines(), rig.read_text().splitlines()
+    assert rig_lines[0].startswith("Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,")
+    assert len(rig_lines) == len(flexor_lines) and rig_lines[2].startswith("00:00:00:06.000,61,")  # 10 fps
+    elsewhere = tmp_path / "tables" / "flexors.csv"  # the rig frames follow --csv
+    assert fast_render([str(script), "-o", str(tmp_path / "c.mp4"), "--csv", str(elsewhere)]) == 0
+    assert (tmp_path / "tables" / "flexors_rig_bob.csv").exists()
+    capsys.readouterr()
+    assert fast_render([str(script), "-o", str(tmp_path / "n.mp4"), "--no-rig-csv"]) == 0
+    assert (tmp_path / "n.csv").exists() and not list(tmp_path.glob("n_rig_*.csv"))
+    assert "rig frames" not in capsys.readouterr().out
+
+
 def test_a_single_listener_nods_at_its_partner_s_pauses_in_the_recommended_mode(tmp_path: Path) -> None:
     import dataclasses
     import wave

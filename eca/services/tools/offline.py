@@ -25,6 +25,7 @@ from eca.agent.script import SayCue, Timeline
 from eca.services.processes.audio.files import read_sound_file
 from eca.services.processes.audio.resample import resample
 from eca.services.tools.playback import AGENT_VOICE, PARTNER_VOICE, VoiceCache
+from eca.services.tools.rig_csv import write_live_link_csv
 
 AUDIO_RATE = 22_050  # espeak-ng's rate; other audio is resampled to it
 
@@ -41,7 +42,8 @@ class RenderSettings:
 @dataclass
 class RenderedTimeline:
     """What a render produced, besides the files: per frame, its time, the agent's role and emotion in
-    force, the eye angles and lid, and the flexor values (units in docs/scripts.md, "The flexor CSV")."""
+    force, the eye angles and lid, and the flexor values (units in docs/scripts.md, "The flexor CSV"); and the
+    composed face's angles in degrees (agent/face/composed.py), which the rig frames are made of."""
 
     t_s: np.ndarray
     eye_yaw_deg: np.ndarray
@@ -52,6 +54,20 @@ class RenderedTimeline:
     emotion: tuple[str, ...] = ()
     emotion_intensity: np.ndarray = field(default_factory=lambda: np.zeros(0))
     audio: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
+    head_deg: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (frames, 3): yaw, pitch, roll
+    eyes_deg: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (frames, 4): left, right yaw and pitch
+
+
+def face_angles(face: ComposedFace) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    """A composed face's (head yaw, pitch, roll) and (left eye yaw, pitch, right eye yaw, pitch), degrees."""
+    left, right = face.left_eye, face.right_eye
+    return ((face.head_yaw_deg, face.head_pitch_deg, face.head_roll_deg),
+            (left.yaw_deg, left.pitch_deg, right.yaw_deg, right.pitch_deg))
+
+
+def write_rig_csv(path: Path, rendered: RenderedTimeline, fps: float) -> None:
+    """The rig frames of one rendered face as a Live Link Face CSV (services/tools/rig_csv.py)."""
+    write_live_link_csv(path, fps, rendered.flexors, rendered.head_deg, rendered.eyes_deg)
 
 
 def load_audio(path: str | Path) -> np.ndarray:
@@ -182,6 +198,8 @@ def animate(timeline: Timeline, agent: str, settings: RenderSettings, voices: Vo
     t_s = np.arange(n_frames) / settings.fps
     flexors = np.empty((n_frames, len(FLEXOR_NAMES)))
     eyes = np.empty((n_frames, 3))
+    head_deg = np.empty((n_frames, 3))
+    eyes_deg = np.empty((n_frames, 4))
     intensity = np.empty(n_frames)
     roles: list[str] = []
     emotions: list[str] = []
@@ -189,10 +207,11 @@ def animate(timeline: Timeline, agent: str, settings: RenderSettings, voices: Vo
         frame = animator.frame_at(float(t))
         flexors[k] = frame.flexors
         eyes[k] = frame.left_eye.yaw_deg, frame.left_eye.pitch_deg, frame.lid
+        head_deg[k], eyes_deg[k] = face_angles(frame)
         roles.append(frame.role)
         emotions.append(frame.emotion)
         intensity[k] = frame.emotion_intensity
         if on_frame is not None:
             on_frame(k, frame)
     return RenderedTimeline(t_s, eyes[:, 0], eyes[:, 1], eyes[:, 2], flexors, tuple(roles), tuple(emotions),
-                            intensity, audio)
+                            intensity, audio, head_deg, eyes_deg)

@@ -1,4 +1,5 @@
-"""Offline rendering of a dialogue of several agents: their faces side by side, one CSV, the mixed voices.
+"""Offline rendering of a dialogue of several agents: their faces side by side, one CSV (and each agent's rig
+frames), the mixed voices.
 
 `agent.conversation_animator.ConversationAnimator` is sampled at exact frame times k / fps, as the single
 agent's animator is (services/tools/offline.py), so the same seed and inputs give the same frames. Each agent
@@ -28,12 +29,15 @@ from eca.services.tools.offline import (
     RenderedTimeline,
     RenderSettings,
     agent_fields,
+    face_angles,
     fixed6,
     mix,
     said_lines,
     speech_events,
+    write_rig_csv,
 )
 from eca.services.tools.playback import AGENT_VOICE, PARTNER_VOICE, VoiceCache
+from eca.services.tools.rig_csv import rig_csv_path
 
 # espeak-ng voices by seat, cycled: the first agent speaks as the single agent does, the user as the
 # partner does; none of the agents speaks with the user's.
@@ -102,6 +106,8 @@ def animate_conversation(
     n = len(agents)
     flexors = np.empty((n, n_frames, len(FLEXOR_NAMES)))
     eyes = np.empty((n, n_frames, 3))
+    head_deg = np.empty((n, n_frames, 3))
+    eyes_deg = np.empty((n, n_frames, 4))
     intensity = np.empty((n, n_frames))
     roles: list[list[str]] = [[] for _ in agents]
     emotions: list[list[str]] = [[] for _ in agents]
@@ -112,6 +118,7 @@ def animate_conversation(
         for a, face in enumerate(frame.faces):
             flexors[a, k] = face.flexors
             eyes[a, k] = face.left_eye.yaw_deg, face.left_eye.pitch_deg, face.lid
+            head_deg[a, k], eyes_deg[a, k] = face_angles(face)
             intensity[a, k] = face.emotion_intensity
             roles[a].append(face.role)
             emotions[a].append(face.emotion)
@@ -120,7 +127,8 @@ def animate_conversation(
         if on_frame is not None:
             on_frame(k, list(frame.faces))
     faces = tuple(RenderedTimeline(t_s, eyes[a, :, 0], eyes[a, :, 1], eyes[a, :, 2], flexors[a], tuple(roles[a]),
-                                   tuple(emotions[a]), intensity[a]) for a in range(n))
+                                   tuple(emotions[a]), intensity[a], head_deg=head_deg[a], eyes_deg=eyes_deg[a])
+                  for a in range(n))
     return RenderedConversation(agents, t_s, tuple(speakers), tuple(addressees), faces, audio)
 
 
@@ -136,12 +144,28 @@ def write_conversation_csv(path: Path, rendered: RenderedConversation) -> None:
                 fh.write(",".join(fields) + "\n")
 
 
+def write_conversation_rig_csvs(csv_path: Path, rendered: RenderedConversation, fps: float) -> list[Path]:
+    """Each agent's rig frames as a Live Link Face CSV beside the conversation's CSV (one face a file, as the
+    format holds one: services/tools/rig_csv.py); returns the files, in seat order."""
+    paths = []
+    for agent, face in zip(rendered.agents, rendered.faces, strict=True):
+        paths.append(rig_csv_path(csv_path, agent))
+        write_rig_csv(paths[-1], face, fps)
+    return paths
+
+
 def render_conversation_video(timeline: Timeline, voices: VoiceCache | None, agents: Sequence[str],
                               settings: RenderSettings, output: Path, csv_path: Path | None,
-                              label: str = "render") -> RenderedConversation:
-    """Render the agents side by side to `output` (MP4 with the mixed voices) and the CSV."""
+                              label: str = "render", rig: bool = False) -> RenderedConversation:
+    """Render the agents side by side to `output` (MP4 with the mixed voices) and the CSV; with `rig`, each
+    agent's rig frames beside the CSV too (write_conversation_rig_csvs)."""
     from eca.services.tools.video_render import render_panels
+
+    def write_csvs(path: Path, result: RenderedConversation) -> None:
+        write_conversation_csv(path, result)
+        if rig:
+            write_conversation_rig_csvs(path, result, settings.fps)
 
     return render_panels(lambda draw: animate_conversation(timeline, agents, settings, voices, on_frame=draw),
                          lambda result: result.audio, len(agents), settings.size, settings.fps, timeline.length_s,
-                         settings.view, output, csv_path, write_conversation_csv, label)
+                         settings.view, output, csv_path, write_csvs, label)

@@ -1,4 +1,5 @@
-"""`eca render SCRIPT... -o out.mp4`: the deterministic offline render, with audio and a flexor CSV.
+"""`eca render SCRIPT... -o out.mp4`: the deterministic offline render, with audio, a flexor CSV and, beside it,
+each agent's rig frames as a Live Link Face CSV (services/tools/rig_csv.py; `--no-rig-csv` leaves them out).
 
 A dialogue of several agents is rendered with its agents side by side (services/tools/offline_conversation.py)."""
 
@@ -24,10 +25,13 @@ EYE_CHOICES = [*EYE_MODES, "script"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("render", help="render scripts offline to MP4 (with audio) and a flexor CSV")
+    p = sub.add_parser("render", help="render scripts offline to MP4 (with audio), a flexor CSV and rig frames")
     add_render_arguments(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="the MP4 to write")
     p.add_argument("--csv", type=Path, default=None, help="flexor frames CSV (default: beside the MP4)")
+    p.add_argument("--no-rig-csv", action="store_true",
+                   help="do not write the rig frames (ARKit weights, head and eye angles: a Live Link Face CSV per "
+                        "agent, <csv stem>_rig_<agent>.csv beside the flexor CSV)")
     p.set_defaults(func=run)
 
 
@@ -75,16 +79,23 @@ def load_inputs(args: argparse.Namespace, command: str = "render",
 
 
 def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings: RenderSettings,
-                 output: Path, csv_path: Path | None, label: str = "render") -> Any:
-    """Render the timeline to `output` (MP4 with audio) and the CSV; returns the RenderedTimeline."""
-    from eca.services.tools.offline import animate, write_flexor_csv
+                 output: Path, csv_path: Path | None, label: str = "render", rig: bool = False) -> Any:
+    """Render the timeline to `output` (MP4 with audio) and the CSV, and with `rig` the agent's rig frames beside
+    the CSV (rig_csv.rig_csv_path); returns the RenderedTimeline."""
+    from eca.services.tools.offline import RenderedTimeline, animate, write_flexor_csv, write_rig_csv
+    from eca.services.tools.rig_csv import rig_csv_path
     from eca.services.tools.video_render import FrameSink, render_panels
 
     def animate_one(draw: FrameSink) -> Any:
         return animate(timeline, agent, settings, voices, on_frame=lambda k, face: draw(k, (face,)))
 
+    def write_csvs(path: Path, result: RenderedTimeline) -> None:
+        write_flexor_csv(path, result)
+        if rig:
+            write_rig_csv(rig_csv_path(path, agent), result, settings.fps)
+
     return render_panels(animate_one, lambda result: result.audio, 1, settings.size, settings.fps, timeline.length_s,
-                         settings.view, output, csv_path, write_flexor_csv, label)
+                         settings.view, output, csv_path, write_csvs, label)
 
 
 # What a render can still meet after the scripts loaded: an output it cannot write (OSError), a sound
@@ -119,16 +130,22 @@ def run(args: argparse.Namespace) -> int:
         print_failure("render", exc, "nothing rendered")
         return 1
     csv_path = args.csv or args.output.with_suffix(".csv")
+    rig = not args.no_rig_csv
     try:
         if len(loaded.agents) > 1:
             from eca.services.tools.offline_conversation import render_conversation_video
 
-            render_conversation_video(loaded.timeline, voices, loaded.agents, settings, args.output, csv_path)
+            render_conversation_video(loaded.timeline, voices, loaded.agents, settings, args.output, csv_path,
+                                      rig=rig)
         else:
-            render_video(loaded.timeline, voices, loaded.agent, settings, args.output, csv_path)
+            render_video(loaded.timeline, voices, loaded.agent, settings, args.output, csv_path, rig=rig)
     except RENDER_ERRORS as exc:
         print_render_failure("render", exc)
         return 1
     who = f"agents {', '.join(loaded.agents)}" if len(loaded.agents) > 1 else f"agent {loaded.agent}"
     print(f"wrote {args.output} ({loaded.timeline.length_s:.1f} s, {who}) and {csv_path}")
+    if rig:
+        from eca.services.tools.rig_csv import rig_csv_paths
+
+        print(f"rig frames (Live Link Face CSV): {', '.join(map(str, rig_csv_paths(csv_path, loaded.agents)))}")
     return 0
