@@ -86,6 +86,7 @@ class EcaFaceParams(FaceOptions):
     connect_timeout_s: how long to wait for eca's broker (and for `eca up` to be ready).
     command_timeout_s: how long a command (say, interrupt, a tool's) is sent again before giving up.
     seed: the face's idle motion (every random draw of eca is seeded).
+    face: "flexor" (the paper's 2D face), "head" (eca's 3D head) or a .glb/.gltf/.vrm file.
     """
 
     instance: str | None = None
@@ -108,6 +109,10 @@ class EcaFaceParams(FaceOptions):
             raise ValueError(f"fps must lie in 1..60, got {self.fps!r}")
         if not 0.0 <= self.video_lead_s <= 0.5:
             raise ValueError(f"video_lead_s must lie in 0..0.5 s, got {self.video_lead_s!r}")
+        if self.face != "flexor":
+            from eca.services.processes.renderer import check_face  # GL libraries load only here
+
+            check_face(self.face, "face")
         for name in ("connect_timeout_s", "command_timeout_s"):
             if not 0.1 <= getattr(self, name) <= 600:
                 raise ValueError(f"{name} must lie in 0.1..600 s, got {getattr(self, name)!r}")

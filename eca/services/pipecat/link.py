@@ -92,6 +92,7 @@ class FaceOptions:
     video_lead_s: float = 0.0
     command_timeout_s: float = 5.0
     seed: int = 0
+    face: str = "flexor"  # a drawer kind or an avatar file (eca/services/processes/renderer/faces.py)
 
 
 @dataclass(frozen=True)
@@ -258,7 +259,8 @@ class FaceLink(Service):
         if self.options.video:
             size = (self.options.width, self.options.height)
             self._canvas = OffscreenCanvas(size)
-            self._stage = Stage(make_drawer(self._canvas.ctx, size), self.scenes.views, fps=self.options.fps)
+            self._stage = Stage(make_drawer(self._canvas.ctx, size, self.options.face), self.scenes.views,
+                                fps=self.options.fps)
             self._schedule = FrameSchedule(self.clock, self.options.fps)
 
     def teardown(self) -> None:

@@ -37,6 +37,7 @@ class RenderSettings:
     view: str = "full"
     eyes: str | None = field(default_factory=default_eye_mode)  # None: the script's own eye-mode cues decide
     seed: int = 0
+    face: str = "flexor"  # every agent's face: a drawer kind or an avatar file (renderer/faces.py)
 
 
 @dataclass

@@ -168,4 +168,4 @@ def render_conversation_video(timeline: Timeline, voices: VoiceCache | None, age
 
     return render_panels(lambda draw: animate_conversation(timeline, agents, settings, voices, on_frame=draw),
                          lambda result: result.audio, len(agents), settings.size, settings.fps, timeline.length_s,
-                         settings.view, output, csv_path, write_csvs, label)
+                         settings.view, output, csv_path, write_csvs, label, face=settings.face)

@@ -29,12 +29,13 @@ def panel_widths(width: int, n_panels: int) -> list[int]:
 
 def render_panels(animate: Callable[[FrameSink], R], audio_of: Callable[[R], np.ndarray], n_panels: int,
                   size: tuple[int, int], fps: float, length_s: float, view: str, output: Path,
-                  csv_path: Path | None, write_csv: Callable[[Path, R], None], label: str = "render") -> R:
+                  csv_path: Path | None, write_csv: Callable[[Path, R], None], label: str = "render",
+                  face: str = "flexor") -> R:
     """Run `animate` with a sink that draws every frame's panels; mux the result's audio into `output` and
     write its CSV. Output folders are made first, so a bad place fails before any drawing."""
     from tqdm import tqdm
 
-    from eca.services.processes.renderer import create_headless_context, create_offscreen_target, make_drawer, read_rgb
+    from eca.services.processes.renderer import Drawers, create_headless_context, create_offscreen_target, read_rgb
     from eca.services.processes.renderer.video import VideoWriter
     from eca.services.tools.offline import mux_audio
 
@@ -43,7 +44,7 @@ def render_panels(animate: Callable[[FrameSink], R], audio_of: Callable[[R], np.
     for folder in {output.parent, *([csv_path.parent] if csv_path is not None else [])}:
         folder.mkdir(parents=True, exist_ok=True)
     ctx = create_headless_context()
-    drawer = make_drawer(ctx, (widths[0], height))
+    drawer = Drawers(ctx, (widths[0], height))(face)
     targets = {w: create_offscreen_target(ctx, (w, height)) for w in set(widths)}
     with tempfile.TemporaryDirectory(prefix="eca-render-") as tmp:
         silent = Path(tmp) / "video.mp4"

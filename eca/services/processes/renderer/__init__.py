@@ -13,6 +13,7 @@ from eca.services.processes.renderer.context import (
     read_rgb,
 )
 from eca.services.processes.renderer.drawer import DRAWERS, FaceDrawer, FlexorFaceDrawer, make_drawer
+from eca.services.processes.renderer.faces import Drawers, agent_faces, check_face
 from eca.services.processes.renderer.outputs import OffscreenCanvas
 from eca.services.processes.renderer.renderer import Renderer, RenderToggles
 from eca.services.processes.renderer.stage import Stage
@@ -20,6 +21,7 @@ from eca.services.processes.renderer.yuv import YuvTarget
 
 __all__ = [
     "DRAWERS",
+    "Drawers",
     "FaceDrawer",
     "FlexorFaceDrawer",
     "HeadlessContextError",
@@ -29,6 +31,8 @@ __all__ = [
     "Renderer",
     "Stage",
     "YuvTarget",
+    "agent_faces",
+    "check_face",
     "create_headless_context",
     "create_offscreen_target",
     "load_render_config",

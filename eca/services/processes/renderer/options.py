@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from eca.protocol.endpoints import BusConfig
+from eca.services.processes.renderer.faces import agent_faces, check_face
 
 MODES = ("auto", "window", "headless")
 
@@ -40,6 +41,7 @@ class RendererOptions:
     trail_s: float = 1.0  # length of the saccade trajectory overlay
     vsync: bool = True
     publish_frames: bool = True
+    face: str | None = None  # --face for every agent (None: the config's [faces], else the 2D face: faces.py)
 
     def check(self) -> RendererOptions:
         if not (1.0 <= self.fps <= 240.0):
@@ -107,6 +109,9 @@ def options_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--lead-ms", type=float, default=None, help="display time ahead of the frame slot")
+    p.add_argument("--face", default=None, metavar="FACE",
+                   help="the face of every agent: flexor (the paper's 2D face), head (eca's 3D head) or a "
+                        ".glb/.gltf/.vrm file (default: the config's [faces], else flexor)")
     return p
 
 
@@ -150,4 +155,8 @@ def options_from_namespace(config: BusConfig, args: argparse.Namespace) -> Rende
         changes["progress"] = False
     if args.lead_ms is not None:
         changes["lead_s"] = args.lead_ms / 1000.0
-    return replace(opts, **changes).check()
+    if args.face is not None:
+        changes["face"] = check_face(args.face, "--face")
+    options = replace(opts, **changes).check()
+    agent_faces(config.raw, options.agent_ids(config), options.face)  # a bad [faces] table fails here
+    return options

@@ -27,7 +27,7 @@ import moderngl
 from eca.agent.face.composed import ComposedFace
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import FaceFrame
-from eca.services.processes.renderer.drawer import make_drawer
+from eca.services.processes.renderer.faces import Drawers, agent_faces
 from eca.services.processes.renderer.options import RendererOptions, options_from
 from eca.services.processes.renderer.outputs import (
     Canvas,
@@ -58,6 +58,7 @@ class RendererService(Service):
         self.scenes = BusScenes(self, self.options.agent_ids(config), seed=self.options.seed,
                                 idle_noise=self.options.idle_noise)
         self.views = self.scenes.views
+        self.faces = agent_faces(config.raw, [v.agent for v in self.views], self.options.face)
         self.toggles = RenderToggles(trajectory=False)
         self.view = self.options.view
         self.selected = 0  # the agent keys act on
@@ -134,8 +135,9 @@ class RendererService(Service):
 
     def _use_canvas(self, canvas: Canvas) -> None:
         self.canvas = canvas
-        self.stage = Stage(make_drawer(canvas.ctx, self.options.size), self.views, fps=self.options.fps,
-                           facing_turn=self.options.facing_turn, trail_s=self.options.trail_s)
+        drawers = Drawers(canvas.ctx, self.options.size).for_faces(self.faces)
+        self.stage = Stage(drawers, self.views, fps=self.options.fps, facing_turn=self.options.facing_turn,
+                           trail_s=self.options.trail_s)
 
     # --- the frame loop ------------------------------------------------------------------------
 

@@ -24,15 +24,18 @@ _LOOK = [FLEXOR_INDEX["look_x"], FLEXOR_INDEX["look_y"]]
 
 
 class Stage:
-    """Draws `views` with `drawer`, left to right in the order given.
+    """Draws `views` left to right in the order given, each with its drawer: `drawers` one for all, or one per
+    view (agents of one instance may have different faces: renderer/faces.py).
 
     fps and trail_s size the trajectory overlay (trail_s of frames); facing_turn is the staging turn
     of side-by-side agents (flexor units)."""
 
-    def __init__(self, drawer: FaceDrawer, views: Sequence[AgentView], *, fps: float, facing_turn: float = 0.0,
-                 trail_s: float = 1.0) -> None:
-        self.drawer = drawer
+    def __init__(self, drawers: FaceDrawer | Sequence[FaceDrawer], views: Sequence[AgentView], *, fps: float,
+                 facing_turn: float = 0.0, trail_s: float = 1.0) -> None:
         self.views = list(views)
+        self.drawers = list(drawers) if isinstance(drawers, Sequence) else [drawers] * len(self.views)
+        if len(self.drawers) != len(self.views):
+            raise ValueError(f"{len(self.drawers)} drawers for {len(self.views)} agents")
         self.facing_turn = facing_turn
         self.trail_len = max(2, round(trail_s * fps))
         self.units = load_flexor_units()
@@ -57,7 +60,7 @@ class Stage:
         toggles: the drawer's switches (None: its defaults); the gaze trail is drawn where they say so."""
         x0, y0, width, height = target.viewport
         n = len(faces)
-        for i, (v, face) in enumerate(zip(self.views, faces, strict=True)):
+        for i, (v, face, drawer) in enumerate(zip(self.views, faces, self.drawers, strict=True)):
             if n > 1:
                 # The agent on the left turns to its left (the screen's right) to face the other.
                 side = -1.0 if i < n / 2 else 1.0
@@ -68,6 +71,6 @@ class Stage:
             target.viewport = region
             target.scissor = region
             trail = np.array(v.trail) if toggles is not None and toggles.trajectory and len(v.trail) >= 2 else None
-            self.drawer.draw(face, target, view=view, toggles=toggles, trail=trail)
+            drawer.draw(face, target, view=view, toggles=toggles, trail=trail)
         target.viewport = (x0, y0, width, height)
         target.scissor = None

@@ -59,6 +59,7 @@ class WebOptions:
     connect_timeout_s: float = 15.0  # a viewer that does not connect within this is closed
     silent_timeout_s: float = 10.0  # a connected viewer that sends no receiver report for this long is closed
     vad: VadSettings = field(default_factory=VadSettings)
+    face: str | None = None  # every agent's face (None: the config's [faces], else flexor; renderer/faces.py)
 
     def check(self) -> WebOptions:
         if not 0 <= self.port < 65536:
@@ -140,6 +141,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     token = parser.add_mutually_exclusive_group()
     token.add_argument("--web-token", default=None, help="a token the page must present (needed off loopback)")
     token.add_argument("--web-token-file", default=None, help="read the token from this file")
+    parser.add_argument("--web-face", default=None, metavar="FACE",
+                        help="the agents' face in the page: flexor, head or a .glb/.gltf/.vrm file "
+                             "(default: the config's [faces], else flexor)")
 
 
 def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
@@ -154,5 +158,12 @@ def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
         changes["token"] = args.web_token
     if args.web_token_file is not None:
         changes["token"] = read_token_file(Path(args.web_token_file))
+    if args.web_face is not None:
+        from eca.services.processes.renderer import check_face  # GL libraries load only here
+
+        try:
+            changes["face"] = check_face(args.web_face, "--web-face")
+        except ValueError as exc:
+            raise WebOptionsError(str(exc)) from None
     return replace(options, **changes).check()
 

@@ -30,12 +30,12 @@ from aiohttp import web
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import Message, VoiceBlock
 from eca.services.processes.renderer import (
-    FaceDrawer,
+    Drawers,
     HeadlessContextError,
     OffscreenCanvas,
     Stage,
     YuvTarget,
-    make_drawer,
+    agent_faces,
 )
 from eca.services.processes.runtime import CannotStart, Rejected, Service
 from eca.services.processes.scene.bus_scene import BusScenes
@@ -81,6 +81,11 @@ class WebService(Service):
         self.encoded = EncodedStreams(self.frames.next_after, self.clock)
         self.voices = {a: VoiceFeed() for a in self.agent_ids}
         self.scenes = BusScenes(self, self.agent_ids)
+        try:
+            self.faces = dict(zip(self.agent_ids, agent_faces(config.raw, self.agent_ids, self.options.face),
+                                  strict=True))
+        except ValueError as exc:
+            raise WebOptionsError(str(exc)) from None
         self.handle(VoiceBlock, self.on_voice)
         self._submitted: queue.SimpleQueue[Message] = queue.SimpleQueue()
         self._lock = threading.Lock()
@@ -91,7 +96,7 @@ class WebService(Service):
         self._draw_times: deque[int] = deque(maxlen=31)
         self._canvas: OffscreenCanvas | None = None
         self._yuv: YuvTarget | None = None
-        self._drawer: FaceDrawer | None = None
+        self._drawers: Drawers | None = None
         self._stages: dict[str, Stage] = {}
         self._events: EventLoopThread | None = None
         self._runner: web.AppRunner | None = None
@@ -262,9 +267,9 @@ class WebService(Service):
             # frames at k / fps of the master clock, whoever watches: at a whole-number rate every whole
             # second is a frame's time (the calibration markers, web/calibration.py, rely on it)
             self._schedule = FrameSchedule(self.clock, plan.fps, t0_ns=0)
-        assert self._drawer is not None
-        self._stages = {v.agent: Stage(self._drawer, [v], fps=plan.fps) for v in self.scenes.views
-                        if v.agent in plan.agents}
+        assert self._drawers is not None
+        self._stages = {v.agent: Stage(self._drawers(self.faces[v.agent]), [v], fps=plan.fps)
+                        for v in self.scenes.views if v.agent in plan.agents}
         self.log.info("drawing %s at %dx%d, %g fps", ", ".join(plan.agents), plan.width, plan.height, plan.fps)
 
     def _prepare_drawing(self, size: tuple[int, int]) -> None:
@@ -275,15 +280,16 @@ class WebService(Service):
             return
         self._release_drawing()
         self._canvas = OffscreenCanvas(size)
-        self._drawer = make_drawer(self._canvas.ctx, size)
+        self._drawers = Drawers(self._canvas.ctx, size)
         self._yuv = YuvTarget(self._canvas.ctx, size)
-        warm_up = Stage(self._drawer, self.scenes.views[:1], fps=self.options.fps)
-        warm_up.draw(warm_up.compose(self.clock.now_ns()), self._yuv.fbo)
+        for view in self.scenes.views:  # each face's drawer made, and its first frame drawn, before anyone watches
+            warm_up = Stage(self._drawers(self.faces[view.agent]), [view], fps=self.options.fps)
+            warm_up.draw(warm_up.compose(self.clock.now_ns()), self._yuv.fbo)
         self._yuv.read()
 
     def _release_drawing(self) -> None:
         self._stages = {}
-        self._drawer = None
+        self._drawers = None
         if self._yuv is not None:
             self._yuv.release()
             self._yuv = None

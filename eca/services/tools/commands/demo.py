@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--headless", action="store_true", help="render to video even if a display exists")
     p.add_argument("-o", "--output", type=Path, default=Path("out/demo"), help="folder for the headless results")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--face", default="flexor", metavar="FACE",
+                   help="the agent's face: flexor (the paper's 2D face, default), head (eca's 3D head) or a "
+                        ".glb/.gltf/.vrm file")
     p.set_defaults(func=run)
 
 
@@ -57,7 +60,7 @@ def run_headless(args: argparse.Namespace) -> int:
 
     # agent=None: the demo dialogue animates its own agent
     render_args = argparse.Namespace(scripts=[str(DEMO_DIALOGUE)], agent=None, eyes=default_eye_mode(), view="full",
-                                     seed=args.seed, fps=30.0, size="640x480", no_voice=False)
+                                     seed=args.seed, fps=30.0, size="640x480", no_voice=False, face=args.face)
     try:
         settings = settings_from(render_args)
         loaded, voices = load_inputs(render_args, "demo")
@@ -85,8 +88,9 @@ def run_live(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, stop)
     instance = f"demo{os.getpid()}"
-    up = subprocess.Popen(eca_command("up", "--instance", instance, "--quiet"), stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, env=subprocess_env(), start_new_session=True)
+    argv = eca_command("up", "--instance", instance, "--quiet", "--face", args.face)
+    up = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=subprocess_env(),
+                          start_new_session=True)
     reader = LineReader(up.stdout)
     try:
         reader.wait_for("[up] ready in", 60.0)

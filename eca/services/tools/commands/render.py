@@ -42,6 +42,9 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
                    help="eye condition (default: %(default)s, the paper's recommendation); 'script' follows the "
                         "scripts' own eye-mode cues")
     p.add_argument("--view", choices=["full", "upper"], default="full")
+    p.add_argument("--face", default="flexor", metavar="FACE",
+                   help="the agents' face: flexor (the paper's 2D face, default), head (eca's 3D head) or a "
+                        ".glb/.gltf/.vrm file")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes and blinks")
     p.add_argument("--fps", type=float, default=30.0)
     p.add_argument("--size", default=None,
@@ -66,8 +69,13 @@ def settings_from(args: argparse.Namespace) -> RenderSettings:
     if not 1 <= args.fps <= 120:
         raise ValueError(f"--fps {args.fps} must lie in [1, 120]")
     size = parse_size(args.size) if args.size is not None else RenderSettings().size
+    face = getattr(args, "face", "flexor")
+    if face != "flexor":
+        from eca.services.processes.renderer.faces import check_face  # GL libraries load only here
+
+        face = check_face(face, "--face")
     return RenderSettings(fps=args.fps, size=size, view=args.view,
-                          eyes=None if args.eyes == "script" else args.eyes, seed=args.seed)
+                          eyes=None if args.eyes == "script" else args.eyes, seed=args.seed, face=face)
 
 
 def load_inputs(args: argparse.Namespace, command: str = "render",
@@ -95,7 +103,7 @@ def render_video(timeline: Any, voices: VoiceCache | None, agent: str, settings:
             write_rig_csv(rig_csv_path(path, agent), result, settings.fps)
 
     return render_panels(animate_one, lambda result: result.audio, 1, settings.size, settings.fps, timeline.length_s,
-                         settings.view, output, csv_path, write_csvs, label)
+                         settings.view, output, csv_path, write_csvs, label, face=settings.face)
 
 
 # What a render can still meet after the scripts loaded: an output it cannot write (OSError), a sound

@@ -21,8 +21,10 @@ from eca.services.processes.renderer import (
     FlexorFaceDrawer,
     HeadlessContextError,
     RenderToggles,
+    check_face,
     create_headless_context,
     load_render_config,
+    make_drawer,
     read_rgb,
 )
 from eca.services.processes.renderer.config import VIEWS, RenderConfig
@@ -58,6 +60,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--blink", type=float, default=None, help="both lids closed by this much, [0, 1]")
     p.add_argument("--mouth", choices=MOUTHS, default=None, help="mouth shape; overrides the emotion's mouth")
     p.add_argument("--view", choices=VIEWS, default="full", help="full face or upper face (eyes and brows)")
+    p.add_argument("--face", default="flexor", metavar="FACE",
+                   help="flexor (the paper's 2D face, default), head (eca's 3D head) or a .glb/.gltf/.vrm file")
     p.add_argument("--size", default=None, help="image (or, with --sheet, cell) size WxH; default 640x480 / 400x300")
     p.add_argument("--supersample", type=int, default=None, help="render N times larger and filter down (1-4)")
     p.add_argument("--no-eyebrows", action="store_true", help="hide the eyebrows")
@@ -141,7 +145,7 @@ def render_image(
 
 
 def contact_sheet(
-    drawer: FlexorFaceDrawer,
+    drawer: FaceDrawer,
     table: EmotionTable,
     cell: tuple[int, int],
     intensity: float = 1.0,
@@ -155,13 +159,15 @@ def contact_sheet(
     label_h = max(18, height // 8)
     cols = 3
     rows = (len(names) + cols - 1) // cols
-    bg = tuple(int(round(c * 255)) for c in drawer.renderer.config.colors["background"])
-    sheet = Image.new("RGB", (cols * width, rows * (height + label_h)), bg)
+    sheet = Image.new("RGB", (cols * width, rows * (height + label_h)), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
     for i, name in enumerate(names):
         f = np.nan_to_num(table.pose(name, intensity), nan=0.0)
         x, y = (i % cols) * width, (i // cols) * (height + label_h)
-        sheet.paste(render_image(drawer, f, cell, view, toggles), (x, y))
+        picture = render_image(drawer, f, cell, view, toggles)
+        if i == 0:  # the sheet's ground is the drawer's own background (the top-left pixel of a picture)
+            sheet.paste(picture.getpixel((0, 0)), (0, 0, sheet.width, sheet.height))
+        sheet.paste(picture, (x, y))
         label = name if intensity == 1.0 else f"{name} {intensity:g}"
         draw.text((x + width / 2, y + height + label_h / 2), label, fill=(30, 30, 40), font=font, anchor="mm")
     return sheet
@@ -190,6 +196,10 @@ def _run(args: argparse.Namespace) -> int:
     supersample = config.supersample if args.supersample is None else args.supersample
     _check_range("--supersample", supersample, 1, 4)
     table = load_emotion_table()
+    try:
+        face = args.face if args.face == "flexor" else check_face(args.face, "--face")
+    except ValueError as exc:
+        raise SnapshotError(str(exc)) from None
     toggles = RenderToggles(
         eyebrows=not args.no_eyebrows,
         eye_cover=not args.no_eye_cover,
@@ -213,7 +223,8 @@ def _run(args: argparse.Namespace) -> int:
     )
     ctx = create_headless_context()
     try:
-        drawer = FlexorFaceDrawer(ctx, (size[0] * supersample, size[1] * supersample), config)
+        drawn = (size[0] * supersample, size[1] * supersample)
+        drawer = FlexorFaceDrawer(ctx, drawn, config) if face == "flexor" else make_drawer(ctx, drawn, face)
         if args.sheet:
             image = contact_sheet(drawer, table, size, args.intensity, args.view, toggles)
         else:

@@ -20,6 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--without", action="append", default=[], metavar="SERVICE", help="do not start these")
     p.add_argument("--quiet", action="store_true", help="no periodic bus summary")
     p.add_argument("--seconds", type=cli_args.seconds, default=None, help="stop by itself after this long")
+    p.add_argument("--face", default=None, metavar="FACE",
+                   help="every agent's face in the window, video and web page: flexor (the paper's 2D face), head "
+                        "(eca's 3D head) or a .glb/.gltf/.vrm file (default: the config's [faces], else flexor)")
     p.add_argument("--silent-audio", action="store_true",
                    help="open no sound card: the voice is heard elsewhere (a pipecat transport, the web page)")
     face = p.add_argument_group("renderer", "passed to the renderer (it picks a window where a display exists)")
@@ -53,7 +56,7 @@ def renderer_args(args: argparse.Namespace) -> list[str]:
 def web_args(args: argparse.Namespace) -> list[str]:
     """The web service's command-line arguments among `eca up`'s."""
     argv = []
-    for name in ("web_host", "web_port", "web_token", "web_token_file"):
+    for name in ("web_host", "web_port", "web_token", "web_token_file", "web_face"):
         value = getattr(args, name)
         if value is not None:
             argv += [f"--{name.replace('_', '-')}", str(value)]
@@ -98,6 +101,13 @@ def run(args: argparse.Namespace) -> int:
             if not face_argv and "renderer" in services and not display_available():
                 services.remove("renderer")  # headless, the page is the face: no second drawing loop
         rig_argv = rig_args(args, config, services)
+        if args.face is not None or config.raw.get("faces"):
+            from eca.services.processes.renderer.faces import agent_faces  # GL libraries load only here
+
+            agent_faces(config.raw, config.agents, args.face, f"{config.config_path} [faces]")  # bad ones fail here
+        if args.face is not None:
+            face_argv = [*face_argv, "--face", args.face] if "renderer" in services else face_argv
+            site_argv = [*site_argv, "--web-face", args.face] if "web" in services else site_argv
         if face_argv:
             if "renderer" not in services:
                 raise ValueError(f"renderer options ({' '.join(face_argv)}) given, but the renderer is not started")
