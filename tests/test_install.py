@@ -105,6 +105,7 @@ def test_the_wheel_holds_the_eca_package_and_its_data_only(built: tuple[Path, Pa
     assert "eca/configs/emotions.toml" in names and "eca/configs/demo/dialogue.xml" in names
     assert "eca/services/processes/web/static/index.html" in names
     assert "eca/services/pipecat/static/client.html" in names and "eca/py.typed" in names
+    assert "eca/assets/default_head.glb" in names and "eca/assets/default_head.NOTICE.md" in names
     assert not [n for n in names if n.startswith(("tests/", "bench/", ".ci/", "examples/", "docs/"))]
     metadata = next(n for n in names if n.endswith(".dist-info/METADATA"))
     text = zipfile.ZipFile(wheel).read(metadata).decode()
