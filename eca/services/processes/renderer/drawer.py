@@ -4,12 +4,14 @@ web service's video track, the pipecat face, the offline renders and stills) dra
 new kind of face plugs in here (a class and a line in DRAWERS) and nowhere else.
 
 The first kind is the 2D flexor face ("flexor"): the cartoon face of the paper's flexors, drawn by
-`Renderer` (renderer.py) from the composed face's flexor frame.
+`Renderer` (renderer.py) from the composed face's flexor frame. The second is a 3D avatar (head/: `HeadDrawer`):
+"head" is the default head (eca/assets/default_head.glb), and any .glb, .gltf or .vrm file's path is a kind too.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Protocol
 
 import moderngl
@@ -52,15 +54,32 @@ class FlexorFaceDrawer:
         self.renderer.release()
 
 
+def default_head_drawer(ctx: moderngl.Context, size: tuple[int, int]) -> FaceDrawer:
+    """The default 3D head (imported here, so the 2D face's users never load the 3D drawer)."""
+    from eca.services.processes.renderer.head import HeadDrawer
+
+    return HeadDrawer.default(ctx, size)
+
+
+def avatar_drawer(ctx: moderngl.Context, size: tuple[int, int], path: str | Path) -> FaceDrawer:
+    """A 3D drawer of the avatar in a .glb, .gltf or .vrm file."""
+    from eca.services.processes.renderer.head import HeadDrawer
+
+    return HeadDrawer(ctx, size, path)
+
+
 DrawerFactory = Callable[[moderngl.Context, tuple[int, int]], FaceDrawer]
-DRAWERS: dict[str, DrawerFactory] = {"flexor": FlexorFaceDrawer}
+DRAWERS: dict[str, DrawerFactory] = {"flexor": FlexorFaceDrawer, "head": default_head_drawer}
+AVATAR_SUFFIXES = (".glb", ".gltf", ".vrm")
 
 
 def make_drawer(ctx: moderngl.Context, size: tuple[int, int], kind: str = "flexor") -> FaceDrawer:
-    """A drawer of `kind` (one of DRAWERS) on `ctx`, drawing pictures of `size`; ValueError for an unknown
-    kind, naming the known ones."""
-    try:
-        factory = DRAWERS[kind]
-    except KeyError:
-        raise ValueError(f"unknown face kind {kind!r}; known: {', '.join(sorted(DRAWERS))}") from None
-    return factory(ctx, size)
+    """A drawer of `kind` on `ctx`, drawing pictures of `size`: one of DRAWERS, or the path of an avatar file
+    (.glb, .gltf, .vrm). ValueError for an unknown kind, naming the known ones."""
+    factory = DRAWERS.get(kind)
+    if factory is not None:
+        return factory(ctx, size)
+    if Path(kind).suffix.lower() in AVATAR_SUFFIXES:
+        return avatar_drawer(ctx, size, kind)
+    raise ValueError(f"unknown face kind {kind!r}; known: {', '.join(sorted(DRAWERS))}, or the path of a "
+                     f"{'/'.join(AVATAR_SUFFIXES)} file")
