@@ -92,3 +92,32 @@ def test_a_bad_face_on_the_command_line_is_one_line_and_exit_2(argv: list[str], 
     assert done.returncode == 2, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1 and "--face" in done.stderr, done.stderr
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.gl
+def test_two_agents_of_one_instance_drawn_with_a_2d_and_a_3d_face() -> None:
+    """One stage, two drawers on one context: the paper's 2D face on the left, eca's 3D head on the right, each
+    in its own half, and each half what its drawer draws alone."""
+    import numpy as np
+
+    from eca.services.processes.renderer import OffscreenCanvas, read_rgb
+
+    canvas = OffscreenCanvas((320, 120))
+    try:
+        drawers = Drawers(canvas.ctx, (160, 120))
+        faces = agent_faces({"faces": {"bob": "head"}}, ["ada", "bob"])
+        views = [AgentView(agent, LiveScene(idle_noise=False), deque()) for agent in ("ada", "bob")]
+        stage = Stage(drawers.for_faces(faces), views, fps=10.0)
+        composed = stage.compose(0)
+        stage.draw(composed, canvas.screen)
+        both = read_rgb(canvas.screen).astype(int)
+        alone = []
+        for face, made in zip(composed, drawers.for_faces(faces), strict=True):
+            alone.append(read_rgb(made.draw(face)).astype(int))  # the drawer's own target, the panel's size
+    finally:
+        drawers.release()
+        canvas.close()
+    left, right = both[:, :160], both[:, 160:]
+    assert left.std() > 10 and right.std() > 10  # a face in each half
+    assert np.abs(left - alone[0]).mean() < 2.0 and np.abs(right - alone[1]).mean() < 2.0
+    assert np.abs(left - right).mean() > 10  # two different faces
