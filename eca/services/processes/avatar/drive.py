@@ -4,8 +4,9 @@ per morph target of each primitive, and turns of the head, neck, jaw and eye joi
 Morph targets, by what the avatar has (capabilities.py; each part from one source, so nothing moves twice):
 
 - targets named as ARKit shapes take the frame's ARKit weights, and so do the binds of a custom VRM expression
-  named as one ("Perfect Sync"), with its bind weights; eyeLook shapes only when the eyes turn by shapes, eyeBlink
-  shapes only when the blink is by shapes;
+  named as one ("Perfect Sync"), with its bind weights; eyeLook shapes when the eyes turn by shapes, and with eyes
+  turned by joints those that move the lids and skin around them (the lids follow the gaze) but not the eyeballs;
+  eyeBlink shapes only when the blink is by shapes;
 - `viseme_*` targets take the frame's visemes when the mouth is by visemes (no ARKit JawOpen: the ARKit mouth
   already carries the speech);
 - VRM expressions take the frame's VRM presets through their binds: the emotions (and neutral) unless the face
@@ -55,7 +56,7 @@ from eca.agent.rig.names import (
     viseme_names,
 )
 from eca.services.processes.avatar.capabilities import EYE_LOOKS_HORIZONTAL, EYE_LOOKS_VERTICAL, Inventory, inventory
-from eca.services.processes.avatar.model import Avatar, LookAt, LookAtType, Override, RangeMap
+from eca.services.processes.avatar.model import Avatar, LookAt, LookAtType, Override, Primitive, RangeMap
 from eca.services.processes.avatar.skeleton import FACE_BONES
 
 NECK_SHARE = 0.3  # of the head's turn, on the neck (eca's VMC sender: 30 % neck, 70 % head)
@@ -130,6 +131,19 @@ class AvatarPose:
     flat: np.ndarray
 
 
+def moves_the_eyeballs(prim: Primitive, target: int, eye_joints: set[int]) -> bool:
+    """Whether most of a morph target's motion is on vertices that ride the eye joints (an eyeball turned by a
+    shape), rather than on the lids and the skin around the eyes."""
+    moved = np.sqrt((prim.targets[target].positions.astype(np.float64) ** 2).sum(axis=1))
+    total = float(moved.sum())
+    if total == 0.0 or not eye_joints:
+        return False
+    if prim.joints is None or prim.weights is None:
+        return prim.node in eye_joints
+    riding = (np.isin(prim.joints, list(eye_joints)) * prim.weights).sum(axis=1)
+    return float((moved * riding).sum()) > 0.5 * total
+
+
 class AvatarDriver:
     """Turns rig frames into an avatar's poses; see the module docstring. `drive(frame)` -> AvatarPose."""
 
@@ -157,25 +171,31 @@ class AvatarDriver:
         self._expression_names = tuple(names)
         entries: dict[tuple[int, int], float] = {}
 
-        def allowed(arkit: str) -> bool:
+        eye_joints = {j for b, j in bones.items() if b in ("leftEye", "rightEye")}
+
+        def allowed(arkit: str, p: int, t: int) -> bool:
             if arkit in _EYE_LOOKS:
-                return caps.eyes == "arkit shapes"
+                # Eyes turned by their joints still want the eyeLook shapes that move the lids and the skin around
+                # the eyes (the lids follow the gaze: Face Units' and most ARKit heads'); only a shape that turns
+                # the eyeball itself would turn it twice.
+                return caps.eyes == "arkit shapes" or (
+                    caps.eyes == "bones" and not moves_the_eyeballs(avatar.primitives[p], t, eye_joints))
             if arkit in _BLINK_SHAPES:
                 return caps.blink == "arkit shapes"
             return True
 
         for name in ARKIT_NAMES:  # targets named as ARKit shapes
-            if name in avatar.shapes and allowed(name):
-                for p, t in avatar.shapes[name]:
+            for p, t in avatar.shapes.get(name, ()):
+                if allowed(name, p, t):
                     entries[(int(self._offsets[p]) + t, ARKIT_INDEX[name])] = 1.0
         def reached(mesh: int, target: int) -> list[int]:
             # the primitives of the mesh a bind names that have its target (an Avatar not from the loader may err)
             return [p for p in by_mesh.get(mesh, ()) if 0 <= target < counts[p]]
 
         for arkit, expression_name in inv.arkit_expressions.items():  # custom expressions named as ARKit shapes
-            if allowed(arkit):
-                for bind in avatar.expressions[expression_name].binds:
-                    for p in reached(bind.mesh, bind.target):
+            for bind in avatar.expressions[expression_name].binds:
+                for p in reached(bind.mesh, bind.target):
+                    if allowed(arkit, p, bind.target):
                         entries[(int(self._offsets[p]) + bind.target, ARKIT_INDEX[arkit])] = bind.weight
         if caps.mouth == "visemes":
             for name, pairs in avatar.shapes.items():

@@ -16,6 +16,7 @@ on (4x) where GL runs on a GPU and off on software GL; stills may ask for it.
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
 
 import moderngl
@@ -43,7 +44,7 @@ from eca.services.processes.renderer.head.shaders import (
 from eca.services.processes.renderer.head.skeleton import Posed
 from eca.services.processes.renderer.renderer import RenderToggles
 
-DEFAULT_HEAD = Path(__file__).resolve().parents[4] / "assets" / "default_head.glb"
+DEFAULT_HEAD = Path(str(resources.files("eca") / "assets" / "default_head.glb"))  # package data: eca/assets/
 TEX_UNIT, DELTA_UNIT, PICTURE_UNIT = 0, 1, 2
 MAX_TRAIL = 600  # points of a gaze trail drawn at most (the most recent)
 _IDENTITY = np.eye(4, dtype=np.float32).tobytes()
