@@ -18,6 +18,7 @@ import pytest
 
 from eca.agent.rig.names import ARKIT_NAMES
 from eca.services.tools import cli, head_bake
+from eca.services.tools.head_bake import geometry, png
 from eca.services.tools.head_preview import DecodedHead, decode, posed, read_accessor, render
 
 pygltflib = pytest.importorskip("pygltflib", reason="pygltflib reads and writes the head's glTF")
@@ -197,7 +198,7 @@ def test_a_preview_shows_a_face_in_front(head: DecodedHead) -> None:
                                   bytes(np.random.default_rng(1).integers(0, 256, 5000, dtype=np.uint8)),
                                   bytes(np.repeat(np.arange(40) % 3, np.arange(40) * 17).astype(np.uint8))])
 def test_deflate_round_trips_through_zlib(data: bytes) -> None:
-    assert zlib.decompress(head_bake.deflate(data), -15) == data
+    assert zlib.decompress(png.deflate(data), -15) == data
 
 
 def test_png_round_trips_through_pillow() -> None:
@@ -206,7 +207,7 @@ def test_png_round_trips_through_pillow() -> None:
     rng = np.random.default_rng(2)
     for channels in (3, 4):
         image = np.clip(np.cumsum(rng.integers(-3, 4, (37, 53, channels)), axis=1) + 128, 0, 255).astype(np.uint8)
-        back = np.asarray(Image.open(io.BytesIO(head_bake.png_bytes(image))))
+        back = np.asarray(Image.open(io.BytesIO(png.png_bytes(image))))
         np.testing.assert_array_equal(back, image)
 
 
@@ -214,7 +215,7 @@ def test_clip_triangles_cuts_along_the_line() -> None:
     surface = {"position": np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
                "tag": np.array([1, 2, 3, 4])}
     triangles = np.array([[0, 1, 2], [0, 2, 3]])
-    cut, tris = head_bake.clip_triangles(surface, triangles, surface["position"][:, 0], 0.25)
+    cut, tris = geometry.clip_triangles(surface, triangles, surface["position"][:, 0], 0.25)
     p = cut["position"]
     assert p[:, 0].min() == pytest.approx(0.25)
     area = 0.5 * np.abs(np.cross(p[tris[:, 1]] - p[tris[:, 0]], p[tris[:, 2]] - p[tris[:, 0]])[:, 2]).sum()
@@ -229,7 +230,7 @@ def test_strip_uvs_find_rows_and_columns() -> None:
     positions = np.array([[c * 1.0, 2.0 + r, 0.0] for r in range(rows) for c in range(cols)])
     quads = np.array([[r * cols + c, r * cols + c + 1, (r + 1) * cols + c + 1, (r + 1) * cols + c]
                       for r in range(rows - 1) for c in range(cols - 1)])
-    uv = head_bake.strip_uvs(quads, positions, centre=np.array([2.0, 0.0, 0.0]))
+    uv = geometry.strip_uvs(quads, positions, centre=np.array([2.0, 0.0, 0.0]))
     np.testing.assert_allclose(uv[:, 1], (positions[:, 1] - 2.0) / 2.0)  # the root is the row nearer the centre
     np.testing.assert_allclose(np.minimum(uv[:, 0], 1 - uv[:, 0]), np.minimum(positions[:, 0], 4 - positions[:, 0]) / 4)
 

