@@ -18,13 +18,10 @@ and look at the new tests/golden/head_*.png before committing them.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
 
 from eca.agent.face.composed import ComposedFace
 from eca.agent.face.emotions import PAPER_EMOTIONS, load_emotion_table
@@ -38,15 +35,13 @@ from eca.services.processes.renderer import (
     read_rgb,
 )
 from eca.services.processes.renderer.head import DEFAULT_HEAD
+from tests.support.golden import check_golden, compare
 
 pytestmark = [pytest.mark.gl, pytest.mark.skipif(not DEFAULT_HEAD.exists(), reason="the default head is not baked")]
 
-GOLDEN_DIR = Path(__file__).parent / "golden"
-REGENERATE = os.environ.get("ECA_REGEN_GOLDEN", "") not in ("", "0")
 SIZE = (320, 240)
 MAX_RMS = 3.0  # of 255: llvmpipe builds may differ in shading and edge pixels, not in what is drawn
 MAX_CHANGED = 0.0025  # fraction of pixels differing by more than CHANGED_LEVEL in any channel
-CHANGED_LEVEL = 48
 CASES: dict[str, tuple[str, str]] = {  # golden name -> (emotion, view)
     **{f"head_{emotion}": (emotion, "full") for emotion in PAPER_EMOTIONS},
     "head_natural_upper": ("natural", "upper"),
@@ -76,31 +71,13 @@ def picture(drawer: FaceDrawer, emotion: str, view: str = "full") -> np.ndarray:
     return read_rgb(drawer.draw(face, view=view)).copy()
 
 
-def compare(actual: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
-    """(RMS over all channels, fraction of pixels differing by more than CHANGED_LEVEL in some channel)."""
-    diff = actual.astype(np.float64) - expected.astype(np.float64)
-    rms = float(np.sqrt(np.mean(diff**2)))
-    changed = float((np.abs(diff).max(-1) > CHANGED_LEVEL).mean())
-    return rms, changed
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_matches_golden_image(drawer: FaceDrawer, name: str) -> None:
     emotion, view = CASES[name]
     actual = picture(drawer, emotion, view)
-    path = GOLDEN_DIR / f"{name}.png"
-    if REGENERATE:
-        GOLDEN_DIR.mkdir(exist_ok=True)
-        Image.fromarray(actual).save(path)
-        pytest.skip(f"regenerated {path.name}")
-    assert path.exists(), f"{path} is missing; create it with ECA_REGEN_GOLDEN=1"
-    expected = np.asarray(Image.open(path).convert("RGB"))
-    assert expected.shape == actual.shape
-    rms, changed = compare(actual, expected)
-    if rms > MAX_RMS or changed > MAX_CHANGED:
-        Image.fromarray(actual).save(path.with_suffix(".actual.png"))
-    assert rms <= MAX_RMS, f"{name}: RMS {rms:.2f} > {MAX_RMS} (wrote {path.stem}.actual.png)"
-    assert changed <= MAX_CHANGED, f"{name}: {changed:.1%} of pixels changed (wrote {path.stem}.actual.png)"
+    check_golden(actual, name, MAX_RMS, MAX_CHANGED)
 
 
 def test_the_comparison_tells_the_emotions_apart(drawer: FaceDrawer) -> None:

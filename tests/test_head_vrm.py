@@ -47,6 +47,7 @@ from eca.services.processes.renderer import (
     read_rgb,
 )
 from eca.services.processes.renderer.head import DEFAULT_HEAD
+from tests.support.golden import compare
 
 pytestmark = [pytest.mark.gl, pytest.mark.skipif(not DEFAULT_HEAD.exists(), reason="the default head is not baked")]
 
@@ -59,7 +60,6 @@ FLIP = np.array([-1.0, 1.0, -1.0], dtype=np.float32)  # half a turn about +Y: +Z
 # lost emotion changes (happy against neutral: RMS 5.9, 0.57 % of pixels).
 MAX_RMS = 3.0  # of 255
 MAX_CHANGED = 0.0025  # fraction of pixels differing by more than CHANGED_LEVEL in any channel
-CHANGED_LEVEL = 48
 
 PRESETS_1: dict[str, tuple[str, ...]] = {  # VRM 1.0 preset -> the head's ARKit targets it binds
     "happy": ("MouthSmileLeft", "MouthSmileRight", "CheekSquintLeft", "CheekSquintRight"),
@@ -247,10 +247,6 @@ FACES: dict[str, np.ndarray] = {
 KINDS = ("glb", "vrm1", "vrm0")
 
 
-def compare(actual: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
-    """(RMS over all channels, fraction of pixels differing by more than CHANGED_LEVEL in some channel)."""
-    diff = actual.astype(np.float64) - expected.astype(np.float64)
-    return float(np.sqrt(np.mean(diff**2))), float((np.abs(diff).max(-1) > CHANGED_LEVEL).mean())
 
 
 @pytest.fixture(scope="module")

@@ -6,13 +6,10 @@ and look at the new files in tests/golden/ before committing them.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
 
 from eca.agent.face.emotions import load_emotion_table
 from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
@@ -23,15 +20,13 @@ from eca.services.processes.renderer import (
     create_headless_context,
     read_rgb,
 )
+from tests.support.golden import check_golden, compare
 
 pytestmark = pytest.mark.gl
 
-GOLDEN_DIR = Path(__file__).parent / "golden"
-REGENERATE = os.environ.get("ECA_REGEN_GOLDEN", "") not in ("", "0")
 SIZE = (160, 120)
 MAX_RMS = 6.0  # of 255: rasterisers may differ in edge pixels, not in what is drawn
 MAX_CHANGED = 0.02  # fraction of pixels differing by more than CHANGED_LEVEL in any channel
-CHANGED_LEVEL = 48
 
 
 def _f(**values: float) -> np.ndarray:
@@ -71,11 +66,6 @@ def renderer() -> Iterator[Renderer]:
     ctx.release()
 
 
-def compare(actual: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
-    diff = actual.astype(np.float64) - expected.astype(np.float64)
-    rms = float(np.sqrt(np.mean(diff**2)))
-    changed = float((np.abs(diff).max(-1) > CHANGED_LEVEL).mean())
-    return rms, changed
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -83,19 +73,7 @@ def test_matches_golden_image(renderer: Renderer, name: str) -> None:
     flexors, view, toggles = CASES[name]
     renderer.render(flexors(), view=view, toggles=toggles)
     actual = read_rgb(renderer.fbo)
-    path = GOLDEN_DIR / f"{name}.png"
-    if REGENERATE:
-        GOLDEN_DIR.mkdir(exist_ok=True)
-        Image.fromarray(actual).save(path)
-        pytest.skip(f"regenerated {path.name}")
-    assert path.exists(), f"{path} is missing; create it with ECA_REGEN_GOLDEN=1"
-    expected = np.asarray(Image.open(path).convert("RGB"))
-    assert expected.shape == actual.shape
-    rms, changed = compare(actual, expected)
-    if rms > MAX_RMS or changed > MAX_CHANGED:
-        Image.fromarray(actual).save(path.with_suffix(".actual.png"))
-    assert rms <= MAX_RMS, f"{name}: RMS {rms:.2f} > {MAX_RMS} (wrote {path.stem}.actual.png)"
-    assert changed <= MAX_CHANGED, f"{name}: {changed:.1%} of pixels changed (wrote {path.stem}.actual.png)"
+    check_golden(actual, name, MAX_RMS, MAX_CHANGED)
 
 
 def test_the_comparison_catches_a_real_change(renderer: Renderer) -> None:
