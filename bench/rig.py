@@ -27,11 +27,8 @@ import argparse
 import bisect
 import json
 import random
-import socket
 import statistics
-import struct
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -48,6 +45,7 @@ from eca.protocol.codec import encode  # noqa: E402
 from eca.protocol.messages import RigPose  # noqa: E402
 from eca.services.processes.rig.livelink import LiveLinkPacker, device_id  # noqa: E402
 from eca.services.processes.rig.vmc import VmcPacker  # noqa: E402
+from tests.support.udp import Catcher, decode_live_link  # noqa: E402
 
 FRAME_NS = 1_000_000_000 // 60
 TARGET_RETARGET_SHARE = 0.10  # retargeting over composition
@@ -128,37 +126,10 @@ def measure_cost(n: int, frames: int) -> dict[str, Any]:
 # --- 2. latency ---------------------------------------------------------------------------------------------
 
 
-class Catcher:
-    """A UDP socket whose datagrams a thread keeps with their arrival times (decoded after the run)."""
-
-    def __init__(self) -> None:
-        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.socket.bind(("127.0.0.1", 0))
-        self.socket.settimeout(0.05)
-        self.port = self.socket.getsockname()[1]
-        self.got: list[tuple[int, bytes]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.socket.recv(65536)
-            except TimeoutError:
-                continue
-            self.got.append((time.monotonic_ns(), data))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
-        self.socket.close()
 
 
 def live_link_yaw_deg(data: bytes) -> float:
-    name_len = struct.unpack(">i", data[41:45])[0]
-    at = 45 + name_len + 17 + 4 * HEAD_YAW_INDEX
-    return float(np.degrees(struct.unpack(">f", data[at:at + 4])[0]))
+    return float(np.degrees(decode_live_link(data)["values"][HEAD_YAW_INDEX]))
 
 
 def vmc_yaw_deg(data: bytes) -> float:
@@ -192,7 +163,7 @@ def measure_latency(commands: int) -> dict[str, Any]:
     from eca.protocol.messages import HeadState, MoveHead
     from tests.support.bus import eca_command, private_bus_config, running
 
-    vmc, live = Catcher(), Catcher()
+    vmc, live = Catcher(clock=time.monotonic_ns), Catcher(clock=time.monotonic_ns)
     sent: list[tuple[int, float]] = []  # (send time, target yaw degrees)
     states: list[int | None] = []
     try:

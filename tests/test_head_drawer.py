@@ -12,14 +12,13 @@ import moderngl
 import numpy as np
 import pytest
 
-from eca.agent.face.composed import ComposedFace, EyeAngles
-from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from eca.agent.face.frame import FlexorFrame
+from eca.agent.face.composed import ComposedFace
 from eca.agent.face.settings import load_flexor_units
 from eca.services.processes.avatar.loader import load_avatar
 from eca.services.processes.avatar.model import AlphaMode, Avatar, Texture
 from eca.services.processes.renderer import HeadlessContextError, create_headless_context, read_rgb
 from eca.services.processes.renderer.head import DEFAULT_HEAD, HeadDrawer, sample_avatar
+from tests.support.faces import composed_face as face
 
 pytestmark = pytest.mark.gl
 
@@ -29,12 +28,6 @@ AVATARS = ["sample", pytest.param("default", marks=pytest.mark.skipif(not DEFAUL
                                                                          reason="the default head is not baked yet"))]
 
 
-def face(eyes: tuple[float, float] = (0.0, 0.0), **flexors: float) -> ComposedFace:
-    """A composed face: all flexors relaxed but those given, both eyes at (yaw, pitch) degrees."""
-    values = np.zeros(N_FLEXORS)
-    for name, value in flexors.items():
-        values[FLEXOR_INDEX[name]] = value
-    return ComposedFace.from_frame(FlexorFrame.composed(values, 0), UNITS, EyeAngles(*eyes))
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,8 @@ import moderngl
 import numpy as np
 import pytest
 
-from eca.agent.face.composed import ComposedFace, EyeAngles
-from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from eca.agent.face.frame import FlexorFrame
+from eca.agent.face.composed import ComposedFace
+from eca.agent.face.flexors import FLEXOR_INDEX
 from eca.agent.face.scene import LiveScene
 from eca.agent.face.settings import load_flexor_units
 from eca.services.processes.avatar.drive import AvatarPose
@@ -42,6 +41,7 @@ from eca.services.processes.renderer import (
 from eca.services.processes.renderer.head import DEFAULT_HEAD, HeadDrawer, sample_avatar
 from eca.services.processes.renderer.head.skeleton import Posed, global_transforms
 from eca.services.processes.scene.bus_scene import AgentView
+from tests.support.faces import composed_face as composed
 from tests.test_avatar_files import face as gltf_face
 from tests.test_avatar_files import glb_bytes, vrm0_document, vrm1_document, write
 
@@ -49,11 +49,6 @@ UNITS = load_flexor_units()
 SIZE = (240, 180)
 
 
-def composed(eyes: tuple[float, float] = (0.0, 0.0), **flexors: float) -> ComposedFace:
-    values = np.zeros(N_FLEXORS)
-    for name, value in flexors.items():
-        values[FLEXOR_INDEX[name]] = value
-    return ComposedFace.from_frame(FlexorFrame.composed(values, 0), UNITS, EyeAngles(*eyes))
 
 
 @pytest.fixture(scope="module")

@@ -10,12 +10,10 @@ import numpy as np
 import pytest
 
 from eca.agent.face.composed import ComposedFace
-from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
-from eca.agent.face.frame import FlexorFrame
-from eca.agent.face.settings import load_flexor_units
 from eca.agent.lipsync import mouth_track
 from eca.services.processes.renderer import HeadlessContextError, create_headless_context, make_drawer, read_rgb
 from eca.services.processes.renderer.drawer import FaceDrawer
+from tests.support.faces import composed_face
 
 pytestmark = pytest.mark.gl
 
@@ -43,10 +41,7 @@ def head() -> Iterator[FaceDrawer]:
 
 
 def face_at(weights: dict[str, float]) -> ComposedFace:
-    values = np.zeros(N_FLEXORS)
-    for name, w in weights.items():
-        values[FLEXOR_INDEX[name]] = w
-    return ComposedFace.from_frame(FlexorFrame(values), load_flexor_units())
+    return composed_face(**weights)
 
 
 def dark_pixels(drawer: FaceDrawer, face: ComposedFace) -> int:

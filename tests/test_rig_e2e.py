@@ -5,7 +5,6 @@ each shows up in the received values, in the order driven, at the configured rat
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import threading
 import time
@@ -19,7 +18,7 @@ from pythonosc.osc_server import BlockingOSCUDPServer
 
 from eca.agent.rig.names import ARKIT_INDEX
 from tests.support.bus import eca_command, private_bus_config, running
-from tests.test_rig_senders import decode_live_link
+from tests.support.udp import Catcher, decode_live_link
 
 pytestmark = pytest.mark.slow
 
@@ -64,31 +63,6 @@ class VmcReceiver:
         self.server.server_close()
 
 
-class LiveLinkReceiver:
-    """A UDP socket whose packets are decoded by the layout (tests/test_rig_senders.decode_live_link)."""
-
-    def __init__(self) -> None:
-        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.socket.bind(("127.0.0.1", 0))
-        self.socket.settimeout(0.05)
-        self.port = self.socket.getsockname()[1]
-        self.frames: list[tuple[float, dict[str, Any]]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.socket.recv(65536)
-            except TimeoutError:
-                continue
-            self.frames.append((time.monotonic(), decode_live_link(data)))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
-        self.socket.close()
 
 
 def first_time(frames: list[Any], since: float, predicate: Callable[[Any], bool], timeout_s: float) -> float:
@@ -125,7 +99,7 @@ def head_yaw_deg(bones: dict[str, tuple[float, ...]]) -> float:
 
 
 def test_vmc_and_live_link_receivers_see_emotion_head_blink_and_speech_at_the_rate() -> None:
-    vmc, live = VmcReceiver(), LiveLinkReceiver()
+    vmc, live = VmcReceiver(), Catcher(decode_live_link)
     try:
         with private_bus_config(services=["dialogue", "gaze", "audio"]) as config:
             common = ["--config", str(config.config_path), "--instance", config.instance]
@@ -141,35 +115,35 @@ def test_vmc_and_live_link_receivers_see_emotion_head_blink_and_speech_at_the_ra
 
             with running(argv) as (_, reader):
                 reader.wait_for("[up] ready in", 40.0)
-                first_time(live.frames, 0.0, lambda f: True, 10.0)
+                first_time(live.got, 0.0, lambda f: True, 10.0)
                 first_time(vmc.frames, 0.0, lambda f: True, 10.0)
                 eyes_at = send("eyes", "saccade+blink")
 
                 # the rate: frames counted over a measured interval, at both receivers
-                rates = rates_over(2.0, vmc.frames, live.frames)
+                rates = rates_over(2.0, vmc.frames, live.got)
                 assert all(0.75 * RATE_HZ <= rate <= 1.05 * RATE_HZ for rate in rates), rates
                 before = time.monotonic()
                 assert max(f[1]["Joy"] for f in vmc.frames) < 0.2  # not happy yet
-                assert max(f[1]["values"][JAW_OPEN] for f in live.frames) < 0.1  # mouth closed
+                assert max(f[1]["values"][JAW_OPEN] for f in live.got) < 0.1  # mouth closed
 
                 happy_at = send("emotion", "happy", "--transition", "0.2")
                 happy_vmc = first_time(vmc.frames, happy_at, lambda f: f[1]["Joy"] > 0.5, 5.0)
-                happy_live = first_time(live.frames, happy_at, lambda f: f[1]["values"][SMILE_LEFT] > 0.5, 5.0)
+                happy_live = first_time(live.got, happy_at, lambda f: f[1]["values"][SMILE_LEFT] > 0.5, 5.0)
 
                 head_at = send("head", "--turn", "0.8", "--duration", "0.3")
                 turned_vmc = first_time(vmc.frames, head_at, lambda f: head_yaw_deg(f[2]) > 25.0, 5.0)
-                turned_live = first_time(live.frames, head_at, lambda f: f[1]["values"][HEAD_YAW] > 0.45, 5.0)
+                turned_live = first_time(live.got, head_at, lambda f: f[1]["values"][HEAD_YAW] > 0.45, 5.0)
 
                 # a blink of saccade+blink (about 26 a minute in conversation, and a head turn's saccade often
                 # brings one): the lids close in both streams (happy's lids alone are 0.14)
                 blink_vmc = first_time(vmc.frames, eyes_at, lambda f: f[1]["Blink"] > 0.5, 20.0)
-                blink_live = first_time(live.frames, eyes_at, lambda f: f[1]["values"][EYE_BLINK_LEFT] > 0.5, 20.0)
+                blink_live = first_time(live.got, eyes_at, lambda f: f[1]["values"][EYE_BLINK_LEFT] > 0.5, 20.0)
 
                 say_at = time.monotonic()
                 with subprocess.Popen(eca_command("send", *common, "say", "--text",
                                                   "Hello there, I am glad to see you again today.", "--wait"),
                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE) as say:
-                    spoke_live = first_time(live.frames, say_at, lambda f: f[1]["values"][JAW_OPEN] > 0.3, 20.0)
+                    spoke_live = first_time(live.got, say_at, lambda f: f[1]["values"][JAW_OPEN] > 0.3, 20.0)
                     spoke_vmc = first_time(vmc.frames, say_at, lambda f: max(f[1][v] for v in VOWELS) > 0.4, 20.0)
                     assert say.wait(timeout=30) == 0, say.stderr.read() if say.stderr else ""
 
@@ -179,9 +153,9 @@ def test_vmc_and_live_link_receivers_see_emotion_head_blink_and_speech_at_the_ra
         # the packets themselves in order: the sender's time and the Live Link frame numbers only go forward
         assert np.all(np.diff(vmc.times) > 0)
         day = 86_400 * RATE_HZ  # frame numbers are the time of day: they start again at midnight
-        stamps = np.array([f[1]["frame"] + f[1]["sub"] for f in live.frames])
+        stamps = np.array([f[1]["frame"] + f[1]["sub"] for f in live.got])
         assert np.all(np.diff(stamps) % day > 0)
-        assert all(f[1]["subject"] == "ada" and f[1]["count"] == 61 for f in live.frames)
+        assert all(f[1]["subject"] == "ada" and f[1]["count"] == 61 for f in live.got)
     finally:
         vmc.close()
         live.close()

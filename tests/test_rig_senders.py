@@ -32,6 +32,7 @@ from eca.services.processes.rig.options import (
 )
 from eca.services.processes.rig.udp import UdpSender
 from eca.services.processes.rig.vmc import BONE_POSITIONS, VmcPacker, blend_names, bone_rotation, unity_euler
+from tests.support.udp import decode_live_link
 
 RNG = np.random.default_rng(7)
 DOC = Path(__file__).resolve().parent.parent / "docs" / "protocol.md"
@@ -40,19 +41,6 @@ DOC = Path(__file__).resolve().parent.parent / "docs" / "protocol.md"
 # --- Live Link Face --------------------------------------------------------------------------------
 
 
-def decode_live_link(data: bytes) -> dict[str, Any]:
-    """The packet as the layout says (PyLiveLinkFace's encode/decode): version uint32 LE, '$' + 36-char device
-    id, subject name (int32 BE length + UTF-8), frame number int32 BE, sub-frame float32 BE, rate numerator and
-    denominator int32 BE, count uint8, then count float32 BE."""
-    version = struct.unpack("<I", data[0:4])[0]
-    device = data[4:41].decode("utf-8")
-    (name_len,) = struct.unpack(">i", data[41:45])
-    name = data[45:45 + name_len].decode("utf-8")
-    at = 45 + name_len
-    frame, sub, num, den, count = struct.unpack(">ifiiB", data[at:at + 17])
-    values = struct.unpack(f">{count}f", data[at + 17:])
-    return {"version": version, "device": device, "subject": name, "frame": frame, "sub": sub, "rate": (num, den),
-            "count": count, "values": np.array(values)}
 
 
 def test_the_live_link_packet_reads_back_as_the_layout_says() -> None:

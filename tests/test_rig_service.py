@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import socket
 import subprocess
-import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -23,47 +22,11 @@ from eca.services.processes.rig.options import options_from, plan
 from eca.services.processes.rig.service import RigService
 from eca.services.tools.up import instance_running
 from tests.support.bus import BrokerThread, ServiceThread, eca_command, private_bus_config
-from tests.test_rig_senders import decode_live_link
+from tests.support.udp import Catcher, decode_live_link
 
 ARKIT_SMILE_LEFT, LIVE_LINK_HEAD_YAW = 23, 52
 
 
-class Catcher:
-    """A UDP socket on a free port whose datagrams a thread collects with their arrival times."""
-
-    def __init__(self) -> None:
-        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.socket.bind(("127.0.0.1", 0))
-        self.socket.settimeout(0.05)
-        self.port = self.socket.getsockname()[1]
-        self.got: list[tuple[float, bytes]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.socket.recv(65536)
-            except TimeoutError:
-                continue
-            self.got.append((time.monotonic(), data))
-
-    def wait_for(self, predicate: Any, timeout_s: float) -> bytes | None:
-        deadline = time.monotonic() + timeout_s
-        seen = 0
-        while time.monotonic() < deadline:
-            for _, data in self.got[seen:]:
-                seen += 1
-                if predicate(data):
-                    return data
-            time.sleep(0.01)  # pacing a poll of the collected list, not synchronisation
-        return None
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
-        self.socket.close()
 
 
 @contextmanager
