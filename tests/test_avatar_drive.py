@@ -9,7 +9,6 @@ over neck and head; a jaw joint opens by JawOpen; and a frame costs well under a
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -261,17 +260,14 @@ def test_driver_options_are_checked(tmp_path: Path) -> None:
         AvatarDriver(gltf_face(tmp_path), neck_share=1.5)
 
 
-# --- speed -----------------------------------------------------------------------------------------------------------
-
-def test_a_frame_of_52_arkit_shapes_costs_well_under_a_millisecond(tmp_path: Path) -> None:
+def test_all_52_arkit_shapes_reach_their_targets(tmp_path: Path) -> None:
+    """Every ARKit shape of a Perfect Sync face takes its weight from the rig frame (its cost per frame is part of
+    the head's frame in bench/render.py --head)."""
     avatar = load_avatar(write(tmp_path, "arkit52.glb", face(names=list(ARKIT_NAMES)).builder.glb()))
-    driver = AvatarDriver(avatar)
-    rig = frame({name: 0.5 for name in ARKIT_NAMES}, head=(10.0, 5.0, 2.0), eyes=(8.0, -3.0))
-    assert face_weights(driver, rig).size == 52
-    times = []
-    for _ in range(300):
-        start = time.perf_counter()
-        driver.drive(rig)
-        times.append(time.perf_counter() - start)
-    median = float(np.median(times))
-    assert median < 0.5e-3, f"{median * 1e6:.0f} us a frame"
+    weights = np.linspace(0.01, 0.52, 52)
+    rig = frame(dict(zip(ARKIT_NAMES, weights, strict=True)), head=(10.0, 5.0, 2.0), eyes=(8.0, -3.0))
+    got = face_weights(AvatarDriver(avatar), rig)
+    looks = [i for i, name in enumerate(ARKIT_NAMES) if name.startswith("EyeLook")]
+    expected = weights.copy()
+    expected[looks] = got[looks]  # the eyeLooks follow the eye angles, not the frame's weights
+    assert got == pytest.approx(expected, abs=1e-6)
