@@ -10,17 +10,32 @@ a user's project can hide it:
 - `eca/configs`: the constants with their sources, shipped with the package (see `eca.agent.config`).
 """
 
-from importlib import resources
-from importlib.metadata import PackageNotFoundError, version
+from __future__ import annotations
+
 from pathlib import Path
 
-try:
-    __version__ = version("eca-face")
-except PackageNotFoundError:  # a source tree used without installing it
-    __version__ = "0+unknown"
+# Every process imports this package first: what it imports at the top, each of them holds. The version (read
+# through importlib.metadata, which brings the email package along) is looked up when someone asks for it.
+
+
+def __getattr__(name: str) -> str:
+    if name == "__version__":
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            found = version("eca-face")
+        except PackageNotFoundError:  # a source tree used without installing it
+            found = "0+unknown"
+        globals()["__version__"] = found
+        return found
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def shipped_configs() -> Path:
-    """The `configs/` folder shipped inside the package (read through importlib.resources, so it is found
-    wherever pip put eca). A package installed as files is the only kind pip makes, so it is a real folder."""
+    """The `configs/` folder shipped inside the package. pip installs a package as files, so it is a real folder
+    beside this file; importlib.resources finds it where a loader gives no file (it is imported only then)."""
+    if __file__ is not None:
+        return Path(__file__).resolve().parent / "configs"
+    from importlib import resources
+
     return Path(str(resources.files(__name__) / "configs"))

@@ -12,7 +12,7 @@ Every option (HWM, linger) is set before connect: options set later do not take.
 
 from __future__ import annotations
 
-import secrets
+import os
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -161,7 +161,7 @@ class Subscriber:
         """Block until the broker answers a probe subscription, so every later message reaches us.
 
         Returns whatever else arrived meanwhile (last values from the broker's cache among them)."""
-        nonce = secrets.token_hex(8)
+        nonce = os.urandom(8).hex()  # as secrets.token_hex(8), without loading OpenSSL (hashlib) in every process
         self._probe = f"sys.{nonce}.hello"
         self.socket.setsockopt(zmq.SUBSCRIBE, self._probe.encode())
         deadline = time.monotonic() + timeout_s

@@ -36,8 +36,10 @@ def browser_available() -> str | None:
 
 
 @contextmanager
-def chromium(microphone_wav: Path | None = None, window: tuple[int, int] = (1280, 800)) -> Iterator[Any]:
-    """A selenium driver of a fresh headless Chromium (its own empty profile), quit afterwards."""
+def chromium(microphone_wav: Path | None = None, window: tuple[int, int] = (1280, 800),
+             webgl: bool = True) -> Iterator[Any]:
+    """A selenium driver of a fresh headless Chromium (its own empty profile), quit afterwards. With `webgl`, WebGL
+    through SwiftShader (software; Chromium offers it only when asked); without, a browser with no WebGL."""
     problem = browser_available()
     if problem:
         raise BrowserMissing(problem)
@@ -53,6 +55,11 @@ def chromium(microphone_wav: Path | None = None, window: tuple[int, int] = (1280
                  "--autoplay-policy=no-user-gesture-required", f"--window-size={window[0]},{window[1]}",
                  f"--user-data-dir={profile}"):
         options.add_argument(flag)
+    if webgl:
+        for flag in ("--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--ignore-gpu-blocklist"):
+            options.add_argument(flag)
+    else:
+        options.add_argument("--disable-webgl")
     if microphone_wav is not None:
         options.add_argument(f"--use-file-for-fake-audio-capture={microphone_wav}%noloop")
     driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)

@@ -93,3 +93,39 @@ def user_speech_wav(path: Path, sentence: str, before_s: float, after_s: float) 
     silence = lambda seconds: np.zeros(round(seconds * rate), np.float32)  # noqa: E731
     sf.write(path, np.concatenate([silence(before_s), samples, silence(after_s)]), rate)
     return path
+
+
+class FaceClient(Client):
+    """A page that draws its agents itself, in Python: their voices as audio tracks and their face frames on the
+    "eca-face" data channel (kept with their arrival times), and the answer's face descriptions."""
+
+    def __init__(self, base: str, agents: list[str], token: str | None = None, fps: float = 15.0) -> None:
+        super().__init__(base, agents, token=token, video={"width": 160, "height": 120, "fps": fps})
+        self.messages: list[tuple[float, bytes]] = []
+        self.channel = self.pc.createDataChannel("eca-face", ordered=False, maxRetransmits=0)
+        self.channel.on("message", lambda m: self.messages.append((time.monotonic(), m)))
+        self.faces: dict[str, Any] = {}
+
+    async def offer_body(self) -> dict[str, Any]:
+        sections = [(self.pc.addTransceiver("audio", direction="recvonly"), agent, "audio") for agent in self.agents]
+        await self.pc.setLocalDescription(await self.pc.createOffer())
+        self.sections = sections
+        return {"type": "offer", "sdp": self.pc.localDescription.sdp, "token": self.token, "agents": self.agents,
+                "video": self.video, "streams": [{"mid": t.mid, "agent": a, "kind": k} for t, a, k in sections],
+                "mic_mid": None, "draw_here": self.agents}
+
+    async def accept(self, answer: dict[str, Any]) -> None:
+        await super().accept(answer)
+        self.faces = answer["faces"]
+
+    def frames_of(self, agent: str, kind: int = 1) -> list[tuple[float, bytes]]:
+        """The messages of one kind (1: frames, 2: voice clocks) for an agent, with their arrival times."""
+        slot = self.faces[agent]["slot"]
+        return [(t, m) for t, m in self.messages
+                if isinstance(m, bytes) and len(m) >= 4 and int.from_bytes(m[:2], "little") == slot and m[2] == kind]
+
+    async def wait_for_frames(self, agent: str, count: int, timeout_s: float) -> list[tuple[float, bytes]]:
+        deadline = time.monotonic() + timeout_s
+        while len(got := self.frames_of(agent)) < count and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)  # polling what has arrived: the channel's events fill the list
+        return got

@@ -230,6 +230,15 @@ class AvatarDriver:
         self._build_overrides(names)
         self._build_joints(bones, caps.eyes)
 
+    def source_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """(target, source) pairs of what reaches what: flat target indices and source columns (the frame's 52
+        ARKit weights, then its visemes, then the avatar's expressions in Avatar.expressions order)."""
+        return self._rows.copy(), self._cols.copy()
+
+    def target_slice(self, primitive: int) -> tuple[int, int]:
+        """Where primitive `primitive`'s targets are in AvatarPose.flat."""
+        return self._slices[primitive]
+
     def _active_expressions(self, eyes: str, blink: str, mouth: str) -> set[str]:
         """The VRM expressions a frame drives (see the module docstring); custom ones never."""
         inv = self.inventory

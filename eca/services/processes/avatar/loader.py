@@ -21,6 +21,7 @@ Anything else that goes wrong inside (a bug, not the file) still comes out as an
 from __future__ import annotations
 
 import logging
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +40,9 @@ from eca.services.processes.avatar.skeleton import FACE_BONES, build_tree, face_
 from eca.services.processes.avatar.vrm import read_vrm
 
 log = logging.getLogger("avatar")
+
+# the default head: package data (eca/assets/), baked by `eca bake-head` (eca/services/tools/head_bake/)
+DEFAULT_HEAD = Path(str(resources.files("eca") / "assets" / "default_head.glb"))
 
 
 def load_avatar(path: str | Path, limits: AvatarLimits = DEFAULT_LIMITS) -> Avatar:

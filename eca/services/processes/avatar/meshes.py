@@ -145,7 +145,7 @@ def build_primitives(document: gl.GLTF2, reader: AccessorReader, tree: NodeTree,
             where = f"meshes[{node.mesh}].primitives[{p}]"
             built = _primitive(document, reader, prim, where, node, joint, skins, limits, budget, notes, turn,
                                mesh_names=_target_names(mesh.extras), prim_names=_target_names(prim.extras),
-                               mesh_index=node.mesh)
+                               mesh_index=node.mesh, source=(node_index, p))
             if built is not None:
                 needs_default = needs_default or prim.material is None
                 primitives.append(built)
@@ -159,7 +159,8 @@ def _target_names(extras: object) -> list[object] | None:
 
 def _primitive(document: gl.GLTF2, reader: AccessorReader, prim: gl.Primitive, where: str, node: gl.Node, joint: int,
                skins: SkinBinds, limits: AvatarLimits, budget: _Budget, notes: Notes, turn: bool,
-               mesh_names: list[object] | None, prim_names: list[object] | None, mesh_index: int) -> Primitive | None:
+               mesh_names: list[object] | None, prim_names: list[object] | None, mesh_index: int,
+               source: tuple[int, int] = (-1, -1)) -> Primitive | None:
     attributes = prim.attributes
     mode = int(prim.mode if prim.mode is not None else gl.TRIANGLES)
     if mode not in (gl.TRIANGLES, gl.TRIANGLE_STRIP, gl.TRIANGLE_FAN):
@@ -263,6 +264,7 @@ def _primitive(document: gl.GLTF2, reader: AccessorReader, prim: gl.Primitive, w
                                   None if t.normals is None else _frozen(t.normals.astype(np.float32)))
                       for t in targets),
         mesh=mesh_index,
+        source=source,
     )
 
 

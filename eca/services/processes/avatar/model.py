@@ -67,6 +67,9 @@ class Primitive:
     node: int = -1  # for an unskinned primitive: the skeleton joint it moves with (-1: the model's root)
     targets: tuple[MorphTarget, ...] = ()
     mesh: int = 0  # index of the glTF mesh this primitive belongs to (expressions bind a mesh's targets)
+    # (glTF node, index in its mesh's primitives) of the file: what a page that loads the same file itself finds it
+    # by (web/browser_face.py); (-1, -1) for a primitive made in memory
+    source: tuple[int, int] = (-1, -1)
 
 
 @dataclass(frozen=True, eq=False)

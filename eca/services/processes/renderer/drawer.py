@@ -12,14 +12,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol, TypeAlias
 
-import moderngl
-import numpy as np
+if TYPE_CHECKING:  # names for the hints only: a process that merely chooses a face loads no GL or drawing code
+    import moderngl
+    import numpy as np
 
-from eca.agent.face.composed import ComposedFace
-from eca.services.processes.renderer.config import RenderConfig
-from eca.services.processes.renderer.renderer import Renderer, RenderToggles
+    from eca.agent.face.composed import ComposedFace
+    from eca.services.processes.renderer.common import RenderToggles
+    from eca.services.processes.renderer.config import RenderConfig
 
 
 class FaceDrawer(Protocol):
@@ -43,6 +44,10 @@ class FlexorFaceDrawer:
     """The 2D flexor face: `Renderer` draws the composed face's flexor frame."""
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int], config: RenderConfig | None = None) -> None:
+        # Imported here: the 2D face's compiled drawing code (numba, and LLVM under it: some 80 MB) loads when a
+        # process first makes one, which is when it is about to draw, never because it named the seam.
+        from eca.services.processes.renderer.renderer import Renderer
+
         self.renderer = Renderer(ctx, size=size, config=config)
         self.size = self.renderer.size
 
@@ -68,7 +73,7 @@ def avatar_drawer(ctx: moderngl.Context, size: tuple[int, int], path: str | Path
     return HeadDrawer(ctx, size, path)
 
 
-DrawerFactory = Callable[[moderngl.Context, tuple[int, int]], FaceDrawer]
+DrawerFactory: TypeAlias = "Callable[[moderngl.Context, tuple[int, int]], FaceDrawer]"
 DRAWERS: dict[str, DrawerFactory] = {"flexor": FlexorFaceDrawer, "head": default_head_drawer}
 AVATAR_SUFFIXES = (".glb", ".gltf", ".vrm")
 

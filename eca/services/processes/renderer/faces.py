@@ -7,11 +7,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
-
-import moderngl
+from typing import TYPE_CHECKING, Any
 
 from eca.services.processes.renderer.drawer import DRAWERS, FaceDrawer, make_drawer
+
+if TYPE_CHECKING:  # choosing a face (the supervisor checks `--face`) loads no GL library
+    import moderngl
 
 DEFAULT_FACE = "flexor"
 AVATAR_SUFFIXES = (".glb", ".gltf", ".vrm")

@@ -10,12 +10,12 @@ headless test or a video.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import moderngl
 import numpy as np
 
 from eca.agent.face.flexors import N_FLEXORS
+from eca.services.processes.renderer.common import RenderToggles, perspective
 from eca.services.processes.renderer.config import VIEWS, Framing, RenderConfig, load_render_config
 from eca.services.processes.renderer.context import check_size, create_offscreen_target
 from eca.services.processes.renderer.curves import CURVE_POINTS, TUBE_POINTS, shader_template
@@ -47,30 +47,6 @@ REFERENCE_HEIGHT = 480.0  # outline and overlay widths are given in pixels at th
 _OVERLAY_FLOATS = 5  # x, y, r, g, b
 _FRAME_BLOCK, _CURVES_BLOCK = 0, 1  # uniform-block binding points of the per-frame matrices and curves
 SURFACE, OUTLINE = "surface", "outline"  # the two index sets of a FrameIndices
-
-
-@dataclass
-class RenderToggles:
-    """The paper's front-end switches (its 'Face Properties' panel)."""
-
-    eyebrows: bool = True
-    eye_cover: bool = True  # the lids
-    wireframe: bool = False  # the polygon mesh over the surface
-    surface_3d: bool = False  # smooth 3D shading instead of flat cartoon bands
-    eye_centre: bool = False  # a marker on each pupil centre
-    trajectory: bool = True  # the recent gaze polyline, when render() is given overlay_points
-
-
-def perspective(fov_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
-    f = 1.0 / math.tan(math.radians(fov_deg) / 2.0)
-    return np.array(
-        [
-            [f / aspect, 0, 0, 0],
-            [0, f, 0, 0],
-            [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)],
-            [0, 0, -1, 0],
-        ]
-    )
 
 
 class Renderer:

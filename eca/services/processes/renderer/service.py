@@ -27,6 +27,7 @@ import moderngl
 from eca.agent.face.composed import ComposedFace
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import FaceFrame
+from eca.services.processes.renderer.common import RenderToggles
 from eca.services.processes.renderer.faces import Drawers, agent_faces
 from eca.services.processes.renderer.options import RendererOptions, options_from
 from eca.services.processes.renderer.outputs import (
@@ -39,7 +40,6 @@ from eca.services.processes.renderer.outputs import (
     file_outputs,
     output_name,
 )
-from eca.services.processes.renderer.renderer import RenderToggles
 from eca.services.processes.renderer.stage import Stage
 from eca.services.processes.runtime import Service
 from eca.services.processes.scene.bus_scene import AgentView, BusScenes
@@ -101,11 +101,13 @@ class RendererService(Service):
             self.schedule.on_advance = self._progress.update
 
     def _open_output(self) -> str:
-        from eca.services.processes.renderer.window import WindowError, display_available
+        from eca.services.processes.renderer.display import display_available
 
         opts = self.options
         agents = ", ".join(v.agent for v in self.views)
         if opts.mode == "window" or (opts.mode == "auto" and display_available() and not (opts.video or opts.png_dir)):
+            from eca.services.processes.renderer.window import WindowError  # glfw loads only where a window is tried
+
             try:
                 self._open_window()
                 self.log.info("window mode (display %s): %dx%d at %g fps, agents %s", _display_name(), *opts.size,

@@ -15,8 +15,8 @@ import numpy as np
 from eca.agent.face.composed import ComposedFace
 from eca.agent.face.flexors import FLEXOR_INDEX
 from eca.agent.face.settings import load_flexor_units
+from eca.services.processes.renderer.common import RenderToggles
 from eca.services.processes.renderer.drawer import FaceDrawer
-from eca.services.processes.renderer.renderer import RenderToggles
 from eca.services.processes.scene.bus_scene import AgentView
 
 _TURN = FLEXOR_INDEX["turn"]

@@ -16,7 +16,6 @@ service's new state comes back. Keys that change only how the face is drawn (vie
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -28,6 +27,7 @@ from eca.agent.face.emotions import PAPER_EMOTIONS
 from eca.agent.gaze.params import default_eye_mode
 from eca.agent.vocabulary import EYE_MODES
 from eca.protocol.messages import Message, MoveHead, SetEmotion, SetEyes, SetRole
+from eca.services.processes.renderer.display import display_available
 
 EMOTION_KEYS: tuple[str, ...] = PAPER_EMOTIONS  # keys 1-9, in the paper's order
 EYE_MODE_CYCLE: tuple[str, ...] = EYE_MODES
@@ -137,11 +137,6 @@ def action_for_key(key: str, status: AgentStatus) -> Message | LocalAction | Non
 
 class WindowError(RuntimeError):
     """No window could be opened (no display, or glfw failed)."""
-
-
-def display_available() -> bool:
-    """Whether a window can be tried: an X11 or Wayland display is named in the environment."""
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 _TEXT_VERTEX = """

@@ -88,6 +88,24 @@ class VoiceFeed:
                 self._held -= len(old)
             self.last_block_ns = dac_time_ns
 
+    def sounding(self, t_ns: int, window_ns: int = 20_000_000, floor: int = 64) -> bool:
+        """Whether the voice is heard around master-clock time `t_ns` (a sample louder than `floor` within
+        `window_ns` of it), without letting any block go: a browser-drawn mouth follows it."""
+        rate = self.sample_rate
+        lo_ns, hi_ns = t_ns - window_ns // 2, t_ns + window_ns // 2
+        with self._lock:
+            for first_ns, samples in self._blocks:
+                if first_ns >= hi_ns:
+                    break
+                end_ns = first_ns + len(samples) * 1_000_000_000 // rate
+                if end_ns <= lo_ns:
+                    continue
+                a = max(0, (lo_ns - first_ns) * rate // 1_000_000_000)
+                b = min(len(samples), (hi_ns - first_ns) * rate // 1_000_000_000 + 1)
+                if a < b and int(np.abs(samples[a:b].astype(np.int32)).max()) > floor:
+                    return True
+        return False
+
     def take(self, start_ns: int, count: int) -> np.ndarray:
         """The `count` samples from master-clock time `start_ns` on (int16): what the blocks hold there,
         zeros elsewhere. Blocks wholly before that span are let go."""

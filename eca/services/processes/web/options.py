@@ -16,6 +16,7 @@ from typing import Any
 from eca.protocol.endpoints import is_loopback
 
 MAX_TOKEN_CHARS = 256
+DRAW_MODES = ("auto", "browser", "server")
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,10 @@ class WebOptions:
     silent_timeout_s: float = 10.0  # a connected viewer that sends no receiver report for this long is closed
     vad: VadSettings = field(default_factory=VadSettings)
     face: str | None = None  # every agent's face (None: the config's [faces], else flexor; renderer/faces.py)
+    # who draws a face: "auto" (a page with WebGL draws a 3D face itself from face frames; the server draws the
+    # 2D face, and for a page without WebGL, as video), "browser" (pages draw every face: no GL on the server)
+    # or "server" (always video)
+    draw: str = "auto"
 
     def check(self) -> WebOptions:
         if not 0 <= self.port < 65536:
@@ -83,6 +88,8 @@ class WebOptions:
             raise WebOptionsError(f"web connect_timeout_s must lie in [1, 120], got {self.connect_timeout_s}")
         if not 2 <= self.silent_timeout_s <= 120:
             raise WebOptionsError(f"web silent_timeout_s must lie in [2, 120], got {self.silent_timeout_s}")
+        if self.draw not in DRAW_MODES:
+            raise WebOptionsError(f"web draw must be one of {', '.join(DRAW_MODES)}, got {self.draw!r}")
         self.vad.check()
         return self
 
@@ -144,6 +151,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--web-face", default=None, metavar="FACE",
                         help="the agents' face in the page: flexor, head or a .glb/.gltf/.vrm file "
                              "(default: the config's [faces], else flexor)")
+    parser.add_argument("--web-draw", default=None, choices=DRAW_MODES,
+                        help="who draws the faces: auto (a page with WebGL draws 3D faces itself, default), browser "
+                             "(pages draw every face; the server needs no GL) or server (video)")
 
 
 def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
@@ -158,6 +168,8 @@ def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
         changes["token"] = args.web_token
     if args.web_token_file is not None:
         changes["token"] = read_token_file(Path(args.web_token_file))
+    if args.web_draw is not None:
+        changes["draw"] = args.web_draw
     if args.web_face is not None:
         from eca.services.processes.renderer import check_face  # GL libraries load only here
 

@@ -1,9 +1,12 @@
 """The web front-end's HTTP side (aiohttp): the page, WebRTC offers, and the page's commands.
 
-Routes: `GET /` the page, `GET /static/<file>` its files, `POST /offer` a WebRTC offer answered with
-the viewer's answer, `POST /command` one bus command from the page's developer panel. With a token
-configured, every route wants it (`?token=` on the page, `token` in the JSON bodies): a request without
-the right one gets 403 and nothing else happens. Every request body is bounded and checked field by
+Routes: `GET /` the page, `GET /static/<path>` its files (the page's own and the vendored three.js and
+three-vrm, static/vendor/), `GET /avatars/<slot>/<file>` the avatar file of a face the page draws itself (and,
+for a .gltf, the buffers and images it names; nothing else of its folder), `POST /offer` a WebRTC offer answered
+with the viewer's answer, `POST /command` one bus command from the page's developer panel. With a token
+configured, every route but the page's static files wants it (`?token=` on the page and the avatars, or an
+`X-Eca-Token` header; `token` in the JSON bodies): a request without the right one gets 403 and nothing else
+happens. Every request body is bounded and checked field by
 field; what is wrong comes back as `{"error": "<sentence naming the field>"}` with 400 (413 when too
 large), and nothing is opened.
 """
@@ -16,6 +19,7 @@ import logging
 import math
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote, unquote
 
 import msgpack
 from aiohttp import web
@@ -23,13 +27,17 @@ from aiohttp import web
 from eca.agent.vocabulary import EYE_MODES
 from eca.protocol.codec import ProtocolError, decode, describe, is_agent_id
 from eca.protocol.messages import MESSAGE_TYPES, PROTOCOL_VERSION
+from eca.services.processes.web.face_frames import FaceFrames
 from eca.services.processes.web.options import WebOptions
 from eca.services.processes.web.viewers import Backend, Viewers, ViewRequest
 
 log = logging.getLogger("web")
 
 STATIC = Path(__file__).resolve().parent / "static"
-PAGE_FILES = {"index.html": "text/html", "app.js": "text/javascript", "style.css": "text/css"}
+CONTENT_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css", ".md": "text/plain",
+                 ".txt": "text/plain"}
+MAX_STATIC_FILES = 256
+MAX_GLTF_JSON_BYTES = 16 * 1024 * 1024  # a .gltf whose JSON is larger is served alone (its resources are not)
 MAX_BODY_BYTES = 64 * 1024  # an offer's SDP is a few kB
 MAX_SDP_CHARS = 48 * 1024
 MAX_STREAMS = 16
@@ -39,30 +47,93 @@ class BadRequest(ValueError):
     """What is wrong with a request, as a sentence for the page."""
 
 
-def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tuple[str, ...]) -> web.Application:
+def page_files(root: Path = STATIC) -> dict[str, Path]:
+    """The page's files by their path under static/ (what `GET /static/<path>` serves; nothing else)."""
+    files: dict[str, Path] = {}
+    for path in sorted(root.rglob("*")):
+        if path.is_file() and path.suffix in CONTENT_TYPES and not path.is_symlink():
+            files[path.relative_to(root).as_posix()] = path
+            if len(files) > MAX_STATIC_FILES:
+                raise RuntimeError(f"more than {MAX_STATIC_FILES} files under {root}")
+    return files
+
+
+def avatar_files(path: Path) -> dict[str, Path]:
+    """What `GET /avatars/<slot>/<name>` serves of one avatar: the file itself and, for a .gltf, the buffers and
+    images its JSON names by a relative URI inside its folder (each resolved there: none reaches outside it)."""
+    files = {path.name: path}
+    if path.suffix.lower() != ".gltf" or path.stat().st_size > MAX_GLTF_JSON_BYTES:
+        return files
+    try:
+        document = json.loads(path.read_bytes())
+    except (ValueError, RecursionError):
+        return files  # the loader refused it already, or will
+    folder = path.parent.resolve()
+    for key in ("buffers", "images"):
+        items = document.get(key) if isinstance(document, dict) else None
+        for item in items if isinstance(items, list) else []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if not isinstance(uri, str) or ":" in uri or uri.startswith("/") or len(uri) > 1024:
+                continue  # data: URIs and absolute ones are not files of the folder
+            target = (folder / unquote(uri)).resolve()
+            if target.is_relative_to(folder) and target.is_file():
+                files[uri] = target
+    return files
+
+
+def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tuple[str, ...],
+             face_frames: FaceFrames | None = None) -> web.Application:
     app = web.Application(client_max_size=MAX_BODY_BYTES, middlewares=[_errors_as_json])
+    static_files = page_files()
+    avatars: dict[int, dict[str, Path]] = {}
+
+    def drawable() -> list[str]:
+        if face_frames is None or options.draw == "server":
+            return []
+        return [a for a in agents if face_frames.drawable(a)]
+
+    def avatar_url(agent: str) -> str:
+        assert face_frames is not None
+        slot = face_frames.slots[agent]
+        if slot not in avatars:
+            avatars[slot] = avatar_files(face_frames.files[agent])
+        return f"avatars/{slot}/{quote(face_frames.files[agent].name)}"
 
     async def page(request: web.Request) -> web.StreamResponse:
         _check_token(options, request.query.get("token"))
+        backend.expect_viewer()
         return web.FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
 
     async def static(request: web.Request) -> web.StreamResponse:
-        name = request.match_info["name"]
-        if name not in PAGE_FILES:
+        path = static_files.get(request.match_info["path"])
+        if path is None:
             raise web.HTTPNotFound(text=json.dumps({"error": "no such file"}), content_type="application/json")
-        return web.FileResponse(STATIC / name, headers={"Content-Type": PAGE_FILES[name], "Cache-Control": "no-store"})
+        # the page's own files may change with eca; the vendored libraries only with their version's folder
+        cache = "max-age=86400" if request.match_info["path"].startswith("vendor/") else "no-store"
+        return web.FileResponse(path, headers={"Content-Type": CONTENT_TYPES[path.suffix], "Cache-Control": cache})
+
+    async def avatar(request: web.Request) -> web.StreamResponse:
+        _check_token(options, request.query.get("token") or request.headers.get("X-Eca-Token"))
+        slot_text, name = request.match_info["slot"], request.match_info["name"]
+        files = avatars.get(int(slot_text)) if slot_text.isdigit() and len(slot_text) < 6 else None
+        path = files.get(name) if files is not None else None
+        if path is None:
+            raise web.HTTPNotFound(text=json.dumps({"error": "no such avatar file"}), content_type="application/json")
+        return web.FileResponse(path, headers={"Content-Type": "application/octet-stream",
+                                               "Cache-Control": "no-store"})
 
     async def config(request: web.Request) -> web.Response:
         _check_token(options, request.query.get("token"))
         return web.json_response({"agents": list(agents), "eye_modes": list(EYE_MODES),
                                   "width": options.width, "height": options.height,
                                   "fps": options.fps, "max_width": options.max_width,
-                                  "max_height": options.max_height, "max_fps": options.max_fps})
+                                  "max_height": options.max_height, "max_fps": options.max_fps,
+                                  "draw": options.draw, "drawable": drawable()})
 
     async def offer(request: web.Request) -> web.Response:
         body = await _json_body(request)
         _check_token(options, body.get("token"))
-        sdp, view = parse_offer(body, options, agents)
+        sdp, view = parse_offer(body, options, agents, tuple(drawable()))
         if viewers.full:
             raise web.HTTPServiceUnavailable(text=json.dumps({"error": f"{viewers.max_viewers} viewers are "
                                                               "watching already; try again later"}),
@@ -71,8 +142,11 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
             answer = await viewers.answer(sdp, view)
         except ValueError as exc:
             raise BadRequest(str(exc)) from None
+        faces = {}
+        if face_frames is not None:
+            faces = {a: face_frames.description(a, avatar_url(a)) for a in view.drawn_here}
         return web.json_response({"sdp": answer, "type": "answer", "width": view.width, "height": view.height,
-                                  "fps": view.fps})
+                                  "fps": view.fps, "faces": faces})
 
     async def command(request: web.Request) -> web.Response:
         body = await _json_body(request)
@@ -82,7 +156,8 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
 
     app.router.add_get("/", page)
     app.router.add_get("/config", config)
-    app.router.add_get("/static/{name}", static)
+    app.router.add_get("/static/{path:.+}", static)
+    app.router.add_get("/avatars/{slot}/{name:.+}", avatar)
     app.router.add_post("/offer", offer)
     app.router.add_post("/command", command)
     return app
@@ -127,8 +202,10 @@ async def _json_body(request: web.Request) -> dict[str, Any]:
     return body
 
 
-def parse_offer(body: dict[str, Any], options: WebOptions, agents: tuple[str, ...]) -> tuple[str, ViewRequest]:
-    """The SDP and the request in an offer body, checked field by field against the limits."""
+def parse_offer(body: dict[str, Any], options: WebOptions, agents: tuple[str, ...],
+                drawable: tuple[str, ...] = ()) -> tuple[str, ViewRequest]:
+    """The SDP and the request in an offer body, checked field by field against the limits. `drawable`: the
+    agents a page may draw itself (`draw_here`; its other agents come as video)."""
     sdp, kind = body.get("sdp"), body.get("type")
     if kind != "offer":
         raise BadRequest("'type' must be \"offer\"")
@@ -174,10 +251,36 @@ def parse_offer(body: dict[str, Any], options: WebOptions, agents: tuple[str, ..
     calibration = body.get("calibration", False)
     if not isinstance(calibration, bool):
         raise BadRequest("'calibration' must be true or false")
+    drawn_here = _drawn_here(body.get("draw_here", []), watched, drawable, options.draw, parsed)
     # even sizes: the encoders work on 2x2 chroma blocks
     view = ViewRequest(tuple(watched), width - width % 2, height - height % 2, min(float(fps), options.max_fps),
-                       tuple(parsed), mic, calibration)
+                       tuple(parsed), mic, calibration, drawn_here)
     return sdp, view
+
+
+def _drawn_here(value: Any, watched: list[str], drawable: tuple[str, ...], draw: str,
+                streams: list[tuple[str, str, str]]) -> tuple[str, ...]:
+    """The agents an offer draws itself, checked: each watched and drawable, with a voice section and no video
+    one; under `draw = "browser"` every watched agent."""
+    if not isinstance(value, list) or len(value) > len(watched):
+        raise BadRequest("'draw_here' must be a list of the watched agents the page draws itself")
+    for agent in value:
+        if agent not in watched:
+            raise BadRequest(f"'draw_here': {describe(agent, 40)} is not one of the agents watched")
+        if agent not in drawable:
+            why = ("this server sends every face as video (draw = \"server\")" if draw == "server"
+                   else "its face is the 2D face, which only the server draws")
+            raise BadRequest(f"'draw_here': {agent} cannot be drawn by the page: {why}")
+    if len(set(value)) != len(value):
+        raise BadRequest("'draw_here' lists an agent twice")
+    if draw == "browser" and set(value) != set(watched):
+        raise BadRequest("this server draws no faces (draw = \"browser\"): the page must draw every agent it "
+                         "watches, which needs WebGL")
+    for agent in value:
+        kinds = [kind for _, a, kind in streams if a == agent]
+        if "video" in kinds or "audio" not in kinds:
+            raise BadRequest(f"'streams': {agent}, drawn by the page, takes an audio section and no video one")
+    return tuple(value)
 
 
 def _bounded_int(table: dict[str, Any], key: str, default: int, lo: int, hi: int) -> int:

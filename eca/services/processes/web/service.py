@@ -12,6 +12,7 @@ watches.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import os
@@ -42,6 +43,7 @@ from eca.services.processes.scene.bus_scene import BusScenes
 from eca.services.processes.scene.schedule import FrameSchedule
 from eca.services.processes.web.encoding import EncodedStreams
 from eca.services.processes.web.event_loop import EventLoopThread
+from eca.services.processes.web.face_frames import FaceFrames
 from eca.services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
 from eca.services.processes.web.options import WebOptions, WebOptionsError, add_arguments, options_from
 from eca.services.processes.web.server import make_app
@@ -57,12 +59,14 @@ EARLY_GAP = 0.25
 
 @dataclass(frozen=True)
 class DrawPlan:
-    """What the viewers ask to be drawn: which agents, at what size and rate (the largest asked)."""
+    """What the viewers ask for: which agents drawn here (video) and which drawn by their pages (face frames), at
+    what size and rate (the largest asked)."""
 
     agents: tuple[str, ...]
     width: int
     height: int
     fps: float
+    drawn_by_pages: tuple[str, ...] = ()
 
 
 class WebService(Service):
@@ -86,8 +90,12 @@ class WebService(Service):
                                   strict=True))
         except ValueError as exc:
             raise WebOptionsError(str(exc)) from None
+        self.face_frames = FaceFrames(self.faces, (self.options.width, self.options.height), self.clock)
+        self._check_drawing_mode()
         self.handle(VoiceBlock, self.on_voice)
         self._submitted: queue.SimpleQueue[Message] = queue.SimpleQueue()
+        self._warm_up = threading.Event()
+        self._no_gl: str | None = None  # why drawing cannot be made ready here, once that is known
         self._lock = threading.Lock()
         self._watching: dict[int, ViewRequest] = {}
         self._plan: DrawPlan | None = None
@@ -126,10 +134,36 @@ class WebService(Service):
     def subscriptions(self) -> list[str]:
         return self.scenes.subscriptions() + [f"stream.{a}.voice" for a in self.agent_ids]
 
+    def _check_drawing_mode(self) -> None:
+        if self.options.draw == "browser":
+            server_only = [a for a in self.agent_ids if not self.face_frames.drawable(a)]
+            if server_only:
+                raise WebOptionsError(f"[web] draw = \"browser\" needs a 3D face for every agent; "
+                                      f"{', '.join(server_only)} {'has' if len(server_only) == 1 else 'have'} the 2D "
+                                      "face, which only the server draws: give --web-face head (or a .glb/.vrm "
+                                      "file) or [faces]")
+
+    @property
+    def gl_at_start(self) -> bool:
+        """Whether drawing is made ready before the service reports ready: only when every page gets video (draw
+        = "server"). Otherwise it is made ready when a page is first asked for and may want video (a 2D face, a
+        browser without WebGL), while that page loads: an instance at rest holds no GL context nor the 2D
+        face's compiled code (some 200 MB), and pages that draw the faces themselves never make it load."""
+        return self.options.draw == "server"
+
+    def expect_viewer(self) -> None:
+        """A page was asked for (called on the event loop's thread): get drawing ready, if any page may want
+        video, before its offer comes."""
+        if self.options.draw != "browser":
+            self._warm_up.set()
+
     # --- what the viewers need (called on the event loop's thread) ------------------------------
 
     def voice(self, agent: str) -> VoiceFeed:
         return self.voices[agent]
+
+    def face_slot(self, agent: str) -> int:
+        return self.face_frames.slots[agent]
 
     def watch(self, viewer: int, request: ViewRequest) -> None:
         with self._lock:
@@ -151,12 +185,13 @@ class WebService(Service):
         logging.getLogger("aioice").setLevel(logging.WARNING)  # every ICE check at INFO drowns the service's lines
         self.viewers = Viewers(self, self.options.max_viewers, self.options.vad, self.options.connect_timeout_s,
                                self.options.silent_timeout_s)
-        try:
-            self._prepare_drawing((self.options.width, self.options.height))  # before ready: see _prepare_drawing
-        except HeadlessContextError as exc:
-            raise CannotStart(str(exc)) from None
+        if self.gl_at_start:
+            try:
+                self._prepare_drawing((self.options.width, self.options.height))  # before ready: _prepare_drawing
+            except HeadlessContextError as exc:
+                raise CannotStart(str(exc)) from None
         self._events = EventLoopThread().start()
-        app = make_app(self, self.viewers, self.options, self.agent_ids)
+        app = make_app(self, self.viewers, self.options, self.agent_ids, self.face_frames)
         try:
             self._runner = self._events.call(self._listen(app), timeout_s=20.0)
         except OSError as exc:
@@ -207,6 +242,9 @@ class WebService(Service):
         now = self.clock.now_ns()
         self.beat_if_due(now)
         self._publish_submitted()
+        if self._warm_up.is_set():
+            self._warm_up.clear()
+            self._try_prepare((self.options.width, self.options.height))
         plan = self._current_plan()
         if plan != self._plan:
             self._replan(plan)
@@ -248,9 +286,11 @@ class WebService(Service):
             requests = list(self._watching.values())
         if not requests:
             return None
-        agents = tuple(a for a in self.agent_ids if any(a in r.agents for r in requests))
-        return DrawPlan(agents, max(r.width for r in requests), max(r.height for r in requests),
-                        max(r.fps for r in requests))
+        video = tuple(a for a in self.agent_ids
+                      if self._no_gl is None and any(a in r.agents and a not in r.drawn_here for r in requests))
+        by_pages = tuple(a for a in self.agent_ids if any(a in r.drawn_here for r in requests))
+        return DrawPlan(video, max(r.width for r in requests), max(r.height for r in requests),
+                        max(r.fps for r in requests), by_pages)
 
     def _replan(self, plan: DrawPlan | None) -> None:
         old = self._plan
@@ -262,15 +302,20 @@ class WebService(Service):
                 self.frames.forget(agent)
             self.log.info("no one watching: drawing stopped")
             return
-        self._prepare_drawing((plan.width, plan.height))
+        if plan.agents and not self._try_prepare((plan.width, plan.height)):
+            plan = self._plan = dataclasses.replace(plan, agents=())  # the pages' video is missing; said once
         if old is None or old.fps != plan.fps:
             # frames at k / fps of the master clock, whoever watches: at a whole-number rate every whole
             # second is a frame's time (the calibration markers, web/calibration.py, rely on it)
             self._schedule = FrameSchedule(self.clock, plan.fps, t0_ns=0)
-        assert self._drawers is not None
-        self._stages = {v.agent: Stage(self._drawers(self.faces[v.agent]), [v], fps=plan.fps)
-                        for v in self.scenes.views if v.agent in plan.agents}
-        self.log.info("drawing %s at %dx%d, %g fps", ", ".join(plan.agents), plan.width, plan.height, plan.fps)
+        drawers = self._drawers
+        self._stages = {v.agent: Stage(drawers(self.faces[v.agent]), [v], fps=plan.fps)
+                        for v in self.scenes.views if v.agent in plan.agents and drawers is not None}
+        if plan.agents:
+            self.log.info("drawing %s at %dx%d, %g fps", ", ".join(plan.agents), plan.width, plan.height, plan.fps)
+        if plan.drawn_by_pages:
+            self.log.info("face frames of %s at %g fps for the pages that draw them", ", ".join(plan.drawn_by_pages),
+                          plan.fps)
 
     def _prepare_drawing(self, size: tuple[int, int]) -> None:
         """A GL context, renderer and yuv target of `size`, kept while the size stays (also while no one
@@ -286,6 +331,18 @@ class WebService(Service):
             warm_up = Stage(self._drawers(self.faces[view.agent]), [view], fps=self.options.fps)
             warm_up.draw(warm_up.compose(self.clock.now_ns()), self._yuv.fbo)
         self._yuv.read()
+
+    def _try_prepare(self, size: tuple[int, int]) -> bool:
+        """Drawing made ready at `size`; False (said once) when this machine cannot draw headless."""
+        if self._no_gl is not None:
+            return False
+        try:
+            self._prepare_drawing(size)
+        except HeadlessContextError as exc:
+            self._no_gl = str(exc)
+            self.log.error("no video for pages without WebGL: %s", exc)
+            return False
+        return True
 
     def _release_drawing(self) -> None:
         self._stages = {}
@@ -307,7 +364,13 @@ class WebService(Service):
         sent as the time it shows (the sender's reports), as it does for the voice, sent at its output
         time. It is composed for the middle of its time on screen (half a period later): a change shows
         at the nearest frame, not the next one."""
-        assert self._yuv is not None and self._plan is not None and self._schedule is not None
+        assert self._plan is not None and self._schedule is not None
+        if self._plan.drawn_by_pages:
+            self._send_face_frames(frame_ns, early)
+        if not self._stages:
+            self._last_frame_ns = frame_ns
+            return
+        assert self._yuv is not None
         width, height = self._plan.width, self._plan.height
         began = self.clock.now_ns()
         composed_ns = frame_ns + self._schedule.period_ns // 2
@@ -316,6 +379,19 @@ class WebService(Service):
             self.frames.put(agent, Picture(frame_ns, self._yuv.read(), width, height, early))
         self._draw_times.append(self.clock.now_ns() - began)
         self._last_frame_ns = frame_ns
+
+    def _send_face_frames(self, frame_ns: int, early: bool) -> None:
+        """The faces pages draw, at `frame_ns` (their frames are composed for their own time: a page shows the
+        voice's part of one when that time's sound plays, the rest as it comes)."""
+        assert self._plan is not None
+        views = [self.scenes.by_agent[a] for a in self._plan.drawn_by_pages]
+        frames = self.face_frames.make(views, frame_ns, self._sounding)
+        if frames and self._events is not None and self.viewers is not None:
+            self._events.loop.call_soon_threadsafe(self.viewers.send_face_frames, frames, frame_ns, early)
+
+    def _sounding(self, agent: str, t_ns: int) -> bool:
+        feed = self.voices.get(agent)
+        return feed is not None and feed.sounding(t_ns)
 
     def _typical_draw_ns(self) -> int:
         return statistics.median_high(self._draw_times) if self._draw_times else 0

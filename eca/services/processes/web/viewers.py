@@ -18,12 +18,13 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Protocol
 
-from aiortc import MediaStreamTrack, RTCPeerConnection, RTCRtpSender, RTCSessionDescription
+from aiortc import MediaStreamTrack, RTCDataChannel, RTCPeerConnection, RTCRtpSender, RTCSessionDescription
 from aiortc.mediastreams import MediaStreamError
 from aiortc.rtcpeerconnection import or_direction
 
 from eca.agent.clock import Clock
 from eca.protocol.messages import Message, UserAudio, UserSpeech
+from eca.services.processes.web.browser_face import ntp_ms, pack_voice_clock
 from eca.services.processes.web.calibration import click_track, flash_track
 from eca.services.processes.web.encoding import EncodedStreams
 from eca.services.processes.web.feeds import FrameFeed, VoiceFeed
@@ -32,6 +33,12 @@ from eca.services.processes.web.options import VadSettings
 from eca.services.processes.web.tracks import FaceTrack, VoiceTrack
 
 log = logging.getLogger("web")
+
+FACE_CHANNEL = "eca-face"  # the data channel a page opens for the frames of the faces it draws
+MAX_REFUSED_CHANNELS = 16  # a page that opens more channels than this, besides its face channel, is closed
+MAX_PAGE_MESSAGES = 64  # messages a page sends on its face channel (it has nothing to say) before it is closed
+MAX_BUFFERED_BYTES = 64 * 1024  # a face channel holding more unsent than this skips frames until it drains
+VOICE_CLOCK_EVERY_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -45,6 +52,7 @@ class ViewRequest:
     streams: tuple[tuple[str, str, str], ...]  # (mid, agent, "video" | "audio") for each media section it receives
     mic_mid: str | None  # the section its microphone comes in, if it sends one
     calibration: bool = False  # the agents with flashes and clicks on them (web/calibration.py)
+    drawn_here: tuple[str, ...] = ()  # the agents the page draws itself (face frames on its data channel)
 
 
 class Backend(Protocol):
@@ -55,6 +63,10 @@ class Backend(Protocol):
     frames: FrameFeed
 
     def voice(self, agent: str) -> VoiceFeed: ...
+
+    def face_slot(self, agent: str) -> int: ...
+
+    def expect_viewer(self) -> None: ...
 
     def watch(self, viewer: int, request: ViewRequest) -> None: ...
 
@@ -72,6 +84,14 @@ class Viewer:
     mic_task: asyncio.Task[None] | None = None
     watchdog: asyncio.Future[None] | None = None
     closed: bool = False
+    channel: RTCDataChannel | None = None  # its face channel, once the page opened it
+    refused_channels: int = 0
+    page_messages: int = 0
+    frames_sent: int = 0
+    frames_skipped: int = 0  # face frames not sent while its channel was full
+    voice_senders: dict[str, RTCRtpSender] = field(default_factory=dict)  # of the agents the page draws
+    clock_task: asyncio.Task[None] | None = None
+    next_frame_ns: int = -(1 << 62)  # when the page's next face frame is due, at the rate it asked
 
 
 class Viewers:
@@ -105,6 +125,7 @@ class Viewers:
             raise ValueError(f"the offer could not be answered: {_plain(exc)}") from None
         self.backend.watch(number, request)
         viewer.pc.on("connectionstatechange", lambda: self._on_state(viewer))
+        viewer.pc.on("datachannel", lambda channel: self._on_channel(viewer, channel))
         asyncio.get_running_loop().call_later(self.connect_timeout_s, self._check_connected, viewer)
         log.info("viewer %d: %s at %dx%d, %g fps%s%s", number, ", ".join(request.agents), request.width,
                  request.height, request.fps, ", with a microphone" if request.mic_mid else "",
@@ -127,6 +148,8 @@ class Viewers:
                 voice = backend.voice(agent)
                 track = click_track(backend.clock, voice) if request.calibration else VoiceTrack(voice, backend.clock)
             transceiver.sender.replaceTrack(track)
+            if kind == "audio" and agent in request.drawn_here:
+                viewer.voice_senders[agent] = transceiver.sender
             transceiver.direction = or_direction(transceiver.direction, "sendonly")
             # one media stream per agent (its msid): the browser lines up the voice with the face it
             # belongs to, not with another agent's
@@ -171,6 +194,76 @@ class Viewers:
             if mic.speaking:
                 on_turn(False)  # a viewer who leaves mid-sentence has stopped speaking
 
+    def _on_channel(self, viewer: Viewer, channel: RTCDataChannel) -> None:
+        """A data channel the page opened: its face channel is kept (when it draws a face), any other closed;
+        a page that keeps opening them is closed."""
+        if channel.label == FACE_CHANNEL and viewer.channel is None and viewer.request.drawn_here:
+            viewer.channel = channel
+            channel.on("message", lambda message: self._on_page_message(viewer, message))
+            viewer.clock_task = asyncio.ensure_future(self._send_voice_clocks(viewer, channel))
+            return
+        channel.close()
+        viewer.refused_channels += 1
+        if viewer.refused_channels == 1:
+            log.info("viewer %d: refused a data channel %r (only one %r channel, for a face the page draws)",
+                     viewer.number, str(channel.label)[:40], FACE_CHANNEL)
+        if viewer.refused_channels > MAX_REFUSED_CHANNELS:
+            log.info("viewer %d: opened %d data channels; closing it", viewer.number, viewer.refused_channels)
+            asyncio.ensure_future(self.close(viewer))
+
+    async def _send_voice_clocks(self, viewer: Viewer, channel: RTCDataChannel) -> None:
+        """What each voice sender's RTCP sender reports say (an RTP timestamp and when it left), on the face
+        channel a few times a second: a page cannot read the reports its browser receives, and lines the frames
+        up with the voice it plays by them (browser_face.py)."""
+        slots = {agent: self.backend.face_slot(agent) for agent in viewer.voice_senders}
+        sent: dict[str, int] = {}
+        while not viewer.closed:
+            if channel.readyState == "open":
+                for agent, sender in viewer.voice_senders.items():
+                    rtp, ntp = _last_sent(sender)
+                    if ntp and ntp != sent.get(agent):
+                        channel.send(pack_voice_clock(slots[agent], rtp, ntp_ms(ntp)))
+                        sent[agent] = ntp
+            await asyncio.sleep(VOICE_CLOCK_EVERY_S)  # a periodic report, not synchronisation
+
+    def _on_page_message(self, viewer: Viewer, message: object) -> None:
+        """The face channel carries frames to the page only: what a page sends on it is dropped (counted), and a
+        page that keeps sending is closed."""
+        viewer.page_messages += 1
+        if viewer.page_messages == 1:
+            size = len(message) if isinstance(message, str | bytes) else 0
+            log.info("viewer %d: dropped a message of %d bytes on its face channel (it takes none)", viewer.number,
+                     size)
+        if viewer.page_messages > MAX_PAGE_MESSAGES and not viewer.closed:
+            log.info("viewer %d: sent %d messages on its face channel; closing it", viewer.number,
+                     viewer.page_messages)
+            asyncio.ensure_future(self.close(viewer))
+
+    def send_face_frames(self, frames: dict[str, bytes], frame_ns: int, early: bool = False) -> None:
+        """One frame slot's face frames to every page that draws those agents (on the event loop's thread), at
+        the rate each asked (the slots come at the fastest asked; a frame drawn early for a commanded change
+        goes to all). A channel that has not drained (a slow page, a congested link) skips frames instead of
+        queueing them: each frame is whole in itself."""
+        for viewer in list(self.open.values()):
+            channel = viewer.channel
+            if channel is None or channel.readyState != "open":
+                continue
+            if not early:
+                if frame_ns < viewer.next_frame_ns:
+                    continue
+                period_ns = int(1e9 / viewer.request.fps)
+                # its own grid: a frame per period on average, whatever the slots' rate
+                viewer.next_frame_ns = max(viewer.next_frame_ns + period_ns, frame_ns + period_ns // 2)
+            for agent in viewer.request.drawn_here:
+                data = frames.get(agent)
+                if data is None:
+                    continue
+                if channel.bufferedAmount > MAX_BUFFERED_BYTES:
+                    viewer.frames_skipped += 1
+                    continue
+                channel.send(data)
+                viewer.frames_sent += 1
+
     def _on_state(self, viewer: Viewer) -> None:
         state = viewer.pc.connectionState
         if state in ("failed", "closed"):
@@ -213,7 +306,9 @@ class Viewers:
         self.backend.unwatch(viewer.number)
         for track in viewer.tracks:
             track.stop()
-        for task in (viewer.mic_task, viewer.watchdog):
+        if viewer.channel is not None:
+            viewer.channel.close()
+        for task in (viewer.mic_task, viewer.watchdog, viewer.clock_task):
             if task is not None and task is not asyncio.current_task():
                 task.cancel()
         await viewer.pc.close()
@@ -243,6 +338,14 @@ def _forward_keyframe_requests(sender: RTCRtpSender, track: FaceTrack) -> None:
         track.stream.request_keyframe()
 
     sender._send_keyframe = send_keyframe  # type: ignore[method-assign]
+
+
+def _last_sent(sender: RTCRtpSender) -> tuple[int, int]:
+    """(RTP timestamp, NTP time) of the last packet `sender` sent, what its next RTCP sender report carries
+    (aiortc keeps them private: read by their mangled names; (0, 0) if a version renames them)."""
+    rtp = getattr(sender, "_RTCRtpSender__rtp_timestamp", 0)
+    ntp = getattr(sender, "_RTCRtpSender__ntp_timestamp", 0)
+    return (rtp, ntp) if isinstance(rtp, int) and isinstance(ntp, int) else (0, 0)
 
 
 def _plain(exc: BaseException) -> str:

@@ -56,7 +56,7 @@ def renderer_args(args: argparse.Namespace) -> list[str]:
 def web_args(args: argparse.Namespace) -> list[str]:
     """The web service's command-line arguments among `eca up`'s."""
     argv = []
-    for name in ("web_host", "web_port", "web_token", "web_token_file", "web_face"):
+    for name in ("web_host", "web_port", "web_token", "web_token_file", "web_face", "web_draw"):
         value = getattr(args, name)
         if value is not None:
             argv += [f"--{name.replace('_', '-')}", str(value)]
@@ -96,13 +96,13 @@ def run(args: argparse.Namespace) -> int:
             web_options_from(dict(config.raw.get("web", {})), parser.parse_args(site_argv))  # bad ones fail here
             if "web" not in services:
                 services.append("web")
-            from eca.services.processes.renderer.window import display_available  # glfw loads only here
+            from eca.services.processes.renderer.display import display_available  # no GL library: the env
 
             if not face_argv and "renderer" in services and not display_available():
                 services.remove("renderer")  # headless, the page is the face: no second drawing loop
         rig_argv = rig_args(args, config, services)
         if args.face is not None or config.raw.get("faces"):
-            from eca.services.processes.renderer.faces import agent_faces  # GL libraries load only here
+            from eca.services.processes.renderer.faces import agent_faces  # no GL or drawing code: names only
 
             agent_faces(config.raw, config.agents, args.face, f"{config.config_path} [faces]")  # bad ones fail here
         if args.face is not None:
@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         if face_argv:
             if "renderer" not in services:
                 raise ValueError(f"renderer options ({' '.join(face_argv)}) given, but the renderer is not started")
-            from eca.services.processes.renderer.options import options_from  # GL and video libraries load only here
+            from eca.services.processes.renderer.options import options_from  # no GL, video or drawing code
 
             options_from(config, face_argv)  # bad options fail here, before anything starts
     except (BusConfigError, ValueError) as exc:  # a WebOptionsError or RigOptionsError too

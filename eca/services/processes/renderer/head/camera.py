@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from eca.services.processes.avatar.model import Avatar
+from eca.services.processes.renderer.common import perspective
 from eca.services.processes.renderer.config import VIEWS
 from eca.services.processes.renderer.head.skeleton import Posed
-from eca.services.processes.renderer.renderer import perspective
 
 FOV_DEG = 22.0
 FULL_NECK = 0.15  # of the head's height, of neck shown under the chin
@@ -169,3 +169,9 @@ class HeadCamera:
         view_m.flags.writeable = False
         proj.flags.writeable = False
         return view_m, proj
+
+
+def avatar_framing(avatar: Avatar, aspect: float, view: str = "full") -> tuple[np.ndarray, np.ndarray]:
+    """(view, projection) matrices of `view` for an avatar at rest, as the head drawer frames it: what a page that
+    draws the same avatar itself (web/browser_face.py) puts its camera at."""
+    return HeadCamera(measure(avatar, Posed(avatar.skeleton))).matrices(view, aspect)

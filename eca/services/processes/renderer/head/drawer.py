@@ -16,7 +16,6 @@ on (4x) where GL runs on a GPU and off on software GL; stills may ask for it.
 
 from __future__ import annotations
 
-from importlib import resources
 from pathlib import Path
 
 import moderngl
@@ -25,8 +24,9 @@ import numpy as np
 from eca.agent.face.composed import ComposedFace
 from eca.agent.rig import Retargeter, RigFrame
 from eca.services.processes.avatar.drive import AvatarDriver, AvatarPose
-from eca.services.processes.avatar.loader import load_avatar
+from eca.services.processes.avatar.loader import DEFAULT_HEAD, load_avatar
 from eca.services.processes.avatar.model import AlphaMode, Avatar
+from eca.services.processes.renderer.common import RenderToggles
 from eca.services.processes.renderer.config import RenderConfig, load_render_config
 from eca.services.processes.renderer.context import check_size, create_offscreen_target
 from eca.services.processes.renderer.head import order, overlay
@@ -42,9 +42,7 @@ from eca.services.processes.renderer.head.shaders import (
     WIRE_VERTEX,
 )
 from eca.services.processes.renderer.head.skeleton import Posed
-from eca.services.processes.renderer.renderer import RenderToggles
 
-DEFAULT_HEAD = Path(str(resources.files("eca") / "assets" / "default_head.glb"))  # package data: eca/assets/
 TEX_UNIT, DELTA_UNIT, PICTURE_UNIT = 0, 1, 2
 MAX_TRAIL = 600  # points of a gaze trail drawn at most (the most recent)
 _IDENTITY = np.eye(4, dtype=np.float32).tobytes()

@@ -1,8 +1,13 @@
 // The eca page: the agents' faces and voices over WebRTC, the user's microphone back, a status line and
-// a developer panel. Standard WebRTC and media APIs only; no build step.
+// a developer panel. Standard WebRTC and media APIs, and three.js with three-vrm (static/vendor/) for the faces
+// the page draws itself (face3d.js); no build step.
+//
+// Who draws a face: with WebGL, the page draws each agent whose face is a 3D model (the server sends its voice
+// and the face frames on a data channel); the server draws the others (the 2D face), and every face for a page
+// without WebGL or with draw=server, as video.
 //
 // URL parameters: token (when the server wants one), agents=ada,bob (default: the instance's first),
-// width, height, fps (within the server's limits), mic=0 (start without the microphone).
+// width, height, fps (within the server's limits), mic=0 (start without the microphone), draw=server (video).
 "use strict";
 
 const params = new URLSearchParams(location.search);
@@ -11,7 +16,8 @@ const withToken = (path) => (token ? `${path}?token=${encodeURIComponent(token)}
 const $ = (id) => document.getElementById(id);
 
 const eca = {  // what the page knows, also for tests driving it
-  pc: null, state: "not connected", faces: {}, agents: [], answer: null, error: null,
+  pc: null, state: "not connected", faces: {}, agents: [], answer: null, error: null, drawn: {}, channel: null,
+  voices: {},
   stats: { rttMs: null, fps: null, avOffsetMs: null, width: null, height: null },
 };
 window.eca = eca;
@@ -30,20 +36,48 @@ function showStats() {
             + (s.avOffsetMs == null ? "" : s.avOffsetMs >= 0 ? " (audio late)" : " (audio early)"));
 }
 
-function faceFor(agent) {
+// the element that shows an agent: a <video> the server draws, or a <canvas> this page draws (with a hidden
+// <audio> for its voice)
+function faceFor(agent, drawnHere = false) {
   if (!eca.faces[agent]) {
     const figure = document.createElement("figure");
-    const video = document.createElement("video");
-    video.autoplay = true;
-    video.playsInline = true;
-    video.dataset.agent = agent;
+    const media = document.createElement(drawnHere ? "audio" : "video");
+    media.autoplay = true;
+    media.dataset.agent = agent;
+    if (!drawnHere) media.playsInline = true;
     const caption = document.createElement("figcaption");
     caption.textContent = agent;
-    figure.append(video, caption);
+    if (drawnHere) {
+      const canvas = document.createElement("canvas");
+      canvas.dataset.agent = agent;
+      figure.append(canvas, media, caption);
+    } else {
+      figure.append(media, caption);
+    }
     $("faces").append(figure);
-    eca.faces[agent] = video;
+    eca.faces[agent] = media;
   }
   return eca.faces[agent];
+}
+
+let face3d = null;  // the module, loaded when a face is drawn here
+async function drawingModule() {
+  if (!face3d) face3d = await import("./face3d.js");
+  return face3d;
+}
+
+function animate() {
+  for (const face of Object.values(eca.drawn)) face.present();
+  if (Object.keys(eca.drawn).length) requestAnimationFrame(animate);
+}
+
+function onFaceFrame(event) {
+  const data = event.data;
+  if (!(data instanceof ArrayBuffer) || data.byteLength < 2) return;
+  const slot = new DataView(data).getUint16(0, true);
+  const face = Object.values(eca.drawn).find((f) => f.d.slot === slot);
+  if (face) face.push(data);
+  else eca.unplaced = (eca.unplaced || 0) + 1;  // before its face has loaded, or not a face of this page
 }
 
 async function gatheringDone(pc) {
@@ -64,9 +98,23 @@ async function connect() {
     height: Number(params.get("height") || config.height),
     fps: Number(params.get("fps") || config.fps),
   };
+  let drawHere = [];
+  if (params.get("draw") !== "server") {
+    const module = config.drawable.some((a) => agents.includes(a)) ? await drawingModule() : null;
+    if (module && module.webglAvailable()) drawHere = agents.filter((a) => config.drawable.includes(a));
+  }
+  if (config.draw === "browser" && drawHere.length !== agents.length) {
+    throw new Error("this server sends no video (draw = browser) and this browser has no WebGL");
+  }
   const pc = new RTCPeerConnection();
   eca.pc = pc;
   eca.agents = agents;
+  if (drawHere.length) {
+    // the face frames: each is whole in itself, so a late one is better skipped than waited for
+    eca.channel = pc.createDataChannel("eca-face", { ordered: false, maxRetransmits: 0 });
+    eca.channel.binaryType = "arraybuffer";
+    eca.channel.onmessage = onFaceFrame;
+  }
   let mic = null;  // the microphone's section first: the server reads it best there
   if ($("mic").checked) {
     const stream = await navigator.mediaDevices.getUserMedia({ audio: true });
@@ -74,9 +122,10 @@ async function connect() {
   }
   const sections = [];
   for (const agent of agents) {
-    sections.push({ agent, kind: "video", t: pc.addTransceiver("video", { direction: "recvonly" }) });
+    const here = drawHere.includes(agent);
+    if (!here) sections.push({ agent, kind: "video", t: pc.addTransceiver("video", { direction: "recvonly" }) });
     sections.push({ agent, kind: "audio", t: pc.addTransceiver("audio", { direction: "recvonly" }) });
-    faceFor(agent);
+    faceFor(agent, here);
   }
   pc.ontrack = (event) => {
     const section = sections.find((s) => s.t === event.transceiver);
@@ -94,7 +143,7 @@ async function connect() {
   const body = {
     type: "offer", sdp: pc.localDescription.sdp, token, agents, video,
     streams: sections.map((s) => ({ mid: s.t.mid, agent: s.agent, kind: s.kind })),
-    mic_mid: mic ? mic.mid : null,
+    mic_mid: mic ? mic.mid : null, draw_here: drawHere,
   };
   const response = await fetch("/offer", { method: "POST", headers: { "Content-Type": "application/json" },
                                            body: JSON.stringify(body) });
@@ -102,11 +151,23 @@ async function connect() {
   if (!response.ok) throw new Error(answer.error || `the server answered ${response.status}`);
   eca.answer = answer;
   await pc.setRemoteDescription({ type: "answer", sdp: answer.sdp });
+  for (const [agent, description] of Object.entries(answer.faces || {})) {
+    const voice = sections.find((s) => s.agent === agent && s.kind === "audio");
+    const canvas = eca.faces[agent].parentElement.querySelector("canvas");
+    const url = token ? `${description.url}?token=${encodeURIComponent(token)}` : description.url;
+    const face = new face3d.BrowserFace(canvas, { ...description, url }, { token, receiver: voice.t.receiver });
+    await face.load();
+    eca.drawn[agent] = face;
+  }
+  if (Object.keys(eca.drawn).length) requestAnimationFrame(animate);
 }
 
 async function disconnect() {
   if (eca.pc) eca.pc.close();
   eca.pc = null;
+  eca.channel = null;
+  for (const face of Object.values(eca.drawn)) face.dispose();
+  eca.drawn = {};
   eca.state = "not connected";
   for (const video of Object.values(eca.faces)) {
     if (video.srcObject) video.srcObject.getTracks().forEach((t) => t.stop());

@@ -1,0 +1,184 @@
+"""The face drawn in the browser: what a page needs to draw an agent's avatar itself (three.js and three-vrm,
+static/face3d.js), and each frame of it as a few bytes on an RTCDataChannel.
+
+The server keeps doing what it does for its own head drawer (avatar/drive.py: a rig frame to the avatar's morph
+weights and joint turns, VRM expressions and overrides included), so a face looks the same drawn here or there, and
+the page only puts numbers in place: no retargeting, no expression logic in JavaScript.
+
+The description (JSON, once, in the answer to the page's offer) names the avatar's URL (served from the file the
+operator configured, never a path the page chose), its format, each primitive the frames drive (its glTF node and
+index in the mesh, its number of morph targets, and which of them carry the voice), the joints they turn (glTF
+nodes) and the camera (the head drawer's "full" framing: view and projection matrices).
+
+Messages (binary, little-endian) start with the agent's slot (the description's) and their kind. A frame, one
+per frame slot of the master clock:
+
+    u16 slot | u8 kind (1: a frame) | u8 flags (1: the voice sounds at its time) |
+    u32 seq | f64 time (the frame's time on the sender's NTP clock, milliseconds: the clock of the voice's RTCP
+    sender reports, so the page compares it with what the audio receiver says it plays) |
+    u8 per morph target of each primitive, in the description's order (0..255 for weights 0..1) |
+    4 x i16 per joint: its local rotation as a unit quaternion (x, y, z, w) x 32767
+
+so the default head's frame is 16 + 7 x 52 + 4 x 8 = 412 bytes, 12.4 kB/s at 30 frames a second (its 7 face
+primitives share one mesh's 52 targets, but the driver weighs each primitive's on its own).
+
+And the voice's clock, a few times a second for each page (what an RTCP sender report says, for a page to read
+with the RTP timestamps its audio receiver reports, since a browser does not give a page its sender reports):
+
+    u16 slot | u8 kind (2: the voice's clock) | u8 0 | u32 the RTP timestamp of the last voice packet sent |
+    f64 when it was sent, on the sender's NTP clock (milliseconds)
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from eca.agent.rig.frame import RigFrame
+from eca.agent.rig.names import ARKIT_NAMES, N_ARKIT, N_VISEMES, VRM_VOWELS
+from eca.services.processes.avatar.drive import AvatarDriver
+from eca.services.processes.avatar.model import Avatar
+
+FRAME, VOICE_CLOCK = 1, 2  # message kinds
+HEADER = struct.Struct("<HBBId")
+VOICED = 1  # flags: the agent's voice sounds at the frame's time
+NTP_UNIX_OFFSET_MS = 2_208_988_800_000.0  # NTP counts from 1900, Unix time from 1970
+# ARKit shapes that speech moves: what the page shows in step with the voice as it plays (the rest as it arrives)
+_SPEECH_PREFIXES = ("Jaw", "Mouth", "Tongue")
+_TURN = np.diag([-1.0, 1.0, -1.0])  # a VRM 0.x file's frame from the Avatar's (avatar/meshes.py TURN)
+
+
+def _quaternion(m: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix (its scale taken out)."""
+    r = m / np.linalg.norm(m, axis=0)
+    trace = float(r[0, 0] + r[1, 1] + r[2, 2])
+    if trace > 0.0:
+        s = 2.0 * math.sqrt(trace + 1.0)
+        q = ((r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s)
+    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        q = (0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s)
+    elif r[1, 1] > r[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        q = ((r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        q = ((r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s)
+    x, y, z, w = (float(v) for v in q)
+    if w < 0.0:  # one sign for one rotation: the page may blend neighbours
+        x, y, z, w = -x, -y, -z, -w
+    return x, y, z, w
+
+
+@dataclass(frozen=True)
+class FrameLayout:
+    """Sizes of one agent's frames."""
+
+    n_weights: int
+    n_joints: int
+
+    @property
+    def size(self) -> int:
+        return HEADER.size + self.n_weights + 8 * self.n_joints
+
+
+class BrowserFace:
+    """One avatar as the page draws it: `description(slot, url)` once, `pack(frame, ...)` every frame."""
+
+    def __init__(self, avatar: Avatar, size: tuple[int, int]) -> None:
+        for prim in avatar.primitives:
+            if prim.source[0] < 0:
+                raise ValueError(f"{avatar.source}: a primitive not from the file cannot be found by a page")
+        self.avatar = avatar
+        self.driver = AvatarDriver(avatar)
+        self.size = size
+        d = self.driver
+        self.joints = tuple(j for j in (d.neck, d.head, d.jaw, *d.eyes) if j >= 0)
+        self._rest = np.asarray(avatar.skeleton.rest, dtype=np.float64)
+        self._vrm0 = avatar.format == "vrm0"
+        self.layout = FrameLayout(d.n_targets, len(self.joints))
+        self.voiced = self._voiced_targets()
+        self._buffer = bytearray(self.layout.size)
+
+    def _voiced_targets(self) -> np.ndarray:
+        """Which targets (flat, the driver's order) the voice moves: reached from an ARKit jaw, mouth or tongue
+        shape, a viseme or a VRM vowel."""
+        d = self.driver
+        speech_sources = {i for i, name in enumerate(ARKIT_NAMES) if name.startswith(_SPEECH_PREFIXES)}
+        speech_sources |= set(range(N_ARKIT, N_ARKIT + N_VISEMES))
+        names = list(self.avatar.expressions)
+        speech_sources |= {N_ARKIT + N_VISEMES + k for k, name in enumerate(names) if name in VRM_VOWELS}
+        rows, cols = d.source_table()
+        voiced = np.zeros(d.n_targets, dtype=bool)
+        voiced[rows[np.isin(cols, sorted(speech_sources))]] = True
+        return voiced
+
+    def description(self, slot: int, url: str) -> dict[str, Any]:
+        """What the page needs to draw this avatar (see the module docstring)."""
+        from eca.services.processes.renderer import avatar_framing  # numpy only: the head's framing, no GL
+
+        avatar = self.avatar
+        width, height = self.size
+        view_m, proj = avatar_framing(avatar, width / height)
+        primitives = []
+        for p, prim in enumerate(avatar.primitives):
+            a, b = self.driver.target_slice(p)
+            primitives.append({"node": prim.source[0], "primitive": prim.source[1], "targets": b - a,
+                               "voiced": [int(v) for v in self.voiced[a:b]]})
+        nodes = avatar.skeleton.nodes
+        return {
+            "slot": slot, "url": url, "format": avatar.format, "width": width, "height": height,
+            "primitives": primitives,
+            "joints": [{"node": nodes[j], "voiced": int(j == self.driver.jaw)} for j in self.joints],
+            # column-major, as three.js' Matrix4.fromArray takes them
+            "view": [float(v) for v in np.asarray(view_m).T.ravel()],
+            "projection": [float(v) for v in np.asarray(proj).T.ravel()],
+            "frame_bytes": self.layout.size,
+        }
+
+    def pack(self, frame: RigFrame, slot: int, seq: int, time_ms: float, voiced: bool) -> bytes:
+        """One frame for the page (see the module docstring)."""
+        pose = self.driver.drive(frame)
+        out = self._buffer
+        HEADER.pack_into(out, 0, slot, FRAME, VOICED if voiced else 0, seq & 0xFFFFFFFF, time_ms)
+        at = HEADER.size
+        n = self.layout.n_weights
+        out[at:at + n] = np.rint(pose.flat * 255.0).astype(np.uint8).tobytes()
+        at += n
+        for joint in self.joints:
+            local = pose.local.get(joint, self._rest[joint])[:3, :3]
+            if self._vrm0:
+                local = _TURN @ local @ _TURN  # the file's own frame: the page turns the whole model instead
+            q = _quaternion(np.asarray(local, dtype=np.float64))
+            struct.pack_into("<4h", out, at, *(round(c * 32767.0) for c in q))
+            at += 8
+        return bytes(out)
+
+
+def pack_voice_clock(slot: int, rtp_timestamp: int, ntp_ms: float) -> bytes:
+    """The voice's clock message (see the module docstring)."""
+    return HEADER.pack(slot, VOICE_CLOCK, 0, rtp_timestamp & 0xFFFFFFFF, ntp_ms)
+
+
+def ntp_ms(ntp: int) -> float:
+    """A 64-bit NTP timestamp (seconds since 1900 in the high 32 bits, the fraction in the low) in milliseconds."""
+    return (ntp >> 32) * 1000.0 + (ntp & 0xFFFFFFFF) * 1000.0 / 2**32
+
+
+def unpack(data: bytes, layout: FrameLayout) -> tuple[int, int, int, float, np.ndarray, np.ndarray]:
+    """(slot, flags, seq, time_ms, weights 0..1, quaternions (J, 4)) of a packed frame: the page's reading, for
+    tests and tools. ValueError for bytes that are not one."""
+    if len(data) != layout.size:
+        raise ValueError(f"a frame of this face has {layout.size} bytes, got {len(data)}")
+    slot, kind, flags, seq, time_ms = HEADER.unpack_from(data, 0)
+    if kind != FRAME:
+        raise ValueError(f"message kind {kind}, not a frame ({FRAME})")
+    at = HEADER.size
+    weights = np.frombuffer(data, dtype=np.uint8, count=layout.n_weights, offset=at).astype(np.float64) / 255.0
+    at += layout.n_weights
+    quats = np.frombuffer(data, dtype="<i2", count=4 * layout.n_joints, offset=at).astype(np.float64) / 32767.0
+    return slot, flags, seq, time_ms, weights, quats.reshape(layout.n_joints, 4)

@@ -1,0 +1,212 @@
+// A face the page draws itself (three.js, and three-vrm for VRM files): the avatar file the server names, posed
+// by the face frames that come on the "eca-face" data channel (the server's web/browser_face.py says their
+// layout), and shown in step with the agent's voice as this browser plays it.
+//
+// Sync: each frame carries its time on the sender's NTP clock, the clock of the voice's RTCP sender reports. The
+// server repeats those reports on the data channel (an RTP timestamp of the voice and when it left); the audio
+// receiver's synchronization source says which RTP timestamp this browser last handed to its speakers, and when.
+// Together: "what the listener hears now" at every animation frame, through jitter, drift and buffer changes.
+// What the voice moves (mouth, jaw) is taken from the frame of that instant; everything else (brows, eyes, head,
+// an emotion, a barge-in) from the newest frame, as soon as it arrives.
+import * as THREE from "three";
+import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+import { VRMLoaderPlugin, VRMUtils } from "@pixiv/three-vrm";
+
+const FRAME = 1, VOICE_CLOCK = 2;  // message kinds
+const HEADER_BYTES = 16;
+const VOICED = 1;
+const OPUS_RATE = 48000;  // RTP clock of the voice (Opus)
+const KEEP_MS = 3000;  // frames kept for the voice to catch up with
+
+export function webglAvailable() {
+  try {
+    const canvas = document.createElement("canvas");
+    return !!(canvas.getContext("webgl2") || canvas.getContext("webgl"));
+  } catch {
+    return false;
+  }
+}
+
+// What the listener hears now, on the sender's clock (ms since 1900), or null until the server's first report.
+// The server reports what its RTCP sender reports carry (an RTP timestamp of the voice and when it left, on the
+// data channel: a page cannot read the reports its browser receives); the audio receiver's synchronization
+// source says which RTP timestamp was last handed to the speakers, and when. Both are of the same RTP clock,
+// so what plays now is the report's time plus the samples between them.
+export class VoiceClock {
+  constructor(receiver) {
+    this.receiver = receiver;
+    this.report = null;  // { rtp, ntpMs }
+  }
+
+  onReport(rtp, ntpMs) {
+    this.report = { rtp, ntpMs };
+  }
+
+  // the RTP position (samples) of what plays now, unwrapped near `near` (the RTP clock wraps at 2^32)
+  rtpNow(near) {
+    const sources = this.receiver.getSynchronizationSources();
+    if (!sources.length) return null;
+    const src = sources[0];
+    const now = src.timestamp > 1e12 ? performance.timeOrigin + performance.now() : performance.now();
+    const rtp = src.rtpTimestamp + (now - src.timestamp) * OPUS_RATE / 1000;
+    return rtp + Math.round((near - rtp) / 2 ** 32) * 2 ** 32;
+  }
+
+  nowMs() {
+    if (!this.report) return null;
+    const rtp = this.rtpNow(this.report.rtp);
+    if (rtp == null) return null;
+    return this.report.ntpMs + (rtp - this.report.rtp) * 1000 / OPUS_RATE;
+  }
+}
+
+function findNodes(gltf) {
+  const nodes = new Map();
+  const primitives = new Map();
+  const associations = gltf.parser.associations;
+  gltf.scene.traverse((object) => {
+    const a = associations.get(object);
+    if (a && a.nodes !== undefined && !nodes.has(a.nodes)) nodes.set(a.nodes, object);
+  });
+  gltf.scene.traverse((object) => {
+    if (!object.isMesh) return;
+    const a = associations.get(object);
+    if (!a || a.primitives === undefined) return;
+    let owner = object;
+    while (owner && !(associations.get(owner) && associations.get(owner).nodes !== undefined)) owner = owner.parent;
+    if (owner) primitives.set(`${associations.get(owner).nodes}:${a.primitives}`, object);
+  });
+  return { nodes, primitives };
+}
+
+export class BrowserFace {
+  constructor(canvas, description, { token = null, receiver = null, background = 0xf3efe8 } = {}) {
+    this.canvas = canvas;
+    this.d = description;
+    this.token = token;
+    this.clock = receiver ? new VoiceClock(receiver) : null;
+    this.frames = [];  // { seq, flags, timeMs, weights: Uint8Array, quats: Int16Array, arrivedMs }
+    this.stats = { received: 0, bad: 0, presented: 0, lastSeq: null, firstArrival: null, lastArrival: null,
+                   syncedMs: null, voiced: false };
+    this.weightBytes = description.primitives.reduce((n, p) => n + p.targets, 0);
+    this.frameBytes = HEADER_BYTES + this.weightBytes + 8 * description.joints.length;
+    if (this.frameBytes !== description.frame_bytes) throw new Error("the face's frame layout does not add up");
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+    this.renderer.setSize(description.width, description.height, false);
+    this.scene = new THREE.Scene();
+    this.scene.background = new THREE.Color(background);
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8a7f74, 1.6));
+    const key = new THREE.DirectionalLight(0xffffff, 1.8);
+    key.position.set(0.4, 0.8, 1.2);
+    this.scene.add(key);
+    this.camera = new THREE.PerspectiveCamera();
+    new THREE.Matrix4().fromArray(description.view).invert()
+      .decompose(this.camera.position, this.camera.quaternion, this.camera.scale);
+    this.camera.projectionMatrix.fromArray(description.projection);
+    this.camera.projectionMatrixInverse.copy(this.camera.projectionMatrix).invert();
+    this.vrm = null;
+    this.targets = [];  // per described primitive: its mesh (or null)
+    this.joints = [];
+    this.lastRender = performance.now();
+  }
+
+  async load() {
+    const loader = new GLTFLoader();
+    if (this.token) loader.setRequestHeader({ "X-Eca-Token": this.token });
+    if (this.d.format !== "gltf") loader.register((parser) => new VRMLoaderPlugin(parser, { autoUpdateHumanBones: false }));
+    const gltf = await loader.loadAsync(this.d.url);
+    this.vrm = gltf.userData.vrm || null;
+    if (this.vrm && this.d.format === "vrm0") VRMUtils.rotateVRM0(this.vrm);  // faces +Z, as the server's model does
+    const { nodes, primitives } = findNodes(gltf);
+    this.targets = this.d.primitives.map((p) => {
+      const mesh = primitives.get(`${p.node}:${p.primitive}`) || null;
+      return mesh && mesh.morphTargetInfluences && mesh.morphTargetInfluences.length >= p.targets ? mesh : null;
+    });
+    this.joints = this.d.joints.map((j) => nodes.get(j.node) || null);
+    this.scene.add(gltf.scene);
+    this.render();
+  }
+
+  // one data-channel message for this face (already known to be its slot); false when it is not one
+  push(buffer) {
+    if (!(buffer instanceof ArrayBuffer) || buffer.byteLength < HEADER_BYTES) { this.stats.bad += 1; return false; }
+    const view = new DataView(buffer);
+    const kind = view.getUint8(2);
+    if (kind === VOICE_CLOCK && buffer.byteLength === HEADER_BYTES) {
+      if (this.clock) this.clock.onReport(view.getUint32(4, true), view.getFloat64(8, true));
+      this.stats.reports = (this.stats.reports || 0) + 1;
+      return true;
+    }
+    if (kind !== FRAME || buffer.byteLength !== this.frameBytes) { this.stats.bad += 1; return false; }
+    const now = performance.now();
+    const frame = {
+      flags: view.getUint8(3), seq: view.getUint32(4, true), timeMs: view.getFloat64(8, true),
+      weights: new Uint8Array(buffer, HEADER_BYTES, this.weightBytes),
+      quats: new Int16Array(buffer.slice(HEADER_BYTES + this.weightBytes)),
+      arrivedMs: now,
+    };
+    const last = this.frames[this.frames.length - 1];
+    if (last && frame.seq <= last.seq) return true;  // an older frame, overtaken (the channel is unordered)
+    this.frames.push(frame);
+    while (this.frames.length > 2 && this.frames[0].timeMs < frame.timeMs - KEEP_MS) this.frames.shift();
+    const s = this.stats;
+    s.received += 1;
+    s.firstArrival = s.firstArrival ?? now;
+    s.lastArrival = now;
+    return true;
+  }
+
+  // the frame the listener hears now (the newest until the receiver can say)
+  heardFrame() {
+    const newest = this.frames[this.frames.length - 1];
+    const heardMs = this.clock ? this.clock.nowMs() : null;
+    this.stats.syncedMs = heardMs;
+    if (heardMs == null) return newest;
+    let heard = null;
+    for (let i = this.frames.length - 1; i >= 0; i -= 1) {
+      if (this.frames[i].timeMs <= heardMs) { heard = this.frames[i]; break; }
+    }
+    return heard || this.frames[0];
+  }
+
+  present() {
+    const newest = this.frames[this.frames.length - 1];
+    if (!newest) return this.render();
+    let heard = this.heardFrame();
+    if (!(heard.flags & VOICED) && !(newest.flags & VOICED)) heard = newest;  // silence: nothing to wait for
+    let at = 0;
+    this.d.primitives.forEach((p, i) => {
+      const mesh = this.targets[i];
+      if (mesh) {
+        const influences = mesh.morphTargetInfluences;
+        for (let k = 0; k < p.targets; k += 1) {
+          influences[k] = (p.voiced[k] ? heard : newest).weights[at + k] / 255;
+        }
+      }
+      at += p.targets;
+    });
+    this.d.joints.forEach((j, i) => {
+      const node = this.joints[i];
+      if (!node) return;
+      const q = (j.voiced ? heard : newest).quats;
+      node.quaternion.set(q[4 * i] / 32767, q[4 * i + 1] / 32767, q[4 * i + 2] / 32767, q[4 * i + 3] / 32767).normalize();
+    });
+    this.stats.presented = newest.seq;
+    this.stats.heardSeq = heard.seq;
+    this.stats.voiced = !!(heard.flags & VOICED);
+    this.render();
+  }
+
+  render() {
+    const now = performance.now();
+    if (this.vrm && this.vrm.springBoneManager) this.vrm.springBoneManager.update(Math.min(0.1, (now - this.lastRender) / 1000));
+    this.lastRender = now;
+    this.renderer.render(this.scene, this.camera);
+  }
+
+  dispose() {
+    this.renderer.dispose();
+    this.frames = [];
+  }
+}
+

@@ -1,0 +1,179 @@
+"""The face drawn by the page itself, in a real headless Chromium with WebGL (SwiftShader): `eca up --web --face
+head` sends the voice as audio and the face frames on a data channel; the page draws the default head with
+three.js. The head appears, an emotion changes its brows and mouth, the mouth opens with the voice and closes in
+silence, the frames come at the asked rate, and a browser without WebGL gets the server-drawn video instead.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import re
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+from eca.protocol.client import AgentClient
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import Say, SpeechFinished
+from eca.services.tools.child_processes import LineReader
+from tests.support.browser import browser_available, chromium, video_stats, wait_for
+from tests.support.bus import eca_command, private_bus_config, running
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
+                                                   reason=str(browser_available()))]
+RATE = 16_000
+LOGS: dict[str, LineReader] = {}
+
+
+@pytest.fixture(scope="module")
+def instance() -> Iterator[tuple[BusConfig, str]]:
+    """`eca up --web --face head` (dialogue, gaze, audio, web; no sound card) on a free port; its page's address."""
+    with private_bus_config(services=["dialogue", "gaze", "audio"]) as config:
+        argv = eca_command("up", "--config", str(config.config_path), "--instance", config.instance, "--quiet",
+                           "--web", "--web-port", "0", "--face", "head", "--silent-audio")
+        with running(argv) as (_proc, reader):
+            reader.wait_for("[up] ready in", 90.0)
+            line = reader.lines[reader.wait_for("[web] INFO serving http://", 10.0)]
+            match = re.search(r"(http://\S+/)", line)
+            assert match
+            LOGS[match.group(1)] = reader
+            yield config, match.group(1)
+
+
+def said(url: str) -> str:
+    lines = LOGS[url.split("?")[0]].lines
+    return "\n".join([line for line in lines if line.startswith(("[web]", "[up]"))][-30:])
+
+
+def connect_drawing(driver: Any, url: str) -> None:
+    driver.get(url)
+    driver.find_element("id", "connect").click()
+    wait_for(driver, "return window.eca.state", 30.0, "the page connecting", lambda s: s == "connected")
+    wait_for(driver, "return window.eca.drawn.ada ? window.eca.drawn.ada.stats.received : 0", 30.0,
+             f"the page drawing ada from face frames\n{said(url)}", lambda n: n >= 5)
+
+
+def canvas_pixels(driver: Any) -> np.ndarray:
+    """What the page's canvas shows now, (H, W, 3) uint8."""
+    from PIL import Image
+
+    url = driver.execute_script("const f = window.eca.drawn.ada; f.present(); return f.canvas.toDataURL('image/png')")
+    data = base64.b64decode(url.split(",", 1)[1])
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+
+
+def head_box(pixels: np.ndarray) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) of what is not the background (the corner's colour)."""
+    background = pixels[2, 2].astype(int)
+    mask = np.abs(pixels.astype(int) - background).sum(axis=2) > 30
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    assert rows.size and cols.size, "nothing but the background is drawn"
+    return int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])
+
+
+def band_change(before: np.ndarray, after: np.ndarray, box: tuple[int, int, int, int], lo: float, hi: float) -> float:
+    """Mean absolute change (0..255) within a horizontal band of the head, `lo`..`hi` of its height from its top,
+    over its middle half in width."""
+    top, bottom, left, right = box
+    h, w = bottom - top, right - left
+    rows = slice(top + int(lo * h), top + int(hi * h))
+    cols = slice(left + w // 4, right - w // 4)
+    return float(np.abs(after[rows, cols].astype(int) - before[rows, cols].astype(int)).mean())
+
+
+def mouth_open(driver: Any) -> float:
+    """The largest weight the page gives a target the voice moves (jaw, mouth) right now."""
+    return float(driver.execute_script("""
+        const f = window.eca.drawn.ada; f.present(); let m = 0;
+        f.d.primitives.forEach((p, i) => { const mesh = f.targets[i]; if (!mesh) return;
+          p.voiced.forEach((v, k) => { if (v) m = Math.max(m, mesh.morphTargetInfluences[k]); }); });
+        return m;"""))
+
+
+def tone(seconds: float) -> bytes:
+    t = np.arange(int(seconds * RATE)) / RATE
+    return (0.4 * np.sin(2 * np.pi * 220 * t) * (1 + 0.8 * np.sin(2 * np.pi * 4 * t)) * 32767 / 1.8) \
+        .astype("<i2").tobytes()
+
+
+def test_the_page_draws_the_head_and_an_emotion_changes_its_brows_and_mouth(instance: tuple[BusConfig, str],
+                                                                             tmp_path: Any) -> None:
+    config, url = instance
+    with chromium() as driver, AgentClient(config) as client:
+        connect_drawing(driver, url + "?mic=0")
+        assert driver.execute_script("return document.querySelector('#faces video')") is None  # no video drawn
+        client.wait_applied(client.set_emotion("natural", transition_s=0.1), 10.0)
+        time.sleep(1.0)  # the behaviour under test is the face after the transition (not synchronisation)
+        before = canvas_pixels(driver)
+        box = head_box(before)
+        client.wait_applied(client.set_emotion("surprised", transition_s=0.2), 10.0)
+        time.sleep(1.0)  # the transition's time
+        after = canvas_pixels(driver)
+        driver.save_screenshot(str(tmp_path / "surprised.png"))
+    top, bottom, left, right = box
+    assert bottom - top > 0.5 * before.shape[0], f"the head is {bottom - top} of {before.shape[0]} pixels high"
+    assert (before[top:bottom, left:right].astype(int).sum(axis=2) > 0).mean() > 0.9  # drawn, not black
+    brows = band_change(before, after, box, 0.22, 0.40)
+    mouth = band_change(before, after, box, 0.62, 0.82)
+    still = band_change(before, after, box, 0.90, 1.0)  # the neck under the chin: surprise moves it little
+    assert brows > 2.0 and mouth > 2.0, (brows, mouth, still)
+    assert still < min(brows, mouth), (brows, mouth, still)
+
+
+def test_the_mouth_opens_with_the_voice_and_closes_in_silence(instance: tuple[BusConfig, str]) -> None:
+    config, url = instance
+    with chromium() as driver, AgentClient(config) as client:
+        connect_drawing(driver, url + "?mic=0")
+        client.wait_applied(client.set_emotion("natural", transition_s=0.1), 10.0)
+        time.sleep(1.0)  # the transition's time
+        quiet = max(mouth_open(driver) for _ in range(10))
+        rid = client.new_request_id()
+        client.wait_applied(client.send(Say(agent="ada", request_id=rid, pcm=tone(3.0), sample_rate=RATE)), 10.0)
+        client.wait_for(lambda m: getattr(m, "request_id", None) == rid and m.TYPE == "speech_started", 10.0)
+        wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 5.0, "the page hearing the voice")
+        speaking = []
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            speaking.append(mouth_open(driver))
+            time.sleep(0.05)  # sampling the face over the speech
+        assert isinstance(client.wait_for_speech(rid, 20.0), SpeechFinished)
+        wait_for(driver, "return !window.eca.drawn.ada.stats.voiced", 5.0, "the page hearing the silence")
+        time.sleep(0.5)  # the lips' own release
+        after = max(mouth_open(driver) for _ in range(10))
+        synced = driver.execute_script("return window.eca.drawn.ada.stats.syncedMs")
+    assert synced is not None, "the page never knew what the voice played"
+    assert max(speaking) > 0.2, f"the mouth never opened with the voice: {max(speaking):.3f}"
+    assert np.std(speaking) > 0.03, "the mouth did not move with the voice"
+    assert quiet < 0.1 and after < 0.1, (quiet, after)
+
+
+def test_face_frames_come_at_the_asked_rate(instance: tuple[BusConfig, str]) -> None:
+    _config, url = instance
+    with chromium() as driver:
+        connect_drawing(driver, url + "?mic=0&fps=20")
+        first = driver.execute_script("return window.eca.drawn.ada.stats.received")
+        time.sleep(3.0)  # counting frames over a span
+        last = driver.execute_script("return window.eca.drawn.ada.stats.received")
+        bad = driver.execute_script("return window.eca.drawn.ada.stats.bad")
+    assert 0.8 * 60 <= last - first <= 1.1 * 60, f"{last - first} frames in 3 s at 20 fps"
+    assert bad == 0
+
+
+def test_a_browser_without_webgl_gets_the_server_drawn_video(instance: tuple[BusConfig, str]) -> None:
+    _config, url = instance
+    with chromium(webgl=False) as driver:
+        driver.get(url + "?mic=0&width=320&height=240&fps=15")
+        driver.find_element("id", "connect").click()
+        wait_for(driver, "return window.eca.state", 30.0, "the page connecting", lambda s: s == "connected")
+        deadline = time.monotonic() + 30.0
+        while (video_stats(driver).get("framesDecoded") or 0) < 10 and time.monotonic() < deadline:
+            time.sleep(0.2)  # polling the page's counters
+        stats = video_stats(driver)
+        drawn = driver.execute_script("return Object.keys(window.eca.drawn).length")
+    assert (stats.get("framesDecoded") or 0) >= 10, f"{stats}\n{said(url)}"
+    assert (stats["frameWidth"], stats["frameHeight"]) == (320, 240)
+    assert drawn == 0
