@@ -28,6 +28,7 @@ from eca.protocol.messages import (
     ALL_MESSAGES,
     MESSAGE_TYPES,
     PROTOCOL_VERSION,
+    AgentsState,
     EmotionState,
     Error,
     EyeState,
@@ -50,8 +51,18 @@ ERROR_KINDS = {"inconsistent", "not_msgpack", "wrong_type", "unknown_version", "
 
 # --- strategies derived from the field specs ------------------------------------------------------
 
-AGENT_IDS = st.one_of(st.just(ALL_AGENTS), st.from_regex(r"\A[A-Za-z0-9_-]{1,32}\Z"))
+ONE_AGENT = st.from_regex(r"\A[A-Za-z0-9_-]{1,32}\Z")
+AGENT_IDS = st.one_of(st.just(ALL_AGENTS), ONE_AGENT)
 KEYS = st.text(min_size=1, max_size=12)
+
+
+def agent_ids(cls: type[Message]) -> st.SearchStrategy[str]:
+    """The agent ids a type takes (its AGENT_SCOPE): one agent, only '*', or either."""
+    return {"one": ONE_AGENT, "all": st.just(ALL_AGENTS), "any": AGENT_IDS}[cls.AGENT_SCOPE]
+
+
+def an_agent_of(cls: type[Message]) -> str:
+    return ALL_AGENTS if cls.AGENT_SCOPE == "all" else "ada"
 
 
 def _optional_inner(kind: Any) -> Any | None:
@@ -111,7 +122,12 @@ def messages(draw: st.DrawFn, cls: type[Message] | None = None) -> Message:
     values = {}
     for spec in field_specs(cls):
         if spec.required or draw(st.booleans()):
-            values[spec.name] = draw(value_strategy(spec))
+            values[spec.name] = draw(agent_ids(cls) if spec.name == "agent" else value_strategy(spec))
+    if cls is AgentsState:  # distinct agents; the created ones last, each copying a configured one
+        agents = list(dict.fromkeys(draw(st.lists(ONE_AGENT, max_size=8))))
+        configured = draw(st.integers(min(1, len(agents)), len(agents)))
+        values["agents"], values["created"] = agents, agents[configured:]
+        values["like"] = [draw(st.sampled_from(agents[:configured])) for _ in agents[configured:]]
     if cls is MouthKeys:  # one weight per sample position, or the message is inconsistent
         n = len(values.get("sample_index", []))
         values["weights"] = {k: (v * n)[:n] if v else [0.0] * n for k, v in values.get("weights", {}).items()}
@@ -167,7 +183,9 @@ def rejection(raw: Any, max_bytes: int = DEFAULT_MAX_BYTES) -> ProtocolError:
 
 def minimal(cls: type[Message]) -> Message:
     """A valid instance built from the smallest legal value of every required field."""
-    return cls(**{s.name: _smallest(s) for s in field_specs(cls) if s.required})
+    values = {s.name: _smallest(s) for s in field_specs(cls) if s.required}
+    values["agent"] = an_agent_of(cls)
+    return cls(**values)
 
 
 def _smallest(spec: FieldSpec) -> Any:
@@ -631,12 +649,47 @@ def _doc_number(x: float) -> str:
 
 
 def test_nothing_valid_is_lost_between_topic_and_payload() -> None:
-    """Every message type keeps its topic on a round trip through parse_frames (any agent id)."""
+    """Every message type keeps its topic on a round trip through parse_frames (any agent id it takes)."""
     for cls in ALL_MESSAGES:
         for agent in ("ada", "x-1_Y", ALL_AGENTS):
+            if (agent == ALL_AGENTS) != (cls.AGENT_SCOPE == "all") and cls.AGENT_SCOPE != "any":
+                continue
             msg = dataclasses.replace(minimal(cls), agent=agent)
             got = parse_frames([topic_for(msg).encode(), encode(msg)])
             assert got.message == msg, (cls.TYPE, agent, got.error)
+
+
+def test_the_agent_star_is_allowed_where_the_type_says_and_nowhere_else() -> None:
+    """'*' (no single agent) is the agent of a heartbeat, an error or the list of agents; a command, a state or an
+    event of '*' is out of range, and the list of agents names no single agent."""
+    for cls in ALL_MESSAGES:
+        for agent in ("ada", ALL_AGENTS):
+            raw = {**wire(minimal(cls)), "agent": agent}
+            allowed = cls.AGENT_SCOPE == "any" or (agent == ALL_AGENTS) == (cls.AGENT_SCOPE == "all")
+            if allowed:
+                assert decode(pack(raw)).agent == agent, cls.TYPE
+            else:
+                err = rejection(raw)
+                assert (err.kind, err.field) == ("out_of_range", "agent"), (cls.TYPE, agent)
+                with pytest.raises(ProtocolError):
+                    encode(dataclasses.replace(minimal(cls), agent=agent))
+    assert {c.TYPE for c in ALL_MESSAGES if c.AGENT_SCOPE != "one"} == {"heartbeat", "hello", "error", "agents"}
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    ({"agents": ["ada", "ada"]}, "agents"),
+    ({"agents": ["ada", "*"]}, "agents"),
+    ({"agents": ["ada", "v1"], "created": ["v2"], "like": ["ada"]}, "created"),
+    ({"agents": ["ada", "v1", "v2"], "created": ["v2", "v1"], "like": ["ada", "ada"]}, "created"),
+    ({"agents": ["ada", "v1"], "created": ["v1"], "like": []}, "like"),
+    ({"agents": ["ada", "v1"], "created": ["v1"], "like": ["v1"]}, "like"),
+    ({"agents": ["ada"], "created": ["ada", "v1"], "like": ["ada", "ada"]}, "created"),
+])
+def test_a_list_of_agents_that_contradicts_itself_is_inconsistent(change: dict[str, Any], field: str) -> None:
+    good = AgentsState(agent=ALL_AGENTS, agents=["ada", "v1"], created=["v1"], like=["ada"], max_created=60)
+    assert decode(encode(good)) == good
+    err = rejection({**wire(good), **change})
+    assert (err.kind, err.field) == ("inconsistent", field), err
 
 
 

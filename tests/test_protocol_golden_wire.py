@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from eca.protocol.codec import FieldSpec, decode, encode, field_specs
-from eca.protocol.messages import ALL_MESSAGES, Message
+from eca.protocol.messages import ALL_AGENTS, ALL_MESSAGES, AgentsState, Message
 from eca.protocol.topics import topic_for
 
 GOLDEN = Path(__file__).parent / "golden" / "wire_bytes.json"
@@ -46,7 +46,12 @@ def _sample(name: str, kind: Any, spec: FieldSpec) -> Any:
 
 
 def full(cls: type[Message]) -> Message:
-    return cls(**{s.name: _sample(s.name, s.kind, s) for s in field_specs(cls)})
+    values = {s.name: _sample(s.name, s.kind, s) for s in field_specs(cls)}
+    if cls.AGENT_SCOPE == "all":
+        values["agent"] = ALL_AGENTS
+    if cls is AgentsState:  # lists that agree: a configured agent, then a created one copying it
+        values.update(agents=["agents-x", "created-x"], created=["created-x"], like=["agents-x"])
+    return cls(**values)
 
 
 def current() -> dict[str, dict[str, str]]:

@@ -6,8 +6,6 @@ silence, the frames come at the asked rate, and a browser without WebGL gets the
 
 from __future__ import annotations
 
-import base64
-import io
 import re
 import time
 from collections.abc import Iterator
@@ -20,7 +18,15 @@ from eca.protocol.client import AgentClient
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import Say, SpeechFinished
 from eca.services.tools.child_processes import LineReader
-from tests.support.browser import browser_available, chromium, video_stats, wait_for
+from tests.support.browser import (
+    band_change,
+    browser_available,
+    canvas_pixels,
+    chromium,
+    head_box,
+    video_stats,
+    wait_for,
+)
 from tests.support.bus import eca_command, private_bus_config, running
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
@@ -55,34 +61,6 @@ def connect_drawing(driver: Any, url: str) -> None:
     wait_for(driver, "return window.eca.state", 30.0, "the page connecting", lambda s: s == "connected")
     wait_for(driver, "return window.eca.drawn.ada ? window.eca.drawn.ada.stats.received : 0", 30.0,
              f"the page drawing ada from face frames\n{said(url)}", lambda n: n >= 5)
-
-
-def canvas_pixels(driver: Any) -> np.ndarray:
-    """What the page's canvas shows now, (H, W, 3) uint8."""
-    from PIL import Image
-
-    url = driver.execute_script("const f = window.eca.drawn.ada; f.present(); return f.canvas.toDataURL('image/png')")
-    data = base64.b64decode(url.split(",", 1)[1])
-    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
-
-
-def head_box(pixels: np.ndarray) -> tuple[int, int, int, int]:
-    """(top, bottom, left, right) of what is not the background (the corner's colour)."""
-    background = pixels[2, 2].astype(int)
-    mask = np.abs(pixels.astype(int) - background).sum(axis=2) > 30
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    assert rows.size and cols.size, "nothing but the background is drawn"
-    return int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])
-
-
-def band_change(before: np.ndarray, after: np.ndarray, box: tuple[int, int, int, int], lo: float, hi: float) -> float:
-    """Mean absolute change (0..255) within a horizontal band of the head, `lo`..`hi` of its height from its top,
-    over its middle half in width."""
-    top, bottom, left, right = box
-    h, w = bottom - top, right - left
-    rows = slice(top + int(lo * h), top + int(hi * h))
-    cols = slice(left + w // 4, right - w // 4)
-    return float(np.abs(after[rows, cols].astype(int) - before[rows, cols].astype(int)).mean())
 
 
 def mouth_open(driver: Any) -> float:

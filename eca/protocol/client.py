@@ -30,10 +30,12 @@ from eca.protocol.endpoints import BusConfig, load_bus_config
 from eca.protocol.messages import (
     TERMINAL_SPEECH_EVENTS,
     Ack,
+    CreateAgent,
     Error,
     Interrupt,
     Message,
     MoveHead,
+    RemoveAgent,
     Say,
     SetEmotion,
     SetEyes,
@@ -92,6 +94,15 @@ class AgentClient:
     def command(self, cls: type[M], request_id: str | None = None, **fields: Any) -> Message:
         """Send a command of type `cls` with `fields` and a request id (a new one unless given)."""
         return self.send(cls(agent=self.agent, request_id=self._rid(request_id), **fields))  # type: ignore[call-arg]
+
+    def create_agent(self, like: str = "", request_id: str | None = None) -> Message:
+        """Create this client's agent at run time (docs/protocol.md "Conversations created at run time"), with the
+        settings of the configured agent `like` (empty: the config's template)."""
+        return self.command(CreateAgent, request_id, like=like)
+
+    def remove_agent(self, request_id: str | None = None) -> Message:
+        """Remove this client's agent, created at run time."""
+        return self.command(RemoveAgent, request_id)
 
     def set_role(self, role: str, speaker: str = "", request_id: str | None = None) -> Message:
         return self.command(SetRole, request_id, role=role, speaker=speaker)

@@ -18,11 +18,11 @@ from typing import Any, Literal
 
 import msgpack
 
-from eca.protocol.messages import ALL_AGENTS, MESSAGE_TYPES, PROTOCOL_VERSION, Message
+from eca.protocol.messages import AGENT_ID_PATTERN, ALL_AGENTS, MESSAGE_TYPES, PROTOCOL_VERSION, Message
 
 DEFAULT_MAX_BYTES = 4 * 1024 * 1024
 ENVELOPE_KEYS = ("v", "type")
-_AGENT_ID = re.compile(r"[A-Za-z0-9_-]{1,32}")
+_AGENT_ID = re.compile(AGENT_ID_PATTERN)
 
 
 def is_agent_id(text: str) -> bool:
@@ -243,7 +243,9 @@ def _plan(cls: type[Message]) -> _Plan:
         checks = []
         for spec in field_specs(cls):
             check = _compile(spec, spec.kind)
-            checks.append((spec.name, spec.required, _agent_check(check) if spec.name == "agent" else check))
+            if spec.name == "agent":
+                check = _agent_check(check, cls)
+            checks.append((spec.name, spec.required, check))
         plan = _PLANS[cls] = _Plan(
             checks=tuple(checks),
             names=frozenset(spec.name for spec in field_specs(cls)) | frozenset(ENVELOPE_KEYS),
@@ -253,10 +255,21 @@ def _plan(cls: type[Message]) -> _Plan:
     return plan
 
 
-def _agent_check(check_str: Check) -> Check:
+def _agent_check(check_str: Check, cls: type[Message]) -> Check:
+    """The agent id's grammar, and '*' exactly where the type's AGENT_SCOPE allows it."""
+    scope, name = cls.AGENT_SCOPE, cls.TYPE
+
     def check(v: Any) -> Any:
         v = check_str(v)
-        if v != ALL_AGENTS and not _AGENT_ID.fullmatch(v):
+        if v == ALL_AGENTS:
+            if scope == "one":
+                raise _Bad("out_of_range", f"agent '*' (no single agent) is not allowed in a '{name}' message: "
+                                           "it names one agent")
+            return v
+        if scope == "all":
+            raise _Bad("out_of_range", f"a '{name}' message is about the whole instance: its agent must be '*', "
+                                       f"got {describe(v, 40)}")
+        if not _AGENT_ID.fullmatch(v):
             raise _Bad("out_of_range", f"agent id {describe(v, 40)} must be 1-32 letters, digits, '_' or '-'")
         return v
     return check

@@ -8,6 +8,7 @@ documentation and the tests read one definition. Units are in the field names (`
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
@@ -19,9 +20,16 @@ Role = Literal["talking", "listening", "silence"]
 EyeMode = Literal["static", "noise", "saccade", "saccade+blink", "saccade+noise+blink"]
 SaccadeKind = Literal["mutual", "away", "head", "scan", "micro"]
 
-# Pseudo agent id of messages that concern no single agent (heartbeats, broker replies).
+# Pseudo agent id of messages that concern no single agent (heartbeats, errors about no agent, the list of
+# agents). Which types may carry it is each type's AGENT_SCOPE.
 ALL_AGENTS = "*"
+AGENT_ID_PATTERN = r"[A-Za-z0-9_-]{1,32}"  # an agent id (the codec's and the config's grammar)
 MAX_ADDRESSEES = 16  # the people one say can be addressed to
+# Agents created at run time (`create_agent`), at most: a bound of the protocol's lists; the instance's own
+# limit is the config's [conversations] max, at most this. The configured agents are at most 64
+# (protocol/endpoints.py MAX_AGENTS), so an instance has at most MAX_LIVE_AGENTS agents at once.
+MAX_CREATED_AGENTS = 256
+MAX_LIVE_AGENTS = 64 + MAX_CREATED_AGENTS
 
 
 def bounded(default: Any = dataclasses.MISSING, *, lo: float | None = None, hi: float | None = None,
@@ -48,6 +56,10 @@ class Message:
 
     TYPE: ClassVar[str] = ""
     CATEGORY: ClassVar[str] = ""  # first part of the topic: cmd, state, event, stream, sys, error
+    # What the agent field may hold: "one" an agent id; "all" only '*' (the message is about the instance);
+    # "any" either (a heartbeat, an error that may concern no agent). The codec enforces it both ways, so a
+    # command or state for '*' never reaches a service as if '*' were an agent.
+    AGENT_SCOPE: ClassVar[Literal["one", "all", "any"]] = "one"
 
     agent: str = bounded(max_len=32, doc="agent id: letters, digits, '_' and '-'; '*' for all agents")
     seq: int = bounded(0, lo=0, hi=2**63 - 1, doc="the publisher's count of its messages on this topic, from 1")
@@ -201,6 +213,27 @@ class UserSpeech(Message):
     request_id: str = bounded("", max_len=64, doc="optional; acknowledged, or echoed in an error")
 
 
+@dataclass(frozen=True, kw_only=True)
+class CreateAgent(Message):
+    """Create the agent named by the envelope's `agent` at run time (a conversation of its own, e.g. for one web
+    page), with the settings of a configured agent; the dialogue service lists it in `state.*.agents`."""
+
+    TYPE = "create_agent"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+    like: str = bounded("", max_len=32, doc="a configured agent whose settings it copies; empty: the config's "
+                                            "[conversations] template (default: the first configured agent)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RemoveAgent(Message):
+    """Remove an agent created at run time: its pending say requests end, its states are gone."""
+
+    TYPE = "remove_agent"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+
+
 # --- states: the dialogue service's current state per agent (kept by the broker's last-value cache)
 
 
@@ -250,6 +283,44 @@ class GazeTargetState(GazeTargetFields):
 
 SetRole.STATE, SetEmotion.STATE, MoveHead.STATE = RoleState, EmotionState, HeadState
 SetEyes.STATE, SetGazeTarget.STATE = EyesState, GazeTargetState
+
+_AGENT_ID = re.compile(AGENT_ID_PATTERN)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AgentsState(Message):
+    """The instance's live agents, on `state.*.agents` (its agent is '*'): the configured ones, then those
+    created at run time in the order of their creation. Published by the dialogue service whenever the list
+    changes; the services that follow agents (gaze, audio, rig, the live scenes) add and drop agents by it, and
+    the broker forgets the cached states of an agent it no longer lists."""
+
+    TYPE = "agents"
+    CATEGORY = "state"
+    AGENT_SCOPE = "all"
+    agents: list[str] = bounded([], max_len=MAX_LIVE_AGENTS, item_max_len=32,
+                                doc="every live agent: the configured ones first, then the created ones in order")
+    created: list[str] = bounded([], max_len=MAX_CREATED_AGENTS, item_max_len=32,
+                                 doc="those created at run time, in order (the tail of `agents`)")
+    like: list[str] = bounded([], max_len=MAX_CREATED_AGENTS, item_max_len=32,
+                              doc="for each created agent, the configured agent whose settings it copies")
+    max_created: int = bounded(0, lo=0, hi=MAX_CREATED_AGENTS,
+                               doc="how many agents may be created at once ([conversations] max)")
+
+    def consistency_problem(self) -> tuple[str, str] | None:
+        bad = next((a for a in self.agents if not _AGENT_ID.fullmatch(a)), None)
+        if bad is not None:
+            return "agents", f"{bad[:40]!r} is not an agent id"
+        if len(set(self.agents)) != len(self.agents):
+            return "agents", "an agent listed twice"
+        configured = len(self.agents) - len(self.created)
+        if configured < 0 or self.agents[configured:] != self.created:
+            return "created", "must be the agents listed last in `agents`, in the same order"
+        if len(self.like) != len(self.created):
+            return "like", f"has {len(self.like)} entries for {len(self.created)} created agents"
+        own = set(self.agents[:configured])
+        if any(a not in own for a in self.like):
+            return "like", "names an agent that is not a configured one"
+        return None
 
 
 MAX_PENDING_SAYS = 64  # per agent: what one speech state can list
@@ -385,12 +456,13 @@ class SpeechFailed(Message):
 
 @dataclass(frozen=True, kw_only=True)
 class Ack(Message):
-    """The owning service applied a command that carried a request id. It follows the state the command
-    produced (same publisher, so a subscriber of both sees the state first)."""
+    """The owning service applied a command (every command it applies but a speech_chunk; docs/protocol.md
+    section 6). It follows the state the command produced (same publisher, so a subscriber of both sees the
+    state first)."""
 
     TYPE = "ack"
     CATEGORY = "event"
-    request_id: str = bounded(max_len=64, doc="the command's request id (for interrupt: the one it named)")
+    request_id: str = bounded(max_len=64, doc="the command's request_id as sent, empty when it had none")
     command: str = bounded(max_len=32, doc="the command's type, e.g. set_emotion")
 
 
@@ -545,6 +617,7 @@ class UserAudio(Message):
 class Heartbeat(Message):
     TYPE = "heartbeat"
     CATEGORY = "sys"
+    AGENT_SCOPE = "any"
     service: str = bounded(max_len=64, doc="the service's name")
     pid: int = bounded(lo=0, hi=2**31, doc="its process id")
     started_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when it started (tells a restart)")
@@ -561,12 +634,14 @@ class Hello(Message):
 
     TYPE = "hello"
     CATEGORY = "sys"
+    AGENT_SCOPE = "any"  # the subscriber's nonce, whatever it chose
 
 
 @dataclass(frozen=True, kw_only=True)
 class Error(Message):
     TYPE = "error"
     CATEGORY = "error"
+    AGENT_SCOPE = "any"  # '*' when the offending message named no readable agent
     reason: str = bounded(max_len=2000, doc="what was wrong, naming the field")
     kind: str = bounded("invalid", max_len=64, doc="the class of problem (codec error kind, 'rejected')")
     topic: str = bounded("", max_len=256, doc="the topic of the offending message")

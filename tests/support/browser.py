@@ -149,3 +149,39 @@ def face_skin_share(driver: Any, screenshot: Path, element_id: str = "face") -> 
     x, y, width, height = (round(v) for v in box)
     picture = np.asarray(Image.open(screenshot).convert("RGB"))[y:y + height, x:x + width].astype(int)
     return float(((picture[..., 0] > 150) & (picture[..., 0] - picture[..., 2] > 50)).mean())
+
+
+def canvas_pixels(driver: Any) -> Any:
+    """What the page's first face drawn by the page itself shows now (it presents a frame first): (H, W, 3) uint8."""
+    import base64
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    url = driver.execute_script("const f = Object.values(window.eca.drawn)[0]; f.present(); "
+                                "return f.canvas.toDataURL('image/png')")
+    return np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB"))
+
+
+def head_box(pixels: Any) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) of what is not the background (the corner's colour) in a drawn face."""
+    import numpy as np
+
+    background = pixels[2, 2].astype(int)
+    mask = np.abs(pixels.astype(int) - background).sum(axis=2) > 30
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    assert rows.size and cols.size, "nothing but the background is drawn"
+    return int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])
+
+
+def band_change(before: Any, after: Any, box: tuple[int, int, int, int], lo: float, hi: float) -> float:
+    """Mean absolute change (0..255) within a horizontal band of the head, `lo`..`hi` of its height from its top,
+    over its middle half in width."""
+    import numpy as np
+
+    top, bottom, left, right = box
+    h, w = bottom - top, right - left
+    rows = slice(top + int(lo * h), top + int(hi * h))
+    cols = slice(left + w // 4, right - w // 4)
+    return float(np.abs(after[rows, cols].astype(int) - before[rows, cols].astype(int)).mean())

@@ -14,6 +14,12 @@ state older than the cached one of its topic is stale (say, a re-publication rac
 is neither cached nor forwarded, and one stamped in the future is forwarded but not cached, so no
 publisher can pin a topic. The cache holds at most `MAX_CACHED_TOPICS` topics (the least recently
 changed go first), so no flood of new topics can grow it without bound.
+
+Agents come and go at run time (`create_agent`, `remove_agent`): the dialogue service's `state.*.agents` lists
+the live ones. When it changes, the broker forgets the cached states of every agent it does not list, so a
+visitor's agent, created and removed, leaves nothing behind; and from then on it caches a state of an agent
+missing from the list only when the dialogue service sends it (a new agent's states come just before the list
+that names it): what another service still says of a removed agent is forwarded, not kept.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ import zmq
 from eca.protocol.bus import TopicCounts, parse_frames
 from eca.protocol.codec import ProtocolError, encode
 from eca.protocol.endpoints import BusConfig
-from eca.protocol.messages import ALL_AGENTS, Heartbeat, Hello
+from eca.protocol.messages import ALL_AGENTS, AgentsState, Heartbeat, Hello
 from eca.protocol.topics import STATE_PREFIX, topic_for
 from eca.services.processes.liveness import LivenessSender
 
@@ -39,6 +45,8 @@ log = logging.getLogger("broker")
 BROKER_LOCK = "broker.lock"  # in the runtime directory
 MAX_CACHED_TOPICS = 65_536
 FUTURE_SLACK_NS = 5_000_000_000  # a state stamped further ahead of this host's clock is not cached
+AGENTS_OWNER = "dialogue"  # the source whose state.*.agents says which agents live
+_ALL = ALL_AGENTS.encode()
 
 
 class BrokerAlreadyRunning(RuntimeError):
@@ -46,11 +54,13 @@ class BrokerAlreadyRunning(RuntimeError):
 
 
 class Broker:
-    def __init__(self, config: BusConfig, ctx: zmq.Context | None = None) -> None:
+    def __init__(self, config: BusConfig, ctx: zmq.Context[zmq.Socket[bytes]] | None = None) -> None:
         self.config = config
         self.ctx = ctx or zmq.Context.instance()
         self.cache: dict[bytes, list[bytes]] = {}
         self._cached_t_ns: dict[bytes, int] = {}
+        self._by_agent: dict[bytes, set[bytes]] = {}  # agent -> its cached topics, to forget them at once
+        self._live: frozenset[bytes] | None = None  # the agents the latest state.*.agents lists (None: none yet)
         self.stale = 0  # states dropped because the cache held a newer one of their topic
         self.failures = 0  # messages the broker failed on (a bug): dropped, counted
         self.started_ns = time.monotonic_ns()
@@ -139,14 +149,35 @@ class Broker:
             return False
         if msg.t_ns > time.monotonic_ns() + FUTURE_SLACK_NS:
             return True
+        agent = topic.split(b".", 2)[1]
+        if self._live is not None and agent not in self._live and agent != _ALL and msg.source != AGENTS_OWNER:
+            return True  # an agent removed (its last words from a service that had not heard yet): not kept
         if cached_t_ns is not None:
             del self.cache[topic]  # re-inserted at the end: the dict's order is the order of change
         elif len(self.cache) >= MAX_CACHED_TOPICS:
-            oldest = next(iter(self.cache))
-            del self.cache[oldest], self._cached_t_ns[oldest]
+            self._forget(next(iter(self.cache)))
         self.cache[topic] = frames
         self._cached_t_ns[topic] = msg.t_ns
+        self._by_agent.setdefault(agent, set()).add(topic)
+        if isinstance(msg, AgentsState) and msg.source == AGENTS_OWNER:
+            self._follow(msg)
         return True
+
+    def _follow(self, listing: AgentsState) -> None:
+        """Forget the cached states of every agent the new list of live agents does not name."""
+        self._live = frozenset(a.encode() for a in listing.agents)
+        for agent in [a for a in self._by_agent if a not in self._live and a != _ALL]:
+            for topic in list(self._by_agent[agent]):
+                self._forget(topic)
+
+    def _forget(self, topic: bytes) -> None:
+        del self.cache[topic], self._cached_t_ns[topic]
+        agent = topic.split(b".", 2)[1]
+        topics = self._by_agent.get(agent)
+        if topics is not None:
+            topics.discard(topic)
+            if not topics:
+                del self._by_agent[agent]
 
     def _on_subscription(self, event: bytes) -> None:
         if not event or event[0] != 1:

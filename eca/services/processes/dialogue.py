@@ -15,16 +15,25 @@ and makes it listen.
 Batches: every command in a batch is validated and applied in order, but what the batch changed goes
 out once, at its end (`_flush`): first onto disk (services/processes/state_snapshot.py), then the events and
 requests the batch produced, then each changed state (so a flood of commands costs one state message
-per topic per batch), then an `ack` for each command that carried a request id. So an acknowledged command is in
+per topic per batch), then an `ack` for each command it applied. So an acknowledged command is in
 the state its subscribers see and in the snapshot a successor starts from, and the state survives any
 restart: of this service (the snapshot and the broker's cache), of the broker (`on_new_broker`
 publishes the state again), or of both at once.
+
+Agents: the configured ones (`[agents] ids`) live as long as the instance; `create_agent` adds one at run time
+(a conversation of its own, e.g. one web page's; at most `[conversations] max` at once) and `remove_agent`
+removes it again. The list of live agents is a state of its own, `state.*.agents`, published after the new
+agent's states, so whoever follows it finds them in the broker's cache; it is in the snapshot too, so a
+restarted dialogue service takes the created agents over with the rest.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import sys
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -32,12 +41,16 @@ from eca.agent.face.emotions import canonical_emotion_name, load_emotion_table
 from eca.agent.gaze.params import default_eye_mode
 from eca.protocol.bus import Received
 from eca.protocol.codec import encode
-from eca.protocol.endpoints import BusConfig
+from eca.protocol.endpoints import BusConfig, BusConfigError
 from eca.protocol.messages import (
+    ALL_AGENTS,
+    MAX_CREATED_AGENTS,
     MAX_PENDING_SAYS,
     RECENT_ENDINGS,
     TERMINAL_SPEECH_EVENTS,
     Ack,
+    AgentsState,
+    CreateAgent,
     EmotionState,
     EyesState,
     GazeTargetState,
@@ -47,6 +60,7 @@ from eca.protocol.messages import (
     Message,
     MoveHead,
     PlaybackState,
+    RemoveAgent,
     RoleState,
     Say,
     SetEmotion,
@@ -61,13 +75,34 @@ from eca.protocol.messages import (
     SpeechState,
     UserSpeech,
 )
-from eca.services.processes.runtime import Rejected, Service
+from eca.services.processes.runtime import Rejected, Service, parse_service_args
 from eca.services.processes.state_snapshot import StateSnapshot, snapshot_path
 
 STATE_TYPES = (RoleState, EmotionState, HeadState, EyesState, GazeTargetState, SpeechState, PlaybackState)
 OWN_STATE_TYPES = ("role", "emotion", "head", "eyes", "gaze_target", "speech")  # what this service publishes
 ENDED_KEPT = 1024  # per agent: request ids that ended here, remembered so a repeat of their ending is ignored
 ACKED_KEPT = 4096  # commands acknowledged lately, remembered so one sent again is acknowledged, not re-applied
+AGENTS_TOPIC = f"state.{ALL_AGENTS}.{AgentsState.TYPE}"
+DEFAULT_MAX_CREATED = 60  # [conversations] max when the config does not say
+USER = "user"  # the person the agents talk to: never an agent id
+REMOVED_REASON = "the agent was removed"
+
+
+def conversation_settings(config: BusConfig) -> tuple[int, str]:
+    """[conversations] max (how many agents may be created at run time at once) and template (the configured
+    agent a created one copies when its create_agent names none; empty: the first configured agent)."""
+    where = f"{config.config_path} [conversations]"
+    table = config.raw.get("conversations", {})
+    if not isinstance(table, dict):
+        raise BusConfigError(f"{config.config_path}: 'conversations' must be a table")
+    limit = table.get("max", DEFAULT_MAX_CREATED)
+    if type(limit) is not int or not 0 <= limit <= MAX_CREATED_AGENTS:
+        raise BusConfigError(f"{where}: 'max' must be an integer in 0..{MAX_CREATED_AGENTS}, got {limit!r}"[:300])
+    template = table.get("template", "")
+    if not isinstance(template, str) or (template and template not in config.agents):
+        raise BusConfigError(f"{where}: 'template' must be one of the configured agents "
+                             f"({', '.join(config.agents)}) or empty, got {template!r}"[:300])
+    return limit, template or config.agents[0]
 
 
 @dataclass
@@ -116,12 +151,16 @@ class DialogueService(Service):
 
     def __init__(self, config: BusConfig, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
-        self.agent_ids: list[str] = list(config.agents)
+        self.configured: tuple[str, ...] = tuple(config.agents)
+        self.max_created, self.template = conversation_settings(config)
+        # the agents created at run time, in order of creation -> the configured agent each copies
+        self.created: dict[str, str] = {}
         dialogue = config.raw.get("dialogue", {})
         self.say_start_timeout_ns = int(float(dialogue.get("say_start_timeout_s", 3.0)) * 1e9)
         self.emotions = load_emotion_table()
         self.agents: dict[str, AgentState] = {}
-        self._adopted: dict[str, dict[str, Message]] = {a: {} for a in self.agent_ids}
+        self._adopted: dict[str, dict[str, Message]] = {}
+        self._adopted_agents: AgentsState | None = None
         self.audio_started_ns: int | None = None
         self.audio_last_beat_ns: int | None = None
         self.broker_last_beat_ns: int | None = None
@@ -135,7 +174,7 @@ class DialogueService(Service):
         self._ended_before: dict[str, list[str]] = {}  # from the snapshot: requests a predecessor ended
         self._acked: OrderedDict[tuple[str, str, str], None] = OrderedDict()  # (agent, command, request id)
         once = self._once
-        for cls, handler in (
+        handlers: tuple[tuple[type[Any], Callable[[Any], None]], ...] = (
             (SetRole, once(self.on_set_role)), (SetEmotion, once(self.on_set_emotion)),
             (MoveHead, once(self.on_move_head)), (SetEyes, once(self.on_set_eyes)),
             (SetGazeTarget, once(self.on_set_gaze_target)), (Say, self.on_say),
@@ -143,14 +182,32 @@ class DialogueService(Service):
             (SpeechStarted, self.on_audio_started), (SpeechFinished, self.on_audio_terminal),
             (SpeechInterrupted, self.on_audio_terminal), (SpeechFailed, self.on_audio_terminal),
             (Heartbeat, self.on_heartbeat), (PlaybackState, self.on_playback),
-        ):
+            (CreateAgent, once(self.on_create_agent)), (RemoveAgent, once(self.on_remove_agent)),
+        )
+        for cls, handler in handlers:
             self.handle(cls, handler)
 
+    @classmethod
+    def from_args(cls, config: BusConfig, argv: list[str], **kwargs: Any) -> DialogueService:
+        parse_service_args("dialogue", argv, argparse.ArgumentParser(
+            prog="python -m eca.services.processes.run dialogue", add_help=False, exit_on_error=False))
+        try:
+            return cls(config, **kwargs)
+        except BusConfigError as exc:  # a bad [conversations] table: one line, as for the rest of the config
+            print(f"[dialogue] ERROR {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+
+    @property
+    def agent_ids(self) -> list[str]:
+        """Every live agent: the configured ones, then those created at run time in order."""
+        return [*self.configured, *self.created]
+
     def subscriptions(self) -> list[str]:
-        subs = ["sys.", "cmd."]  # every agent's commands: one for an unknown agent gets a clear error
-        for agent in self.agent_ids:
-            subs += [f"audio.{agent}.", f"state.{agent}."]
-        return subs
+        # Every agent's commands: one for an unknown agent gets a clear error, a create_agent names a new one.
+        # The audio service's lifecycle of every agent: one created a moment ago included, with no subscription
+        # that could still be on its way. Every state, until setup: a predecessor's agents list names the
+        # created agents whose states to take over, and all of them come from the cache at once.
+        return ["sys.", "cmd.", "audio.", "state."]
 
     # --- output: once per batch, snapshot first -------------------------------------------------
 
@@ -164,12 +221,15 @@ class DialogueService(Service):
     def _flush(self) -> None:
         """Send what the batch produced: (after writing the snapshot) events and requests, states, acks."""
         assert self.pub is not None
+        if AGENTS_TOPIC in self._changed:
+            # the list goes out after the states of the agents it adds: whoever follows it finds them cached
+            self._changed[AGENTS_TOPIC] = self._changed.pop(AGENTS_TOPIC)
         prepared = []
         for topic, msg in self._changed.items():
             frame, payload, stamped = self.pub.prepare(msg)
             prepared.append((frame, payload))
             self._published[topic] = stamped
-            if msg.TYPE != "speech":
+            if msg.TYPE not in ("speech", AgentsState.TYPE):
                 setattr(self.agents[msg.agent], msg.TYPE, stamped)
         self._changed.clear()
         if prepared or any(isinstance(m, TERMINAL_SPEECH_EVENTS) for m, _ in self._outbox):
@@ -200,10 +260,14 @@ class DialogueService(Service):
         self.log.info("published the current state again (%d topics) for the new broker's cache",
                       len(self._published))
 
-    def _ack(self, command: Message, request_id: str | None = None) -> None:
-        rid = getattr(command, "request_id", "") if request_id is None else request_id
-        if rid or request_id is not None:
-            self._acks.append(Ack(agent=command.agent, request_id=rid, command=command.TYPE))
+    def _ack(self, command: Message) -> None:
+        """The one rule (docs/protocol.md section 6): every command this service applies is acknowledged, with
+        the command's own request_id, empty when it has none (for an interrupt, the say it names; empty: all of
+        them). A speech_chunk is no command of its own but part of its say: the speech state's next_chunk
+        confirms it. A non-empty request id is remembered, so the same command sent again is acknowledged and
+        not applied twice."""
+        rid: str = command.request_id  # type: ignore[attr-defined]  # every command type has one
+        self._acks.append(Ack(agent=command.agent, request_id=rid, command=command.TYPE))
         if rid:
             self._acked[(command.agent, command.TYPE, rid)] = None
             while len(self._acked) > ACKED_KEPT:
@@ -228,13 +292,30 @@ class DialogueService(Service):
             self.log.warning("state snapshot: %s", problem)
         candidates = [got.message for got in early if got.message is not None]
         # the audio service's playback comes from the cache only: the snapshot holds this service's own
-        candidates += [m for m in saved if m.TYPE in OWN_STATE_TYPES]
+        candidates += [m for m in saved if m.TYPE in (*OWN_STATE_TYPES, AgentsState.TYPE)]
+        self._adopt_created([m for m in candidates if isinstance(m, AgentsState)])
+        self._adopted = {a: {} for a in self.agent_ids}
         for msg in candidates:
             if isinstance(msg, STATE_TYPES) and msg.agent in self._adopted:
                 held = self._adopted[msg.agent].get(msg.TYPE)
                 if held is None or msg.t_ns >= held.t_ns:  # topic by topic, the newer of snapshot and cache
                     self._adopted[msg.agent][msg.TYPE] = msg
         self._ended_before = ended
+
+    def _adopt_created(self, lists: list[AgentsState]) -> None:
+        """The agents a predecessor created, from the newer of the snapshot's and the cache's agents list. One
+        the config now names is a configured agent; one whose template is no longer configured copies the
+        current template. The limit is for new ones: those already created stay, however many."""
+        if not lists:
+            return
+        newest = max(lists, key=lambda m: m.t_ns)
+        for agent, like in zip(newest.created, newest.like, strict=True):
+            if agent not in self.configured and agent != USER:
+                self.created[agent] = like if like in self.configured else self.template
+        self._adopted_agents = newest
+        if self.created:
+            self.log.info("took over %d agent(s) created at run time: %s", len(self.created),
+                          ", ".join(self.created))
 
     def setup(self) -> None:
         assert self.sub is not None and self.pub is not None
@@ -271,12 +352,19 @@ class DialogueService(Service):
             if adopted:
                 self.log.info("agent %s: adopted current state (%s) from the snapshot and the cache", agent,
                               ", ".join(sorted(adopted)))
-        # From now on our own state echoes would come back on state.<agent>.: we know them already. The
-        # audio service's playback state stays: it tells which requests ended, also when their terminal
-        # event was lost with a broker.
+        listed = self._adopted_agents
+        if listed is not None and _same_body(listed, self._agents_state()):
+            # as the predecessor published it, after the agents' own states
+            self._published[AGENTS_TOPIC] = listed
+            self.pub.send_raw(AGENTS_TOPIC.encode(), encode(listed))
+        else:
+            self._publish_agents()
+        # From now on our own state echoes would come back on state.: we know them already. The audio
+        # service's playback state stays: it tells which requests ended, also when their terminal event was
+        # lost with a broker.
         for agent in self.agent_ids:
             self.sub.subscribe(f"state.{agent}.playback")
-            self.sub.unsubscribe(f"state.{agent}.")
+        self.sub.unsubscribe("state.")
         self._flush()
 
     def _adopt(self, state: AgentState, speech: SpeechState) -> None:
@@ -315,7 +403,9 @@ class DialogueService(Service):
             )
 
     def on_playback(self, playback: PlaybackState) -> None:
-        state = self._agent(playback)
+        state = self.agents.get(playback.agent)
+        if state is None:
+            return  # an agent removed a moment ago (or never here): the audio service has not heard yet
         if state.pending:
             self._reconcile(playback.agent, playback)
 
@@ -340,8 +430,17 @@ class DialogueService(Service):
     def _agent(self, msg: Message) -> AgentState:
         state = self.agents.get(msg.agent)
         if state is None:
-            raise Rejected(f"unknown agent '{msg.agent}'; this instance animates {', '.join(self.agent_ids)}")
+            created = f" and {len(self.created)} created at run time" if self.created else ""
+            raise Rejected(f"unknown agent '{msg.agent}'; this instance animates {', '.join(self.configured)}"
+                           f"{created}")
         return state
+
+    def _agents_state(self) -> AgentsState:
+        return AgentsState(agent=ALL_AGENTS, agents=self.agent_ids, created=list(self.created),
+                           like=list(self.created.values()), max_created=self.max_created)
+
+    def _publish_agents(self) -> None:
+        self._changed[AGENTS_TOPIC] = self._agents_state()
 
     def _set_state(self, agent: str, msg: Message) -> None:
         """The agent's state of msg's type is msg from now on; it goes out at the end of the batch."""
@@ -397,15 +496,20 @@ class DialogueService(Service):
         if not any(sources) and not (cmd.text and cmd.text.strip()):
             raise Rejected("a say request needs audio (audio_path, pcm or streamed=true) or, to be spoken by the "
                            "text-to-speech engine, a text", cmd.request_id)
+        if cmd.audio_path is not None and cmd.sample_rate != 0:
+            raise Rejected(f"sample_rate must be 0 with audio_path (the file gives its own rate), got "
+                           f"{cmd.sample_rate}", cmd.request_id)
         if (cmd.pcm is not None or cmd.streamed) and cmd.sample_rate < 8000:
             raise Rejected(f"sample_rate {cmd.sample_rate} is too low for PCM (8000 or more)", cmd.request_id)
         if cmd.pcm is not None and len(cmd.pcm) % 2:
             raise Rejected("pcm must hold whole 16-bit samples (an even number of bytes)", cmd.request_id)
-        wrong = [p for p in cmd.to if p == cmd.agent or (p != "user" and p not in self.agent_ids)]
+        # A configured agent talks with the other configured agents and the user; one created at run time has a
+        # conversation of its own, with its user only.
+        peers = [a for a in self.configured if a != cmd.agent] if cmd.agent in self.configured else []
+        wrong = [p for p in cmd.to if p != USER and p not in peers]
         if wrong:
-            raise Rejected(f"'to' names {', '.join(map(repr, wrong))}: a say is addressed to other agents of this "
-                           f"instance ({', '.join(a for a in self.agent_ids if a != cmd.agent) or 'none'}) "
-                           "or 'user'", cmd.request_id)
+            raise Rejected(f"'to' names {', '.join(map(repr, wrong))}: a say is addressed to other agents of its "
+                           f"conversation ({', '.join(peers) or 'none'}) or 'user'", cmd.request_id)
         if len(state.pending) >= MAX_PENDING_SAYS:
             raise Rejected(f"agent '{cmd.agent}' already has {MAX_PENDING_SAYS} say requests pending; "
                            "send this one when one of them has ended", cmd.request_id)
@@ -436,12 +540,12 @@ class DialogueService(Service):
     def on_interrupt(self, cmd: Interrupt) -> None:
         state = self._agent(cmd)
         if cmd.request_id and cmd.request_id in state.ended:
-            self._ack(cmd, cmd.request_id)  # it has ended already (perhaps by this very command, sent again)
+            self._ack(cmd)  # it has ended already (perhaps by this very command, sent again)
             return
         if cmd.request_id and cmd.request_id not in state.pending:
             raise Rejected(f"no pending say request '{cmd.request_id}' to interrupt", cmd.request_id)
         self.publish_later(dataclasses.replace(cmd, t_ns=0), category="play")
-        self._ack(cmd, cmd.request_id)  # acknowledged also when it names no request (it stops them all)
+        self._ack(cmd)
 
     def on_user_speech(self, cmd: UserSpeech) -> None:
         state = self._agent(cmd)
@@ -458,7 +562,9 @@ class DialogueService(Service):
     # --- the audio service's lifecycle, re-published once per request ------------------------------
 
     def on_audio_started(self, ev: SpeechStarted) -> None:
-        state = self._agent(ev)
+        state = self.agents.get(ev.agent)
+        if state is None:
+            return  # the audio service's news of an agent removed (or never here): nobody waits for it
         pending = state.pending.get(ev.request_id)
         if pending is None or pending.started:
             return  # already failed by us (audio lost), or a duplicate
@@ -473,7 +579,61 @@ class DialogueService(Service):
                                                 set_by="speech", addressees=list(pending.to)))
 
     def on_audio_terminal(self, ev: SpeechFinished | SpeechInterrupted | SpeechFailed) -> None:
-        self._end(self._agent(ev), ev.request_id, ev)
+        state = self.agents.get(ev.agent)
+        if state is not None:  # a removed agent's requests ended when it was removed
+            self._end(state, ev.request_id, ev)
+
+    # --- agents created and removed at run time ----------------------------------------------------
+
+    def on_create_agent(self, cmd: CreateAgent) -> None:
+        agent = cmd.agent
+        if agent in self.agents:
+            kind = "a configured agent" if agent in self.configured else "created already"
+            raise Rejected(f"agent '{agent}' exists ({kind}); choose another id")
+        if agent == USER:
+            raise Rejected(f"'{USER}' is the person the agents talk to, not an agent id")
+        like = cmd.like or self.template
+        if like not in self.configured:
+            raise Rejected(f"like: '{cmd.like}' is not an agent of the config ({', '.join(self.configured)}); a "
+                           "created agent copies the settings of a configured one")
+        if len(self.created) >= self.max_created:
+            raise Rejected(f"busy: all {self.max_created} conversations are in use, try again later", kind="busy")
+        assert self.sub is not None
+        state = default_state(agent)
+        self.agents[agent] = state
+        self.created[agent] = like
+        for msg in state.current():
+            self._set_state(agent, msg)
+        self._publish_speech(state)
+        self._publish_agents()
+        self.sub.subscribe(f"state.{agent}.playback")
+        self._ack(cmd)
+        self.log.info("created agent %s (like %s); %d of %d created", agent, like, len(self.created),
+                      self.max_created)
+
+    def on_remove_agent(self, cmd: RemoveAgent) -> None:
+        agent = cmd.agent
+        state = self._agent(cmd)
+        if agent in self.configured:
+            raise Rejected(f"agent '{agent}' is configured ([agents] ids): only agents created at run time can be "
+                           "removed")
+        assert self.sub is not None
+        if state.pending:
+            # stop its voice now; each pending request ends here, once (the audio service's own report of it
+            # comes after the agent is gone and is no news)
+            self.publish_later(Interrupt(agent=agent, reason=REMOVED_REASON), category="play")
+        for rid in list(state.pending):
+            self._end(state, rid, SpeechInterrupted(agent=agent, request_id=rid, reason=REMOVED_REASON))
+        del self.agents[agent], self.created[agent]
+        prefix = f"state.{agent}."
+        for table in (self._changed, self._published):  # its states are no longer published, nor on disk
+            for topic in [t for t in table if t.startswith(prefix)]:
+                del table[topic]
+        self._ended_before.pop(agent, None)
+        self.sub.unsubscribe(f"state.{agent}.playback")
+        self._publish_agents()
+        self._ack(cmd)
+        self.log.info("removed agent %s; %d of %d created", agent, len(self.created), self.max_created)
 
     def _end(self, state: AgentState, request_id: str, ev: Message) -> None:
         """Publish the one terminal event of a request (none if it already ended here)."""
@@ -549,3 +709,10 @@ class DialogueService(Service):
             doomed = [p for p in state.pending.values() if which(p)]
             for p in doomed:
                 self._end(state, p.request_id, SpeechFailed(agent=p.agent, request_id=p.request_id, reason=reason))
+
+
+def _same_body(a: Message, b: Message) -> bool:
+    """Whether two messages say the same, whatever their envelopes."""
+    skip = ("seq", "t_ns", "source")
+    return type(a) is type(b) and {k: v for k, v in vars(a).items() if k not in skip} == \
+        {k: v for k, v in vars(b).items() if k not in skip}

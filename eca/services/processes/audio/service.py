@@ -12,6 +12,10 @@ included (100 per second per agent by default), for outputs in other processes s
 service's audio track. They come from the player like the other events, so they share the master clock:
 a block's `dac_time_ns` is the time the clock anchors give its first sample, and an interruption shows
 as silence from the block where the voice stopped.
+
+Agents created at run time (`state.*.agents`) get a player like the configured ones when the list names them,
+and lose it (their voice stopped, its threads and output closed) when it no longer does. The service hears
+every agent's `play.` requests: a request for an agent created a moment ago never waits on a subscription.
 """
 
 from __future__ import annotations
@@ -19,16 +23,19 @@ from __future__ import annotations
 import argparse
 import queue
 import time
-from collections import deque
+from collections import OrderedDict, deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import (
+    ALL_AGENTS,
     MAX_PENDING_SAYS,
     RECENT_ENDINGS,
     TERMINAL_SPEECH_EVENTS,
+    AgentsState,
     Interrupt,
     Message,
     MouthKeys,
@@ -52,6 +59,8 @@ from eca.services.processes.audio.tts import engine as tts_engine
 from eca.services.processes.runtime import Rejected, Service, parse_service_args
 
 MOUTH_KEYS_PER_MESSAGE = 2000  # 20 s of 10 ms keys: far under the message size cap
+GONE_KEPT = 1024  # lately removed agents whose requests, still on their way, are dropped without a word
+REMOVED_REASON = "the agent was removed"
 DRAIN_BUDGET_S = 0.003  # per tick, publishing player events; what is left goes out at the next tick (4 ms)
 
 
@@ -66,7 +75,9 @@ class AudioService(Service):
 
     def __init__(self, config: BusConfig, sink_factory: Any = None, silent: bool = False, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
-        self.agent_ids: list[str] = list(config.agents)
+        self.agent_ids: list[str] = list(config.agents)  # the configured agents; created ones come and go
+        self.created: list[str] = []
+        self._gone: OrderedDict[str, None] = OrderedDict()
         self.audio_config = AudioConfig.load()
         self.tts = tts_engine(self.audio_config.tts)  # voices a say that has text and no audio
         self._sink_factory = sink_factory or (
@@ -81,7 +92,10 @@ class AudioService(Service):
         self.held: dict[str, dict[str, None]] = {a: {} for a in self.agent_ids}
         self.endings: dict[str, deque[tuple[str, SpeechEnding, float, str]]] = {
             a: deque(maxlen=RECENT_ENDINGS) for a in self.agent_ids}
-        for cls, handler in ((Say, self.on_say), (SpeechChunk, self.on_chunk), (Interrupt, self.on_interrupt)):
+        handlers: tuple[tuple[type[Any], Callable[[Any], None]], ...] = (
+            (Say, self.on_say), (SpeechChunk, self.on_chunk), (Interrupt, self.on_interrupt),
+            (AgentsState, self.on_agents))
+        for cls, handler in handlers:
             self.handle(cls, handler)
 
     @classmethod
@@ -95,24 +109,57 @@ class AudioService(Service):
         return cls(config, silent=args.silent, **kwargs)
 
     def subscriptions(self) -> list[str]:
-        return [f"play.{a}." for a in self.agent_ids]
+        return ["play.", f"state.{ALL_AGENTS}.{AgentsState.TYPE}"]
 
     def setup(self) -> None:
         for agent in self.agent_ids:
-            sink: Sink = self._sink_factory()
-            self.players[agent] = Player(sink, self.events.put, agent_id=agent, clock=self.clock,
-                                         config=self.audio_config, publish_voice=self.audio_config.publish_voice,
-                                         tts=self.tts).start()
-            self._publish_playback(agent)
+            self._add_player(agent)
+
+    def _add_player(self, agent: str) -> None:
+        sink: Sink = self._sink_factory()
+        self.players[agent] = Player(sink, self.events.put, agent_id=agent, clock=self.clock,
+                                     config=self.audio_config, publish_voice=self.audio_config.publish_voice,
+                                     tts=self.tts).start()
+        self.held[agent] = {}
+        self.endings[agent] = deque(maxlen=RECENT_ENDINGS)
+        self._publish_playback(agent)
+
+    def on_agents(self, msg: AgentsState) -> None:
+        """Follow the live agents: a player for each created one, none for one removed."""
+        live = set(msg.agents)
+        for agent in [a for a in self.created if a not in live]:
+            self.remove_agent(agent)
+        for agent in msg.created:
+            if agent not in self.players:
+                self.created.append(agent)
+                self._gone.pop(agent, None)
+                self._add_player(agent)
+
+    def remove_agent(self, agent: str) -> None:
+        """Stop the agent's voice and close its player. Each request it held ends here, once, as interrupted (the
+        dialogue service ended them when it removed the agent); what the closed player still had to report is
+        dropped, and no playback state goes out (that would bring the agent back into the broker's cache)."""
+        player = self.players.pop(agent)
+        player.interrupt(None)
+        player.close()
+        self.created.remove(agent)
+        self._gone[agent] = None
+        while len(self._gone) > GONE_KEPT:
+            self._gone.popitem(last=False)
+        for rid in self.held.pop(agent, {}):
+            self.interrupt_reasons.pop(rid, None)
+            self.publish(SpeechInterruptedMsg(agent=agent, request_id=rid, reason=REMOVED_REASON), "audio")
+        self.endings.pop(agent, None)
 
     def teardown(self) -> None:
         for player in self.players.values():
             player.close()
         self.drain_events()
 
-    def _player(self, msg: Message) -> Player:
+    def _player(self, msg: Message) -> Player | None:
+        """The agent's player; None for one removed a moment ago (a request on its way is no news)."""
         player = self.players.get(msg.agent)
-        if player is None:
+        if player is None and msg.agent not in self._gone:
             raise Rejected(f"unknown agent '{msg.agent}'")
         return player
 
@@ -123,7 +170,7 @@ class AudioService(Service):
                                    ended_played_s=[e[2] for e in endings], ended_reasons=[e[3] for e in endings]))
 
     def on_new_broker(self) -> None:
-        for agent in self.agent_ids:  # the new broker's cache has no playback state: the owner's again
+        for agent in self.players:  # the new broker's cache has no playback state: the owner's again
             self._publish_playback(agent)
 
     def _ended(self, agent: str, ending: Message) -> None:
@@ -136,6 +183,8 @@ class AudioService(Service):
 
     def on_say(self, msg: Say) -> None:
         player = self._player(msg)
+        if player is None:
+            return
         held = self.held[msg.agent]
         # The dialogue service accepted the request, so a refusal here ends it like any failure: with a
         # speech_failed, which the dialogue service passes on once (an error would leave it pending there).
@@ -168,11 +217,16 @@ class AudioService(Service):
 
     def on_chunk(self, msg: SpeechChunk) -> None:
         player = self._player(msg)
+        if player is None:
+            return
         if not player.feed(msg.request_id, pcm16(msg.pcm), msg.last):
             raise Rejected(f"request '{msg.request_id}' is not streaming (finished or interrupted)", msg.request_id)
 
     def on_interrupt(self, msg: Interrupt) -> None:
-        stopped = self._player(msg).interrupt(msg.request_id or None)
+        player = self._player(msg)
+        if player is None:
+            return
+        stopped = player.interrupt(msg.request_id or None)
         for uid in stopped:
             self.interrupt_reasons[uid] = msg.reason
 
@@ -187,6 +241,8 @@ class AudioService(Service):
                 event = self.events.get_nowait()
             except queue.Empty:
                 return
+            if event.agent in self._gone:
+                continue  # a removed agent's player, closed: its requests ended when it was removed
             for msg, category in self.to_messages(event):
                 self.publish(msg, category)
                 if isinstance(msg, TERMINAL_SPEECH_EVENTS) and msg.agent in self.endings:

@@ -8,6 +8,10 @@ compose every agent's face for the slot's time (agent/face/scene.py), retarget t
 Live Link source (vmc.py, livelink.py) over non-blocking UDP (udp.py). A commanded change (role, emotion, head,
 eye mode) that arrives between two slots is sent at once, by taking the next slot early (never sooner than
 EARLY_GAP of a period after the last frame, so the rate stays the schedule's).
+
+Following every agent of the instance (no [rig] agents named), it follows the agents created at run time too
+(state.*.agents): each is published on the bus and, as a subject of its own, sent to the Live Link source; VMC
+streams stay those of the configured agents (one receiver port each, fixed when the service starts).
 """
 
 from __future__ import annotations
@@ -18,11 +22,9 @@ import math
 import sys
 from typing import Any
 
-import numpy as np
-
 from eca.agent.rig import Retargeter
 from eca.protocol.endpoints import BusConfig
-from eca.protocol.messages import Heartbeat, RigPose
+from eca.protocol.messages import AgentsState, Heartbeat, RigPose
 from eca.services.processes.rig.livelink import LiveLinkPacker, device_id
 from eca.services.processes.rig.options import (
     RigOptions,
@@ -38,13 +40,11 @@ from eca.services.processes.rig.udp import UdpSender
 from eca.services.processes.rig.vmc import VmcPacker
 from eca.services.processes.runtime import Service, parse_service_args
 from eca.services.processes.scene.bus_scene import BusScenes
+from eca.services.processes.scene.rig_batch import compose_rig_batch
 from eca.services.processes.scene.schedule import FrameSchedule
 
 EARLY_GAP = 0.25  # a commanded change is sent this share of a period after the last frame at the soonest
 _MAX_WAIT_S = 0.1
-# The bus message's ranges (protocol RigPose): a head turned further than a half turn, or an eye beyond 90
-# degrees, is clipped there rather than refused.
-_HEAD_LIMIT, _EYE_LIMIT = 180.0, 90.0
 
 
 class RigService(Service):
@@ -54,12 +54,19 @@ class RigService(Service):
         super().__init__(config, **kwargs)
         self.plan = rig_plan if rig_plan is not None else plan(RigOptions(), config.agents)
         self.agent_ids = self.plan.agents
-        self.scenes = BusScenes(self, self.agent_ids)
+        # every agent of the instance (none named): the created ones too, as they come and go
+        self.scenes = BusScenes(self, self.agent_ids, follow=not self.plan.options.agents)
+        if self.scenes.follow:
+            self.scenes.on_agents = self._on_agents
         self.retargeter = Retargeter.load()
         options = self.plan.options
-        self.vmc = [VmcPacker(options.vmc_names, options.vmc_neck_share) for _ in self.plan.vmc]
-        self.livelink = [LiveLinkPacker(a, device_id(config.instance, a), options.rate_hz) for a in self.agent_ids] \
-            if self.plan.livelink is not None else []
+        self.vmc = {a: VmcPacker(options.vmc_names, options.vmc_neck_share)
+                    for a in self.agent_ids[:len(self.plan.vmc)]}
+        self.vmc_targets = dict(zip(self.agent_ids, self.plan.vmc, strict=False))
+        self.livelink: dict[str, LiveLinkPacker] = {}
+        if self.plan.livelink is not None:
+            for agent in self.agent_ids:
+                self._add_livelink(agent)
         self._senders: dict[int, UdpSender] = {}  # one socket per address family
         self.schedule: FrameSchedule | None = None
         self.frames = 0  # frames composed and sent
@@ -82,6 +89,18 @@ class RigService(Service):
     def subscriptions(self) -> list[str]:
         return self.scenes.subscriptions()
 
+    def _add_livelink(self, agent: str) -> None:
+        self.livelink[agent] = LiveLinkPacker(agent, device_id(self.config.instance, agent), self.plan.options.rate_hz)
+
+    def _on_agents(self, msg: AgentsState) -> None:
+        """The scenes followed the list; a created agent gets (and a removed one loses) its Live Link subject."""
+        drawn = set(self.scenes.by_agent)
+        for agent in [a for a in self.livelink if a not in drawn]:
+            del self.livelink[agent]
+        if self.plan.livelink is not None:
+            for agent in drawn - set(self.livelink):
+                self._add_livelink(agent)
+
     # --- start and stop -------------------------------------------------------------------------
 
     def setup(self) -> None:
@@ -93,7 +112,8 @@ class RigService(Service):
         out = [f"VMC to {', '.join(t.label for t in self.plan.vmc)} ({'+'.join(self.plan.options.vmc_names)})"
                if self.plan.vmc else "",
                f"Live Link to {self.plan.livelink.label}" if self.plan.livelink else ""]
-        self.log.info("agents %s at %g Hz: stream.<agent>.rig on the bus%s", ", ".join(self.agent_ids),
+        self.log.info("agents %s%s at %g Hz: stream.<agent>.rig on the bus%s", ", ".join(self.agent_ids),
+                      " and those created at run time" if self.scenes.follow else "",
                       self.plan.options.rate_hz, "".join(f"; {o}" for o in out if o))
 
     def teardown(self) -> None:
@@ -134,32 +154,22 @@ class RigService(Service):
 
     def send_frame(self, frame_ns: int) -> None:
         """Compose every agent's face for `frame_ns`, retarget them together, publish and send them."""
-        faces = []
-        for view in self.scenes.views:
-            face = view.scene.compose(frame_ns)
-            view.scene.prune(frame_ns)
-            view.face = face
-            faces.append(face)
-        flexors = np.stack([face.frame.values for face in faces])
-        eyes = np.array([[f.left_eye.yaw_deg, f.left_eye.pitch_deg, f.right_eye.yaw_deg, f.right_eye.pitch_deg]
-                         for f in faces])
-        head = np.array([[f.head_yaw_deg, f.head_pitch_deg, f.head_roll_deg] for f in faces])
-        np.clip(eyes, -_EYE_LIMIT, _EYE_LIMIT, out=eyes)
-        np.clip(head, -_HEAD_LIMIT, _HEAD_LIMIT, out=head)
-        batch = self.retargeter.retarget_many(flexors, frame_ns, eyes_deg=eyes, head_deg=head)
+        batch = compose_rig_batch(self.scenes.views, frame_ns, self.retargeter)
+        head, eyes = batch.head_deg, batch.eyes_deg
         time_s = (frame_ns - self.started_ns) / 1e9
         livelink = self.plan.livelink
-        for i, agent in enumerate(self.agent_ids):
+        for i, view in enumerate(self.scenes.views):
+            agent = view.agent
             arkit, vrm = batch.arkit[i], batch.vrm[i]
             self.publish(RigPose(agent=agent, frame_ns=frame_ns, arkit=arkit.tolist(), head_deg=head[i].tolist(),
                                  eyes_deg=eyes[i].tolist(), visemes=batch.visemes[i].tolist(), vrm=vrm.tolist()))
-            if self.vmc:
-                target = self.plan.vmc[i]
-                self._senders[target.family].send(self.vmc[i].pack(arkit, vrm, head[i], eyes[i], time_s),
-                                                  target.sockaddr)
-            if livelink is not None:
-                self._senders[livelink.family].send(self.livelink[i].pack(frame_ns, arkit, head[i], eyes[i]),
-                                                    livelink.sockaddr)
+            vmc = self.vmc.get(agent)
+            if vmc is not None:
+                target = self.vmc_targets[agent]
+                self._senders[target.family].send(vmc.pack(arkit, vrm, head[i], eyes[i], time_s), target.sockaddr)
+            packer = self.livelink.get(agent)
+            if livelink is not None and packer is not None:
+                self._senders[livelink.family].send(packer.pack(frame_ns, arkit, head[i], eyes[i]), livelink.sockaddr)
         self.frames += 1
         self._last_frame_ns = frame_ns
 

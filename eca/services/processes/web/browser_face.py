@@ -13,7 +13,8 @@ nodes) and the camera (the head drawer's "full" framing: view and projection mat
 Messages (binary, little-endian) start with the agent's slot (the description's) and their kind. A frame, one
 per frame slot of the master clock:
 
-    u16 slot | u8 kind (1: a frame) | u8 flags (1: the voice sounds at its time) |
+    u16 slot | u8 kind (1: a frame) | u8 flags (1: the voice sounds at its time; 2: its time is a whole second
+    of the master clock, where the calibration mode's click is: web/calibration.py) |
     u32 seq | f64 time (the frame's time on the sender's NTP clock, milliseconds: the clock of the voice's RTCP
     sender reports, so the page compares it with what the audio receiver says it plays) |
     u8 per morph target of each primitive, in the description's order (0..255 for weights 0..1) |
@@ -46,6 +47,7 @@ from eca.services.processes.avatar.model import Avatar
 FRAME, VOICE_CLOCK = 1, 2  # message kinds
 HEADER = struct.Struct("<HBBId")
 VOICED = 1  # flags: the agent's voice sounds at the frame's time
+MARK = 2  # flags: the frame's time is a whole second of the master clock (the calibration clicks' times)
 NTP_UNIX_OFFSET_MS = 2_208_988_800_000.0  # NTP counts from 1900, Unix time from 1970
 # ARKit shapes that speech moves: what the page shows in step with the voice as it plays (the rest as it arrives)
 _SPEECH_PREFIXES = ("Jaw", "Mouth", "Tongue")
@@ -140,11 +142,12 @@ class BrowserFace:
             "frame_bytes": self.layout.size,
         }
 
-    def pack(self, frame: RigFrame, slot: int, seq: int, time_ms: float, voiced: bool) -> bytes:
+    def pack(self, frame: RigFrame, slot: int, seq: int, time_ms: float, voiced: bool, mark: bool = False) -> bytes:
         """One frame for the page (see the module docstring)."""
         pose = self.driver.drive(frame)
         out = self._buffer
-        HEADER.pack_into(out, 0, slot, FRAME, VOICED if voiced else 0, seq & 0xFFFFFFFF, time_ms)
+        flags = (VOICED if voiced else 0) | (MARK if mark else 0)
+        HEADER.pack_into(out, 0, slot, FRAME, flags, seq & 0xFFFFFFFF, time_ms)
         at = HEADER.size
         n = self.layout.n_weights
         out[at:at + n] = np.rint(pose.flat * 255.0).astype(np.uint8).tobytes()

@@ -63,7 +63,9 @@ class FaceFrames:
 
     def add(self, agent: str, face: str) -> None:
         """An agent created at run time."""
-        self.slots.setdefault(agent, max(self.slots.values(), default=-1) + 1)
+        if agent not in self.slots:  # the smallest free slot: slots stay small however many come and go
+            used = set(self.slots.values())
+            self.slots[agent] = next(i for i in range(len(used) + 1) if i not in used)
         path = avatar_file(face)
         if path is not None:
             self.files[agent] = path
@@ -86,6 +88,6 @@ class FaceFrames:
         for i, view in enumerate(views):
             agent = view.agent
             out[agent] = self.face(agent).pack(batch.frame(i), self.slots[agent], self.seq, time_ms,
-                                               sounding(agent, t_ns))
+                                               sounding(agent, t_ns), mark=t_ns % 1_000_000_000 == 0)
         self.sent += len(out)
         return out

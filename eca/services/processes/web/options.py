@@ -65,6 +65,9 @@ class WebOptions:
     # 2D face, and for a page without WebGL, as video), "browser" (pages draw every face: no GL on the server)
     # or "server" (always video)
     draw: str = "auto"
+    # a conversation per visitor: each page gets an agent of its own, created for it over the bus and removed when
+    # it leaves (web/conversations.py); the instance's [conversations] max bounds how many at once
+    per_visitor: bool = False
 
     def check(self) -> WebOptions:
         if not 0 <= self.port < 65536:
@@ -88,6 +91,8 @@ class WebOptions:
             raise WebOptionsError(f"web connect_timeout_s must lie in [1, 120], got {self.connect_timeout_s}")
         if not 2 <= self.silent_timeout_s <= 120:
             raise WebOptionsError(f"web silent_timeout_s must lie in [2, 120], got {self.silent_timeout_s}")
+        if not isinstance(self.per_visitor, bool):
+            raise WebOptionsError(f"web per_visitor must be true or false, got {self.per_visitor!r}")
         if self.draw not in DRAW_MODES:
             raise WebOptionsError(f"web draw must be one of {', '.join(DRAW_MODES)}, got {self.draw!r}")
         self.vad.check()
@@ -151,6 +156,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--web-face", default=None, metavar="FACE",
                         help="the agents' face in the page: flexor, head or a .glb/.gltf/.vrm file "
                              "(default: the config's [faces], else flexor)")
+    parser.add_argument("--per-visitor", action="store_true", default=None,
+                        help="a conversation per visitor: each page gets an agent of its own, created for it and "
+                             "removed when it leaves (at most the config's [conversations] max at once)")
     parser.add_argument("--web-draw", default=None, choices=DRAW_MODES,
                         help="who draws the faces: auto (a page with WebGL draws 3D faces itself, default), browser "
                              "(pages draw every face; the server needs no GL) or server (video)")
@@ -168,6 +176,8 @@ def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
         changes["token"] = args.web_token
     if args.web_token_file is not None:
         changes["token"] = read_token_file(Path(args.web_token_file))
+    if args.per_visitor:
+        changes["per_visitor"] = True
     if args.web_draw is not None:
         changes["draw"] = args.web_draw
     if args.web_face is not None:

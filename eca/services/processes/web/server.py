@@ -17,6 +17,7 @@ import hmac
 import json
 import logging
 import math
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote, unquote
@@ -27,6 +28,7 @@ from aiohttp import web
 from eca.agent.vocabulary import EYE_MODES
 from eca.protocol.codec import ProtocolError, decode, describe, is_agent_id
 from eca.protocol.messages import MESSAGE_TYPES, PROTOCOL_VERSION
+from eca.services.processes.web.conversations import Busy, Conversation, Conversations
 from eca.services.processes.web.face_frames import FaceFrames
 from eca.services.processes.web.options import WebOptions
 from eca.services.processes.web.viewers import Backend, Viewers, ViewRequest
@@ -82,22 +84,53 @@ def avatar_files(path: Path) -> dict[str, Path]:
 
 
 def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tuple[str, ...],
-             face_frames: FaceFrames | None = None) -> web.Application:
+             face_frames: FaceFrames | None = None, conversations: Conversations | None = None,
+             create_conversation: Callable[[], Awaitable[Conversation]] | None = None) -> web.Application:
+    """The routes. With `conversations` (a conversation per visitor), a page asks `POST /conversation` for an agent
+    of its own and watches (and commands) only that one, with its key."""
     app = web.Application(client_max_size=MAX_BODY_BYTES, middlewares=[_errors_as_json])
     static_files = page_files()
-    avatars: dict[int, dict[str, Path]] = {}
+    avatars: dict[Path, int] = {}  # each avatar file served, by its number in /avatars/<n>/
+    served: dict[int, dict[str, Path]] = {}
+
+    def may_draw(agent: str) -> bool:
+        return face_frames is not None and options.draw != "server" and face_frames.drawable(agent)
 
     def drawable() -> list[str]:
-        if face_frames is None or options.draw == "server":
-            return []
-        return [a for a in agents if face_frames.drawable(a)]
+        return [a for a in agents if may_draw(a)]
 
     def avatar_url(agent: str) -> str:
         assert face_frames is not None
-        slot = face_frames.slots[agent]
-        if slot not in avatars:
-            avatars[slot] = avatar_files(face_frames.files[agent])
-        return f"avatars/{slot}/{quote(face_frames.files[agent].name)}"
+        path = face_frames.files[agent]
+        if path not in avatars:
+            avatars[path] = len(avatars)
+            served[avatars[path]] = avatar_files(path)
+        return f"avatars/{avatars[path]}/{quote(path.name)}"
+
+    def own_agents(body: dict[str, Any], field: str) -> tuple[str, ...]:
+        """The agents a request may name: the instance's, or with conversations the page's own (its key)."""
+        if conversations is None:
+            return agents
+        asked = body.get("agents") if field == "agents" else (body.get("command") or {}).get("agent")
+        agent = asked[0] if isinstance(asked, list) and len(asked) == 1 else asked
+        if isinstance(agent, str) and conversations.check_key(agent, body.get("key")):
+            return (agent,)
+        raise web.HTTPForbidden(text=json.dumps({"error": "each page of this instance has a conversation of its "
+                                                 "own: POST /conversation, then name its agent with its key"}),
+                                content_type="application/json")
+
+    async def conversation(request: web.Request) -> web.Response:
+        body = await _json_body(request)
+        _check_token(options, body.get("token"))
+        if conversations is None or create_conversation is None:
+            raise web.HTTPNotFound(text=json.dumps({"error": "this instance has no conversation per visitor "
+                                                    "(--per-visitor)"}), content_type="application/json")
+        try:
+            made = await create_conversation()
+        except Busy as exc:
+            return web.json_response({"error": str(exc), "retry": True}, status=503)
+        return web.json_response({"agent": made.agent, "key": made.key, "drawable": may_draw(made.agent)},
+                                 status=201)
 
     async def page(request: web.Request) -> web.StreamResponse:
         _check_token(options, request.query.get("token"))
@@ -115,7 +148,7 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
     async def avatar(request: web.Request) -> web.StreamResponse:
         _check_token(options, request.query.get("token") or request.headers.get("X-Eca-Token"))
         slot_text, name = request.match_info["slot"], request.match_info["name"]
-        files = avatars.get(int(slot_text)) if slot_text.isdigit() and len(slot_text) < 6 else None
+        files = served.get(int(slot_text)) if slot_text.isdigit() and len(slot_text) < 6 else None
         path = files.get(name) if files is not None else None
         if path is None:
             raise web.HTTPNotFound(text=json.dumps({"error": "no such avatar file"}), content_type="application/json")
@@ -128,12 +161,14 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
                                   "width": options.width, "height": options.height,
                                   "fps": options.fps, "max_width": options.max_width,
                                   "max_height": options.max_height, "max_fps": options.max_fps,
-                                  "draw": options.draw, "drawable": drawable()})
+                                  "draw": options.draw, "drawable": drawable(),
+                                  "per_visitor": conversations is not None})
 
     async def offer(request: web.Request) -> web.Response:
         body = await _json_body(request)
         _check_token(options, body.get("token"))
-        sdp, view = parse_offer(body, options, agents, tuple(drawable()))
+        allowed = own_agents(body, "agents")
+        sdp, view = parse_offer(body, options, allowed, tuple(a for a in allowed if may_draw(a)))
         if viewers.full:
             raise web.HTTPServiceUnavailable(text=json.dumps({"error": f"{viewers.max_viewers} viewers are "
                                                               "watching already; try again later"}),
@@ -151,7 +186,7 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
     async def command(request: web.Request) -> web.Response:
         body = await _json_body(request)
         _check_token(options, body.get("token"))
-        backend.submit(parse_command(body.get("command"), agents))
+        backend.submit(parse_command(body.get("command"), own_agents(body, "command")))
         return web.json_response({"accepted": True}, status=202)
 
     app.router.add_get("/", page)
@@ -159,6 +194,7 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
     app.router.add_get("/static/{path:.+}", static)
     app.router.add_get("/avatars/{slot}/{name:.+}", avatar)
     app.router.add_post("/offer", offer)
+    app.router.add_post("/conversation", conversation)
     app.router.add_post("/command", command)
     return app
 

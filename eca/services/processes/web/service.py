@@ -12,6 +12,7 @@ watches.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import dataclasses
 import logging
 import math
@@ -29,7 +30,7 @@ import numpy as np
 from aiohttp import web
 
 from eca.protocol.endpoints import BusConfig
-from eca.protocol.messages import Message, VoiceBlock
+from eca.protocol.messages import AgentsState, CreateAgent, Error, Message, RemoveAgent, VoiceBlock
 from eca.services.processes.renderer import (
     Drawers,
     HeadlessContextError,
@@ -41,6 +42,7 @@ from eca.services.processes.renderer import (
 from eca.services.processes.runtime import CannotStart, Rejected, Service
 from eca.services.processes.scene.bus_scene import BusScenes
 from eca.services.processes.scene.schedule import FrameSchedule
+from eca.services.processes.web.conversations import Busy, Conversation, Conversations
 from eca.services.processes.web.encoding import EncodedStreams
 from eca.services.processes.web.event_loop import EventLoopThread
 from eca.services.processes.web.face_frames import FaceFrames
@@ -55,6 +57,8 @@ _WAIT_S = 0.01  # the loop's longest wait while viewers watch: how soon a page's
 # by drawing that slot early, but never sooner than this share of a frame period after the last frame:
 # the frame rate stays the schedule's, however fast commands come.
 EARLY_GAP = 0.25
+CREATE_TIMEOUT_S = 10.0  # a page waits this long for its conversation's agent at most
+REAP_EVERY_NS = 250_000_000  # how often ended conversations are looked for
 
 
 @dataclass(frozen=True)
@@ -76,7 +80,7 @@ class WebService(Service):
         super().__init__(config, **kwargs)
         self.options = (options or WebOptions()).check()
         instance_agents = config.agents
-        self.agent_ids = self.options.agents or instance_agents
+        self.agent_ids: list[str] = list(self.options.agents or instance_agents)
         unknown = [a for a in self.agent_ids if a not in instance_agents]
         if unknown:
             raise WebOptionsError(f"[web] agents {unknown} are not agents of this instance "
@@ -92,6 +96,15 @@ class WebService(Service):
             raise WebOptionsError(str(exc)) from None
         self.face_frames = FaceFrames(self.faces, (self.options.width, self.options.height), self.clock)
         self._check_drawing_mode()
+        self.conversations: Conversations | None = None
+        if self.options.per_visitor:
+            self.conversations = Conversations(self.options.connect_timeout_s)
+            self.scenes.on_agents = self._on_agents  # before the service connects: the list is subscribed
+            self.handle(Error, self._on_error)
+        self._creates: queue.SimpleQueue[str] = queue.SimpleQueue()  # conversations' agents to create
+        self._left: set[int] = set()  # viewers gone since the bus loop last looked (their conversations end)
+        self._gone: deque[str] = deque(maxlen=256)  # agents dropped lately: what still comes for them is dropped
+        self._next_reap_ns = 0
         self.handle(VoiceBlock, self.on_voice)
         self._submitted: queue.SimpleQueue[Message] = queue.SimpleQueue()
         self._warm_up = threading.Event()
@@ -168,10 +181,100 @@ class WebService(Service):
     def watch(self, viewer: int, request: ViewRequest) -> None:
         with self._lock:
             self._watching[viewer] = request
+        if self.conversations is not None:
+            for agent in request.agents:
+                self.conversations.watched(agent, viewer)
 
     def unwatch(self, viewer: int) -> None:
         with self._lock:
             self._watching.pop(viewer, None)
+            self._left.add(viewer)
+
+    # --- conversations per visitor (web/conversations.py) ------------------------------------------
+
+    async def create_conversation(self) -> Conversation:
+        """A conversation of its own for a page (on the event loop): its agent created and served. Busy when
+        none can be made."""
+        assert self.conversations is not None
+        conversation = self.conversations.begin(self.clock.now_ns(), asyncio.get_running_loop())
+        self._creates.put(conversation.agent)
+        assert conversation.created is not None
+        try:
+            await asyncio.wait_for(asyncio.shield(conversation.created), CREATE_TIMEOUT_S)
+        except TimeoutError:
+            raise Busy("the instance did not make a conversation in time; try again later") from None
+        return conversation
+
+    def _on_agents(self, m: AgentsState) -> None:
+        """The dialogue service's list of agents (bus loop): serve our conversations' new agents, drop those it no
+        longer lists."""
+        assert self.conversations is not None
+        became, gone = self.conversations.listed(set(m.agents), len(m.created), m.max_created)
+        for conversation in became:
+            like = m.like[m.created.index(conversation.agent)] if conversation.agent in m.created else ""
+            self._serve_agent(conversation.agent, like)
+            self.conversations.ready(conversation)
+        for agent in gone:
+            self._drop_agent(agent)
+
+    def _on_error(self, m: Error) -> None:
+        if self.conversations is not None and self.conversations.is_conversation(m.agent):
+            self.conversations.refused(m.agent, m.reason)
+            self._unsubscribe(f"error.{m.agent}.")
+
+    def _serve_agent(self, agent: str, like: str) -> None:
+        if agent in self.voices:
+            return
+        template = like if like in self.faces else self.agent_ids[0]
+        self.faces[agent] = self.faces[template]
+        self.voices[agent] = VoiceFeed()
+        self.face_frames.add(agent, self.faces[agent])
+        self.scenes.add_agent(agent)
+        self.agent_ids.append(agent)
+        assert self.sub is not None
+        self.sub.subscribe(f"stream.{agent}.voice")
+        self._unsubscribe(f"error.{agent}.")
+        self.log.info("conversation %s: agent created (like %s)", agent, template)
+
+    def _drop_agent(self, agent: str) -> None:
+        if agent not in self.voices:
+            return
+        self._gone.append(agent)
+        self.scenes.remove_agent(agent)
+        self.voices.pop(agent, None)
+        self.faces.pop(agent, None)
+        self.face_frames.remove(agent)
+        self.frames.forget(agent)
+        if agent in self.agent_ids:
+            self.agent_ids.remove(agent)
+        self._unsubscribe(f"stream.{agent}.voice")
+        if self._events is not None and self.viewers is not None:
+            self._events.loop.call_soon_threadsafe(self.viewers.close_watching, agent)
+        self.log.info("conversation %s: agent removed", agent)
+
+    def _unsubscribe(self, prefix: str) -> None:
+        if self.sub is not None:
+            self.sub.unsubscribe(prefix)
+
+    def _tend_conversations(self, now: int) -> None:
+        """Create what pages asked for; remove the conversations whose pages left or never came."""
+        assert self.conversations is not None and self.sub is not None
+        while True:
+            try:
+                agent = self._creates.get_nowait()
+            except queue.Empty:
+                break
+            self.sub.subscribe(f"error.{agent}.")  # a refusal (busy) reaches the page at once
+            self.publish(CreateAgent(agent=agent, request_id=f"web-{agent}"))
+        if now < self._next_reap_ns:
+            return
+        self._next_reap_ns = now + REAP_EVERY_NS
+        with self._lock:
+            left, self._left = self._left, set()
+        for agent in self.conversations.to_remove(now, left):
+            self.publish(RemoveAgent(agent=agent, request_id=f"web-{agent}-end"))
+        for agent in self.conversations.forget_unanswered(now, int(2 * CREATE_TIMEOUT_S * 1e9)):
+            self._unsubscribe(f"error.{agent}.")
 
     def submit(self, msg: Message) -> None:
         if self._submitted.qsize() >= MAX_SUBMITTED:
@@ -191,7 +294,8 @@ class WebService(Service):
             except HeadlessContextError as exc:
                 raise CannotStart(str(exc)) from None
         self._events = EventLoopThread().start()
-        app = make_app(self, self.viewers, self.options, self.agent_ids, self.face_frames)
+        app = make_app(self, self.viewers, self.options, tuple(self.agent_ids), self.face_frames, self.conversations,
+                       self.create_conversation if self.conversations is not None else None)
         try:
             self._runner = self._events.call(self._listen(app), timeout_s=20.0)
         except OSError as exc:
@@ -231,6 +335,8 @@ class WebService(Service):
     def on_voice(self, msg: VoiceBlock) -> None:
         feed = self.voices.get(msg.agent)
         if feed is None:
+            if msg.agent in self._gone:
+                return  # the last blocks of a conversation that ended
             raise Rejected(f"this web service does not serve agent '{msg.agent}'")
         try:
             feed.add(msg.dac_time_ns, np.frombuffer(msg.pcm, dtype="<i2"), msg.sample_rate)
@@ -242,6 +348,8 @@ class WebService(Service):
         now = self.clock.now_ns()
         self.beat_if_due(now)
         self._publish_submitted()
+        if self.conversations is not None:
+            self._tend_conversations(now)
         if self._warm_up.is_set():
             self._warm_up.clear()
             self._try_prepare((self.options.width, self.options.height))

@@ -314,6 +314,12 @@ class Viewers:
         await viewer.pc.close()
         log.info("viewer %d left (%d watching)", viewer.number, len(self.open))
 
+    def close_watching(self, agent: str) -> None:
+        """Close every viewer that watches `agent` (its conversation ended; on the event loop)."""
+        for viewer in list(self.open.values()):
+            if agent in viewer.request.agents:
+                asyncio.ensure_future(self.close(viewer))
+
     async def close_all(self) -> None:
         for viewer in list(self.open.values()):
             await self.close(viewer)

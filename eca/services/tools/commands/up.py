@@ -60,6 +60,8 @@ def web_args(args: argparse.Namespace) -> list[str]:
         value = getattr(args, name)
         if value is not None:
             argv += [f"--{name.replace('_', '-')}", str(value)]
+    if getattr(args, "per_visitor", None):
+        argv.append("--per-visitor")
     return argv
 
 

@@ -32,6 +32,10 @@ function showStats() {
   if (eca.state !== "connected") return setStatus(eca.state, eca.state.startsWith("error"));
   const s = eca.stats;
   const part = (v, unit, digits = 0) => (v == null ? "–" : `${v.toFixed(digits)} ${unit}`);
+  if (Object.keys(eca.drawn).length && !Object.values(eca.faces).some((e) => e.tagName === "VIDEO")) {
+    return setStatus(`connected · rtt ${part(s.rttMs, "ms")} · drawn here, ${part(s.drawnFps, "fps")}`
+                     + ` · mouth on the voice (${part(s.voiceWaitMs, "ms")} behind its frames)`);
+  }
   setStatus(`connected · rtt ${part(s.rttMs, "ms")} · ${part(s.fps, "fps")} · A/V offset ${part(s.avOffsetMs, "ms")}`
             + (s.avOffsetMs == null ? "" : s.avOffsetMs >= 0 ? " (audio late)" : " (audio early)"));
 }
@@ -92,7 +96,19 @@ async function connect() {
   const config = await (await fetch(withToken("/config"))).json();
   // drawn left to right in the instance's order, the seats its agents look at each other by
   const seat = (a) => (config.agents.indexOf(a) < 0 ? config.agents.length : config.agents.indexOf(a));
-  const agents = (params.get("agents") || config.agents[0]).split(",").filter(Boolean).sort((a, b) => seat(a) - seat(b));
+  let agents = (params.get("agents") || config.agents[0]).split(",").filter(Boolean).sort((a, b) => seat(a) - seat(b));
+  eca.key = null;
+  if (config.per_visitor) {
+    // a conversation of this page's own: an agent made for it, which only this page (its key) watches and commands
+    const response = await fetch("/conversation", { method: "POST", headers: { "Content-Type": "application/json" },
+                                                    body: JSON.stringify({ token }) });
+    const made = await response.json();
+    if (!response.ok) throw new Error(made.error || `the server answered ${response.status}`);
+    agents = [made.agent];
+    eca.key = made.key;
+    if (made.drawable && !config.drawable.includes(made.agent)) config.drawable.push(made.agent);
+    $("agent").replaceChildren(new Option(made.agent, made.agent));
+  }
   const video = {
     width: Number(params.get("width") || config.width),
     height: Number(params.get("height") || config.height),
@@ -143,7 +159,7 @@ async function connect() {
   const body = {
     type: "offer", sdp: pc.localDescription.sdp, token, agents, video,
     streams: sections.map((s) => ({ mid: s.t.mid, agent: s.agent, kind: s.kind })),
-    mic_mid: mic ? mic.mid : null, draw_here: drawHere,
+    mic_mid: mic ? mic.mid : null, draw_here: drawHere, key: eca.key,
   };
   const response = await fetch("/offer", { method: "POST", headers: { "Content-Type": "application/json" },
                                            body: JSON.stringify(body) });
@@ -193,14 +209,24 @@ async function pollStats() {
   });
   // what each track plays now, as the sender's clock saw it: video's ahead of audio's = audio late
   const offset = videoPlayout != null && audioPlayout != null ? videoPlayout - audioPlayout : null;
-  eca.stats = { rttMs: rtt, fps, avOffsetMs: offset, width, height };
+  eca.stats = { rttMs: rtt, fps, avOffsetMs: offset, width, height, drawnFps: null, voiceWaitMs: null };
+  const drawn = Object.values(eca.drawn);
+  if (drawn.length) {
+    // the faces drawn here: their frames' rate, and how long the mouth waits for the voice it belongs to
+    const face = drawn[0];
+    const now = performance.now();
+    if (face.lastPoll) eca.stats.drawnFps = (1000 * (face.stats.received - face.lastPoll.received)) / (now - face.lastPoll.at);
+    face.lastPoll = { at: now, received: face.stats.received };
+    const newest = face.frames[face.frames.length - 1];
+    if (newest && face.stats.syncedMs != null) eca.stats.voiceWaitMs = newest.timeMs - face.stats.syncedMs;
+  }
   showStats();
 }
 
 async function sendCommand(command) {
   const agent = $("agent").value;
   const response = await fetch("/command", { method: "POST", headers: { "Content-Type": "application/json" },
-                                             body: JSON.stringify({ token, command: { ...command, agent } }) });
+                                             body: JSON.stringify({ token, key: eca.key, command: { ...command, agent } }) });
   const answer = await response.json();
   $("panel-status").textContent = response.ok ? `sent ${command.type} to ${agent}` : answer.error;
   $("panel-status").classList.toggle("error", !response.ok);

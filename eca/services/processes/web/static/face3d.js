@@ -15,6 +15,8 @@ import { VRMLoaderPlugin, VRMUtils } from "@pixiv/three-vrm";
 const FRAME = 1, VOICE_CLOCK = 2;  // message kinds
 const HEADER_BYTES = 16;
 const VOICED = 1;
+const MARK = 2;  // the frame's time is a whole second of the master clock (the calibration clicks' times)
+const LOG_MAX = 2000;
 const OPUS_RATE = 48000;  // RTP clock of the voice (Opus)
 const KEEP_MS = 3000;  // frames kept for the voice to catch up with
 
@@ -88,6 +90,9 @@ export class BrowserFace {
     this.frames = [];  // { seq, flags, timeMs, weights: Uint8Array, quats: Int16Array, arrivedMs }
     this.stats = { received: 0, bad: 0, presented: 0, lastSeq: null, firstArrival: null, lastArrival: null,
                    syncedMs: null, voiced: false };
+    // for measuring (bench/web.py): when each frame was first shown as the newest (what has no sound) and as
+    // the heard one (the voice's part), and when each marked frame's voice part was first shown
+    this.log = { newest: [], heard: [], marks: [] };
     this.weightBytes = description.primitives.reduce((n, p) => n + p.targets, 0);
     this.frameBytes = HEADER_BYTES + this.weightBytes + 8 * description.joints.length;
     if (this.frameBytes !== description.frame_bytes) throw new Error("the face's frame layout does not add up");
@@ -191,10 +196,21 @@ export class BrowserFace {
       const q = (j.voiced ? heard : newest).quats;
       node.quaternion.set(q[4 * i] / 32767, q[4 * i + 1] / 32767, q[4 * i + 2] / 32767, q[4 * i + 3] / 32767).normalize();
     });
+    const now = performance.now();
+    if (newest.seq !== this.stats.presented) this.note(this.log.newest, { seq: newest.seq, arrivedMs: newest.arrivedMs, shownMs: now });
+    if (heard.seq !== this.stats.heardSeq) {
+      this.note(this.log.heard, { seq: heard.seq, timeMs: heard.timeMs, shownMs: now });
+      if (heard.flags & MARK) this.note(this.log.marks, { timeMs: heard.timeMs, shownMs: now });
+    }
     this.stats.presented = newest.seq;
     this.stats.heardSeq = heard.seq;
     this.stats.voiced = !!(heard.flags & VOICED);
     this.render();
+  }
+
+  note(list, entry) {
+    list.push(entry);
+    if (list.length > LOG_MAX) list.splice(0, list.length - LOG_MAX);
   }
 
   render() {

@@ -1,0 +1,80 @@
+"""Agents created at run time outlive a restart of the dialogue service together with the broker (whose cache is
+then empty): the dialogue's snapshot on disk holds them, their states and the list of agents; a removed one is
+gone from it. And the [conversations] table of the config is checked."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from eca.protocol.client import AgentClient
+from eca.protocol.endpoints import BusConfig, BusConfigError
+from eca.protocol.messages import AgentsState, CreateAgent, RemoveAgent
+from eca.services.processes.dialogue import DialogueService
+from eca.services.processes.state_snapshot import StateSnapshot, snapshot_path
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
+
+
+@pytest.fixture
+def config() -> Iterator[BusConfig]:
+    with private_bus_config(agents=["ada", "bob"], extra="[conversations]\nmax = 4\ntemplate = \"bob\"\n") as cfg:
+        yield cfg
+
+
+def send(client: AgentClient, msg: CreateAgent | RemoveAgent) -> None:
+    client.wait_applied(client.send(msg))
+
+
+def test_a_dialogue_service_restarted_with_the_broker_keeps_the_created_agents(config: BusConfig) -> None:
+    with BrokerThread(config), ServiceThread(DialogueService(config)):
+        with AgentClient(config, agent="v1") as v1, AgentClient(config, agent="v2") as v2:
+            send(v1, CreateAgent(agent="v1", request_id="c1"))
+            send(v2, CreateAgent(agent="v2", request_id="c2", like="ada"))
+            v1.wait_applied(v1.set_emotion("annoyed", 0.7))
+            send(v2, RemoveAgent(agent="v2", request_id="r2"))
+    saved, _, problem = StateSnapshot(snapshot_path(config)).load()
+    assert problem is None and not [m for m in saved if m.agent == "v2"]
+    [listing] = [m for m in saved if isinstance(m, AgentsState)]
+    assert (listing.agents, listing.created, listing.like) == (["ada", "bob", "v1"], ["v1"], ["bob"])
+    # both gone: the new broker's cache is empty, and only the snapshot remembers
+    with BrokerThread(config), ServiceThread(DialogueService(config)) as second:
+        service = second.service
+        assert isinstance(service, DialogueService)
+        assert service.created == {"v1": "bob"} and service.agents["v1"].emotion.name == "annoyed"
+        with AgentClient(config, agent="v1") as v1:
+            assert v1.state["emotion"].intensity == 0.7  # type: ignore[attr-defined]
+            v1.wait_applied(v1.set_role("silence"))  # served by the new instance
+            send(v1, RemoveAgent(agent="v1", request_id="r1"))
+        assert service.created == {} and "v1" not in service.agents
+
+
+@pytest.mark.parametrize(("table", "says"), [
+    ("max = -1", "'max' must be an integer in 0..256"),
+    ("max = 1000", "'max' must be an integer in 0..256"),
+    ("max = \"sixty\"", "'max' must be an integer in 0..256"),
+    ("template = \"zed\"", "'template' must be one of the configured agents (ada)"),
+])
+def test_a_bad_conversations_table_is_one_clear_error(table: str, says: str,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    with private_bus_config(extra=f"[conversations]\n{table}\n") as cfg:
+        with pytest.raises(BusConfigError, match=r"\[conversations\]"):
+            DialogueService(cfg)
+        with pytest.raises(SystemExit) as stopped:
+            DialogueService.from_args(cfg, [])
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err
+    assert "[dialogue] ERROR" in err and says in err
+
+
+def test_the_shipped_config_allows_sixty_conversations_like_the_first_agent() -> None:
+    with private_bus_config(agents=["bob", "ada"]) as cfg:
+        service = DialogueService(cfg)
+    assert (service.max_created, service.template) == (60, "bob")
+
+
+def test_the_protocol_s_bound_on_live_agents_holds_every_configured_and_created_one() -> None:
+    from eca.protocol.endpoints import MAX_AGENTS
+    from eca.protocol.messages import MAX_CREATED_AGENTS, MAX_LIVE_AGENTS
+
+    assert MAX_AGENTS + MAX_CREATED_AGENTS == MAX_LIVE_AGENTS
