@@ -10,7 +10,7 @@ import asyncio
 import re
 import subprocess
 import sys
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
 from types import SimpleNamespace
@@ -28,7 +28,7 @@ from pipecat.workers.runner import WorkerRunner  # noqa: E402
 
 from eca.agent.face.emotions import load_emotion_table  # noqa: E402
 from eca.protocol.client import AgentClient  # noqa: E402
-from eca.protocol.messages import EmotionState, HeadState  # noqa: E402
+from eca.protocol.messages import ALL_AGENTS, AgentsState, EmotionState, HeadState  # noqa: E402
 from eca.services.pipecat import EcaFaceParams, EcaTools, EcaVideoService  # noqa: E402
 from eca.services.processes.dialogue import DialogueService  # noqa: E402
 from eca.services.tools.child_processes import subprocess_env  # noqa: E402
@@ -155,6 +155,41 @@ def test_a_tool_called_before_the_pipeline_starts_waits_for_the_face() -> None:
     assert isinstance(emotion, EmotionState) and emotion.intensity == 0.6
     assert results["never"]["ok"] is False and results["never"]["retry"] is True
     assert "not connected to eca yet" in results["never"]["error"]
+
+
+def test_bots_share_one_eca_each_with_an_agent_of_its_own() -> None:
+    """Two bots' faces on one running eca, with `create_agent`: each makes its agent when it connects, its tools
+    command only that one, and each agent goes when its pipeline ends."""
+    results: dict[str, dict[str, Any]] = {}
+    listed: dict[str, list[str]] = {}
+
+    async def bots(first: EcaVideoService, second: EcaVideoService, client: AgentClient) -> None:
+        async with running(first), running(second):
+            listed["during"] = list(client.wait_for(lambda m: isinstance(m, AgentsState) and len(m.created) == 2,
+                                                    10.0).agents)  # type: ignore[attr-defined]
+            results["first"] = await EcaTools(first).set_emotion("happy", 0.7)
+            results["second"] = await EcaTools(second).move_head(turn=-0.5)
+
+    with private_bus_config(services=["dialogue"]) as config, BrokerThread(config), \
+            ServiceThread(DialogueService(config)), AgentClient(config, agent=ALL_AGENTS) as client:
+        client.sub.subscribe("state.bot-")
+        faces = [EcaVideoService(EcaFaceParams(agent=name, instance=config.instance, config_path=config.config_path,
+                                               video=False, create_agent=True)) for name in ("bot-1", "bot-2")]
+        asyncio.run(bots(faces[0], faces[1], client))
+        seen: list[Any] = []
+
+        def noted(match: Callable[[Any], bool]) -> Callable[[Any], bool]:
+            return lambda m: seen.append(m) is None and match(m)  # every message the client looks at is kept
+
+        client.wait_for(noted(lambda m: isinstance(m, EmotionState) and m.agent == "bot-1" and m.name == "happy"), 5.0)
+        client.wait_for(noted(lambda m: isinstance(m, HeadState) and m.agent == "bot-2" and m.turn == -0.5), 5.0)
+        after = client.wait_for(noted(lambda m: isinstance(m, AgentsState) and not m.created), 10.0)
+    assert listed["during"] == ["ada", "bot-1", "bot-2"]
+    assert results["first"]["ok"] is True and results["second"]["ok"] is True, results
+    assert isinstance(after, AgentsState) and after.agents == ["ada"]
+    emotions = [m for m in seen if isinstance(m, EmotionState) and m.name == "happy"]
+    heads = [m for m in seen if isinstance(m, HeadState) and m.turn == -0.5]
+    assert {m.agent for m in emotions} <= {"bot-1"} and {m.agent for m in heads} <= {"bot-2"}
 
 
 def test_without_pipecat_the_import_says_how_to_install_it() -> None:

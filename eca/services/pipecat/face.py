@@ -87,12 +87,18 @@ class EcaFaceParams(FaceOptions):
     command_timeout_s: how long a command (say, interrupt, a tool's) is sent again before giving up.
     seed: the face's idle motion (every random draw of eca is seeded).
     face: "flexor" (the paper's 2D face), "head" (eca's 3D head) or a .glb/.gltf/.vrm file.
+    create_agent: make `agent` on the running eca when connecting and remove it at the end (`create_agent`,
+        docs/protocol.md "Conversations created at run time"): many bots share one `eca up`, an agent each,
+        instead of starting an instance each. Refused when the instance's conversations are all in use.
+    like: with `create_agent`, the configured agent whose settings the new one copies ("": the config's template).
     """
 
     instance: str | None = None
     config_path: str | Path | None = None
     start_eca: bool = False
     connect_timeout_s: float = 10.0
+    create_agent: bool = False
+    like: str = ""
 
     def check(self) -> EcaFaceParams:
         """These parameters, checked: ValueError naming the first one out of its range."""
@@ -164,6 +170,7 @@ class EcaVideoService(FrameProcessor):
         self.pictures_skipped = 0  # drawn but replaced by a newer one before the loop could push it
         self._connected = asyncio.Event()  # set once the connection is made, or has failed
         self._connect_error: str | None = None
+        self._created: BusConfig | None = None  # the instance this service made its agent on, if it did
 
     # --- start and stop ---------------------------------------------------------------------------
 
@@ -187,11 +194,14 @@ class EcaVideoService(FrameProcessor):
             self.eca_config = self.instance.config
         else:
             self.eca_config = load_bus_config(p.config_path, instance=p.instance)
+        if p.create_agent:
+            self._create_agent(self.eca_config)
         link = FaceLink(self.eca_config, p.face_options(), self._picture_from_thread)
         thread = LinkThread(link)
         try:
             thread.start(timeout_s=p.connect_timeout_s)
         except BaseException:
+            self._remove_agent()
             if self.instance is not None:
                 self.instance.stop()
                 self.instance = None
@@ -208,6 +218,28 @@ class EcaVideoService(FrameProcessor):
             return
         logger.info(f"{self}: the face of eca agent '{p.agent}' on instance '{self.eca_config.instance}'"
                     + (f", {p.width}x{p.height} at {p.fps:g} fps" if p.video else ", no video"))
+
+    def _create_agent(self, config: BusConfig) -> None:
+        """Make this bot's agent on the running eca (with `create_agent`); it goes again at the end."""
+        from eca.protocol.client import AgentClient
+
+        p = self.params
+        with AgentClient(config, agent=p.agent, source="pipecat-face", timeout_s=p.connect_timeout_s) as client:
+            client.wait_applied(client.create_agent(like=p.like), timeout_s=p.connect_timeout_s)
+        self._created = config
+        logger.info(f"{self}: created eca agent '{p.agent}' on instance '{config.instance}'")
+
+    def _remove_agent(self) -> None:
+        config, self._created = self._created, None
+        if config is None:
+            return
+        from eca.protocol.client import AgentClient
+
+        try:
+            with AgentClient(config, agent=self.params.agent, source="pipecat-face", timeout_s=5.0) as client:
+                client.wait_applied(client.remove_agent(), timeout_s=5.0)
+        except Exception as exc:  # eca already gone (stopped first): nothing of the agent is left to remove
+            logger.warning(f"{self}: could not remove eca agent '{self.params.agent}': {exc}")
 
     async def cleanup(self) -> None:
         """pipecat's cleanup (also after a Ctrl-C): stop the face's thread and the eca it started."""
@@ -233,6 +265,7 @@ class EcaVideoService(FrameProcessor):
         self.face_link = None
         if thread is not None:
             await asyncio.to_thread(thread.stop)
+        await asyncio.to_thread(self._remove_agent)
         if instance is not None:
             await asyncio.to_thread(instance.stop)
 
