@@ -24,7 +24,8 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import zmq
@@ -91,6 +92,7 @@ class Service:
         self.pub: Publisher | None = None
         self.sub: Subscriber | None = None
         self._liveness = LivenessSender(self.ctx, liveness) if liveness else None
+        self._liveness_endpoint = liveness
         self._next_beat_ns = 0
         self._next_tick_ns = 0
 
@@ -259,6 +261,35 @@ class Service:
         beat = self.pub.publish(self.heartbeat())
         if self._liveness is not None:
             self._liveness.beat(beat)
+
+    @contextmanager
+    def keeping_alive(self, max_s: float = 30.0) -> Iterator[None]:
+        """Beat to the supervisor from a thread of its own (its own socket) while the loop does one long, bounded
+        piece of work that cannot beat in between (a GL context made and the faces' first frames drawn while a
+        page loads): the loop is working, not hung. The beats stop after `max_s`, so work that never ends is
+        still taken for a hang."""
+        if self._liveness_endpoint is None:
+            yield
+            return
+        done = threading.Event()
+        endpoint = self._liveness_endpoint
+
+        def beat() -> None:
+            sender = LivenessSender(self.ctx, endpoint)
+            deadline = time.monotonic() + max_s
+            try:
+                while not done.wait(self.config.heartbeat_interval_s) and time.monotonic() < deadline:
+                    sender.beat(self.heartbeat())
+            finally:
+                sender.close()
+
+        thread = threading.Thread(target=beat, name=f"{self.name}-keeping-alive", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            done.set()
+            thread.join()
 
     def _beat_to_supervisor(self) -> None:
         if self._liveness is not None:

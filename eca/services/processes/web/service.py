@@ -445,7 +445,8 @@ class WebService(Service):
         if self._no_gl is not None:
             return False
         try:
-            self._prepare_drawing(size)
+            with self.keeping_alive():  # a second or more on a loaded machine, in one piece
+                self._prepare_drawing(size)
         except HeadlessContextError as exc:
             self._no_gl = str(exc)
             self.log.error("no video for pages without WebGL: %s", exc)
