@@ -318,6 +318,9 @@ def test_the_drawing_is_ready_before_the_first_viewer_and_kept_between_viewers(
     assert prepared is not None and prepared.size == (SMALL["width"], SMALL["height"])
     service.watch(1, ViewRequest(("ada",), SMALL["width"], SMALL["height"], SMALL["fps"], (), None))
     assert wait_until(lambda: service._plan is not None, 10.0)
+    with urllib.request.urlopen(f"http://127.0.0.1:{service.port}/", timeout=10.0) as response:
+        assert response.status == 200  # another page loading while one watches: what is drawn stays
+    assert not wait_until(lambda: service._yuv is not prepared, 1.0)
     service.unwatch(1)
     assert wait_until(lambda: service._plan is None, 10.0)
     assert service._yuv is prepared

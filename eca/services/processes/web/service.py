@@ -352,7 +352,8 @@ class WebService(Service):
             self._tend_conversations(now)
         if self._warm_up.is_set():
             self._warm_up.clear()
-            self._try_prepare((self.options.width, self.options.height))
+            if self._yuv is None:  # drawing made ready already (at whatever size pages asked) stays as it is
+                self._try_prepare((self.options.width, self.options.height))
         plan = self._current_plan()
         if plan != self._plan:
             self._replan(plan)

@@ -39,6 +39,7 @@ MAX_REFUSED_CHANNELS = 16  # a page that opens more channels than this, besides 
 MAX_PAGE_MESSAGES = 64  # messages a page sends on its face channel (it has nothing to say) before it is closed
 MAX_BUFFERED_BYTES = 64 * 1024  # a face channel holding more unsent than this skips frames until it drains
 VOICE_CLOCK_EVERY_S = 0.25
+FIRST_PICTURE_WAIT_S = 60.0  # the longest a viewer's silence is not counted while its first picture is drawn
 
 
 @dataclass(frozen=True)
@@ -276,6 +277,15 @@ class Viewers:
         reports on video every 0.2-1 s but on audio only every 2.5-7.5 s (libwebrtc's 5 s +- 50 %), so
         watching one audio stream alone closed healthy pages."""
         loop = asyncio.get_running_loop()
+        # A face drawn here starts once drawing is ready, which the first page of an instance at rest waits for
+        # (a GL context and the faces' first frames, a second or more): the silence is counted from its first
+        # picture, not from before it could come (at most FIRST_PICTURE_WAIT_S).
+        faces = [t for t in viewer.tracks if isinstance(t, FaceTrack)]
+        started = loop.time()
+        while faces and not any(t.sent for t in faces) and loop.time() - started < FIRST_PICTURE_WAIT_S:
+            if viewer.closed:
+                return
+            await asyncio.sleep(0.1)  # a look at the tracks' counters, not synchronisation
         last = loop.time()
         seen: dict[int, datetime] = {}
         senders = [t.sender for t in viewer.pc.getTransceivers() if t.sender.track is not None]
