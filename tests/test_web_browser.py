@@ -1,11 +1,14 @@
 """The web front-end in a real headless Chromium (Debian's chromium and chromium-driver, through selenium)
 with fake media devices: the page connects to `eca up --web`, the face is decoded at the asked size and
 rate, the voice is heard during a say and silent otherwise, the user's speech (a WAV as the microphone)
-reaches the bus and interrupts the agent, the token rule holds, and a second browser sees the same agent.
+reaches the bus and interrupts the agent, the token rule holds, a second browser sees the same agent, and
+the decoded picture has the face's background colour up to its edges.
 """
 
 from __future__ import annotations
 
+import base64
+import io
 import re
 import time
 from collections.abc import Iterator
@@ -21,11 +24,12 @@ from eca.protocol.bus import Subscriber
 from eca.protocol.client import AgentClient
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import Say, SpeechFinished, SpeechInterrupted, UserAudio, UserSpeech
+from eca.services.processes.renderer.config import load_render_config
 from eca.services.processes.web.options import WebOptions
 from eca.services.processes.web.service import WebService
-from eca.services.tools.child_processes import LineReader
-from tests.support.browser import browser_available, chromium, page_stats, wait_for
-from tests.support.bus import BrokerThread, ServiceThread, eca_command, private_bus_config, running
+from eca.services.tools.child_processes import LineReader, eca_command
+from tests.support.browser import browser_available, chromium, page_stats, wait_for, wait_for_frames
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config, running
 from tests.support.web_client import user_speech_wav
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(browser_available() is not None,
@@ -222,6 +226,73 @@ def test_without_the_token_nothing_happens_and_with_it_the_page_connects() -> No
         with ServiceThread(service), chromium() as driver:
             driver.get(f"http://127.0.0.1:{service.port}/")
             assert "a wrong or missing token" in driver.find_element("tag name", "body").text
-            assert not service.viewers.open
+            assert service.viewers is not None and not service.viewers.open
             connect(driver, f"http://127.0.0.1:{service.port}/?mic=0&token=s3cret-token")
             assert len(service.viewers.open) == 1
+
+
+# The face's <video> drawn into a canvas at its own size, as the page decoded it: a lossless PNG.
+VIDEO_PICTURE = """
+const video = Object.values(window.eca.faces)[0];
+if (!video || !video.videoWidth) return null;
+const canvas = document.createElement("canvas");
+canvas.width = video.videoWidth;
+canvas.height = video.videoHeight;
+canvas.getContext("2d").drawImage(video, 0, 0);
+return canvas.toDataURL("image/png");
+"""
+
+
+def video_picture(driver: Any) -> np.ndarray:
+    """The picture the page's face video shows now, as decoded by the browser: (height, width, 3) uint8."""
+    from PIL import Image
+
+    url = wait_for(driver, "return (() => {" + VIDEO_PICTURE + "})()", 10.0, "a picture in the face's video")
+    png = base64.b64decode(url.split(",", 1)[1])
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def edges_off_background(picture: np.ndarray, background: np.ndarray, depth: int = 2,
+                         tolerance: int = 4) -> dict[str, float]:
+    """For each edge (a strip `depth` pixels deep), the share of its pixels further than `tolerance` (in any
+    channel) from the background colour."""
+    strips = {"top": picture[:depth], "bottom": picture[-depth:], "left": picture[:, :depth],
+              "right": picture[:, -depth:]}
+    return {name: float((np.abs(strip.astype(int) - background).max(axis=-1) > tolerance).mean())
+            for name, strip in strips.items()}
+
+
+def test_the_video_has_the_background_colour_up_to_its_edges(instance: tuple[BusConfig, str],
+                                                              tmp_path: Path) -> None:
+    """The page's default size (640x480; at 15 fps, the same bits per picture as 30 for half the work on
+    a small machine), as the browser decodes it, has the face's background colour along all four edges: no
+    neutral grey band along the top and left. VP8 predicts the macroblocks at those edges from a fixed grey;
+    an encoder that codes them too coarsely, or judges its choices on luma alone, loses the background's
+    slight tint there, and the grey spreads into the background and stays. Checked on the first frames, and
+    after a keyframe made while the agent talks (the rate control at its coarsest): a second page watching
+    the same stream asks for one, for both pages."""
+    config, url = instance
+    background = np.round(np.array(load_render_config().colors["background"]) * 255).astype(int)
+    pictures: dict[str, np.ndarray] = {}
+    with chromium() as first, chromium() as second, AgentClient(config) as client:
+        connect(first, url + "?mic=0&fps=15")
+        decoded = wait_for_frames(first, 30, 30.0)["framesDecoded"]
+        pictures["the first page's first second"] = video_picture(first)
+        rid = say(client, 6.0)  # the mouth moves: every picture costs more bits
+        client.wait_for(lambda m: getattr(m, "request_id", None) == rid and m.TYPE == "speech_started", 10.0)
+        decoded = wait_for_frames(first, decoded + 30, 30.0)["framesDecoded"]
+        connect(second, url + "?mic=0&fps=15")
+        wait_for_frames(second, 30, 30.0)
+        wait_for_frames(first, decoded + 30, 30.0)
+        pictures["the first page after the second page's keyframe"] = video_picture(first)
+        pictures["the second page"] = video_picture(second)
+        first.save_screenshot(str(tmp_path / "page.png"))  # what a person saw, kept for a failure's reader
+        assert isinstance(client.wait_for_speech(rid, 20.0), SpeechFinished)
+    for when, picture in pictures.items():
+        assert picture.shape == (480, 640, 3), when
+        off = edges_off_background(picture, background)
+        medians = {name: np.median(strip.reshape(-1, 3), axis=0).tolist() for name, strip in
+                   (("top", picture[:2]), ("left", picture[:, :2]), ("bottom", picture[-2:]),
+                    ("right", picture[:, -2:]))}
+        assert max(off.values()) <= 0.02, (f"{when}: edge pixels off the background {background.tolist()}: {off}; "
+                                           f"the edges' median colours {medians}\n{said(url)}")
