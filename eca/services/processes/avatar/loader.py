@@ -113,6 +113,7 @@ def _load(path: Path, limits: AvatarLimits) -> tuple[Avatar, Notes]:
         shapes=shapes,
         source=str(path),
         format="gltf" if vrm is None else f"vrm{vrm.version}",
+        license_url=vrm.license_url[:2048] if vrm else "",
     )
     return avatar, notes
 

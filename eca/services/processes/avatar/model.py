@@ -165,3 +165,4 @@ class Avatar:
     shapes: dict[str, tuple[tuple[int, int], ...]] = field(default_factory=dict)
     source: str = "<memory>"  # the file it came from, for messages
     format: str = "gltf"  # what the file was: "gltf" (plain glTF 2.0), "vrm0" (VRM 0.x) or "vrm1" (VRM 1.0)
+    license_url: str = ""  # a VRM 1.0's meta.licenseUrl (first 2048 characters)

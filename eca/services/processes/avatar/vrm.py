@@ -59,6 +59,7 @@ class Vrm:
     expressions: dict[str, Expression]  # presets in VRM_NAMES order, then custom ones in file order
     look_at: LookAt | None
     material_properties: list[JSON] | None  # 0.x: materialProperties, by material index
+    license_url: str = ""  # 1.0: meta.licenseUrl (a page's three-vrm accepts only the one it is told of)
 
 
 def read_vrm(document: gl.GLTF2, limits: AvatarLimits, notes: Notes) -> Vrm | None:
@@ -161,8 +162,10 @@ def _vrm1(ext: dict[str, JSON], document: gl.GLTF2, limits: AvatarLimits, notes:
             vertical_up=_range_map(look, "rangeMapVerticalUp", lwhere, scale, 1),
             offset=(offset[0], offset[1], offset[2]),
         )
-    title = get_str(get_object(ext, "meta", where), "name", f"{where}.meta")
-    return Vrm(1, title, bones, _sorted(presets, custom), look_at, None)
+    meta = get_object(ext, "meta", where)
+    title = get_str(meta, "name", f"{where}.meta")
+    license_url = get_str(meta, "licenseUrl", f"{where}.meta", "")
+    return Vrm(1, title, bones, _sorted(presets, custom), look_at, None, license_url)
 
 
 def _override(raw: dict[str, JSON], key: str, where: str) -> Override:

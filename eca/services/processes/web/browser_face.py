@@ -134,6 +134,8 @@ class BrowserFace:
         nodes = avatar.skeleton.nodes
         return {
             "slot": slot, "url": url, "format": avatar.format, "width": width, "height": height,
+            # three-vrm refuses a VRM 1.0 whose licence URL is not the one it knows; the operator chose this file
+            "license_url": avatar.license_url,
             "primitives": primitives,
             "joints": [{"node": nodes[j], "voiced": int(j == self.driver.jaw)} for j in self.joints],
             # column-major, as three.js' Matrix4.fromArray takes them

@@ -125,6 +125,9 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
         if conversations is None or create_conversation is None:
             raise web.HTTPNotFound(text=json.dumps({"error": "this instance has no conversation per visitor "
                                                     "(--per-visitor)"}), content_type="application/json")
+        if viewers.full:  # a conversation needs a viewer's place too: none is made that could not be watched
+            return web.json_response({"error": f"busy: {viewers.max_viewers} viewers are watching already; try again "
+                                               "later", "retry": True}, status=503)
         try:
             made = await create_conversation()
         except Busy as exc:

@@ -219,7 +219,7 @@ class Viewers:
         slots = {agent: self.backend.face_slot(agent) for agent in viewer.voice_senders}
         sent: dict[str, int] = {}
         while not viewer.closed:
-            if channel.readyState == "open":
+            if channel.readyState == "open" and viewer.pc.connectionState == "connected":
                 for agent, sender in viewer.voice_senders.items():
                     rtp, ntp = _last_sent(sender)
                     if ntp and ntp != sent.get(agent):
@@ -247,7 +247,8 @@ class Viewers:
         queueing them: each frame is whole in itself."""
         for viewer in list(self.open.values()):
             channel = viewer.channel
-            if channel is None or channel.readyState != "open":
+            # a connection going away: aiortc would queue the frame and fail sending it in a task of its own
+            if channel is None or channel.readyState != "open" or viewer.pc.connectionState != "connected":
                 continue
             if not early:
                 if frame_ns < viewer.next_frame_ns:

@@ -10,7 +10,7 @@
 // an emotion, a barge-in) from the newest frame, as soon as it arrives.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
-import { VRMLoaderPlugin, VRMUtils } from "@pixiv/three-vrm";
+import { VRMHumanoidLoaderPlugin, VRMLoaderPlugin, VRMMetaLoaderPlugin, VRMUtils } from "@pixiv/three-vrm";
 
 const FRAME = 1, VOICE_CLOCK = 2;  // message kinds
 const HEADER_BYTES = 16;
@@ -59,6 +59,14 @@ export class VoiceClock {
     const rtp = this.rtpNow(this.report.rtp);
     if (rtp == null) return null;
     return this.report.ntpMs + (rtp - this.report.rtp) * 1000 / OPUS_RATE;
+  }
+}
+
+// three-vrm refuses a VRM whose humanoid lacks a body (hips, legs, arms); a face needs none of it (the server
+// drives the head, neck, jaw and eye nodes itself), and eca takes a bare head: the bones it has are enough here.
+class FaceHumanoidLoaderPlugin extends VRMHumanoidLoaderPlugin {
+  _ensureRequiredBonesExist(humanBones) {
+    return humanBones;
   }
 }
 
@@ -118,7 +126,15 @@ export class BrowserFace {
   async load() {
     const loader = new GLTFLoader();
     if (this.token) loader.setRequestHeader({ "X-Eca-Token": this.token });
-    if (this.d.format !== "gltf") loader.register((parser) => new VRMLoaderPlugin(parser, { autoUpdateHumanBones: false }));
+    if (this.d.format !== "gltf") {
+      // three-vrm takes a VRM 1.0 only with the licence URL it knows; the server drew this file, so the page
+      // takes the URL the file gives too (the licence itself is the operator's business, not the drawing's)
+      const acceptLicenseUrls = ["https://vrm.dev/licenses/1.0/", ...(this.d.license_url ? [this.d.license_url] : [])];
+      loader.register((parser) => new VRMLoaderPlugin(parser, {
+        autoUpdateHumanBones: false, metaPlugin: new VRMMetaLoaderPlugin(parser, { acceptLicenseUrls }),
+        humanoidPlugin: new FaceHumanoidLoaderPlugin(parser, { autoUpdateHumanBones: false }),
+      }));
+    }
     const gltf = await loader.loadAsync(this.d.url);
     this.vrm = gltf.userData.vrm || null;
     if (this.vrm && this.d.format === "vrm0") VRMUtils.rotateVRM0(this.vrm);  // faces +Z, as the server's model does
