@@ -112,14 +112,14 @@ def test_the_mouth_opens_with_the_voice_and_closes_in_silence(instance: tuple[Bu
         rid = client.new_request_id()
         client.wait_applied(client.send(Say(agent="ada", request_id=rid, pcm=tone(3.0), sample_rate=RATE)), 10.0)
         client.wait_for(lambda m: getattr(m, "request_id", None) == rid and m.TYPE == "speech_started", 10.0)
-        wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 5.0, "the page hearing the voice")
+        wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the voice")
         speaking = []
         deadline = time.monotonic() + 2.0
         while time.monotonic() < deadline:
             speaking.append(mouth_open(driver))
             time.sleep(0.05)  # sampling the face over the speech
         assert isinstance(client.wait_for_speech(rid, 20.0), SpeechFinished)
-        wait_for(driver, "return !window.eca.drawn.ada.stats.voiced", 5.0, "the page hearing the silence")
+        wait_for(driver, "return !window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the silence")
         time.sleep(0.5)  # the lips' own release
         after = max(mouth_open(driver) for _ in range(10))
         synced = driver.execute_script("return window.eca.drawn.ada.stats.syncedMs")
@@ -129,15 +129,23 @@ def test_the_mouth_opens_with_the_voice_and_closes_in_silence(instance: tuple[Bu
     assert quiet < 0.1 and after < 0.1, (quiet, after)
 
 
+RECEIVED = """const f = window.eca.drawn.ada; const last = f.frames[f.frames.length - 1];
+               return [f.stats.received, last ? last.timeMs : null, f.stats.bad];"""
+
+
 def test_face_frames_come_at_the_asked_rate(instance: tuple[BusConfig, str]) -> None:
+    """The frames the page received over a span, against the span of their own times (when they were made): the
+    rate the server sends them at, whatever a loaded machine does to when they arrive."""
     _config, url = instance
     with chromium() as driver:
         connect_drawing(driver, url + "?mic=0&fps=20")
-        first = driver.execute_script("return window.eca.drawn.ada.stats.received")
+        first, first_ms, _ = driver.execute_script(RECEIVED)
         time.sleep(3.0)  # counting frames over a span
-        last = driver.execute_script("return window.eca.drawn.ada.stats.received")
-        bad = driver.execute_script("return window.eca.drawn.ada.stats.bad")
-    assert 0.8 * 60 <= last - first <= 1.1 * 60, f"{last - first} frames in 3 s at 20 fps"
+        last, last_ms, bad = driver.execute_script(RECEIVED)
+    span_s = (last_ms - first_ms) / 1000
+    assert span_s > 1.5, span_s
+    rate = (last - first) / span_s
+    assert 0.8 * 20 <= rate <= 1.15 * 20, f"{last - first} frames over {span_s:.2f} s of their times at 20 fps"
     assert bad == 0
 
 

@@ -105,6 +105,7 @@ class BrowserFace:
         self.layout = FrameLayout(d.n_targets, len(self.joints))
         self.voiced = self._voiced_targets()
         self._buffer = bytearray(self.layout.size)
+        self._described: dict[str, Any] | None = None
 
     def _voiced_targets(self) -> np.ndarray:
         """Which targets (flat, the driver's order) the voice moves: reached from an ARKit jaw, mouth or tongue
@@ -120,7 +121,12 @@ class BrowserFace:
         return voiced
 
     def description(self, slot: int, url: str) -> dict[str, Any]:
-        """What the page needs to draw this avatar (see the module docstring)."""
+        """What the page needs to draw this avatar (see the module docstring); the avatar's part is worked out once."""
+        if self._described is None:
+            self._described = self._describe()
+        return {**self._described, "slot": slot, "url": url}
+
+    def _describe(self) -> dict[str, Any]:
         from eca.services.processes.renderer import avatar_framing  # numpy only: the head's framing, no GL
 
         avatar = self.avatar
@@ -133,7 +139,7 @@ class BrowserFace:
                                "voiced": [int(v) for v in self.voiced[a:b]]})
         nodes = avatar.skeleton.nodes
         return {
-            "slot": slot, "url": url, "format": avatar.format, "width": width, "height": height,
+            "format": avatar.format, "width": width, "height": height,
             # three-vrm refuses a VRM 1.0 whose licence URL is not the one it knows; the operator chose this file
             "license_url": avatar.license_url,
             "primitives": primitives,

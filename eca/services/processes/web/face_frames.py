@@ -45,6 +45,14 @@ class FaceFrames:
         self.seq = 0
         self.sent = 0
 
+    def prepare(self) -> None:
+        """Load every avatar and work out what pages are told of it, before the service is ready: a page's offer
+        and the first frames then cost no file read nor measuring (a second or more on a loaded machine)."""
+        if self._retargeter is None and self.files:
+            self._retargeter = Retargeter()
+        for agent in self.files:
+            self.face(agent).description(self.slots[agent], "")
+
     def drawable(self, agent: str) -> bool:
         """Whether a page can draw this agent (its face is an avatar file)."""
         return agent in self.files

@@ -288,6 +288,8 @@ class WebService(Service):
         logging.getLogger("aioice").setLevel(logging.WARNING)  # every ICE check at INFO drowns the service's lines
         self.viewers = Viewers(self, self.options.max_viewers, self.options.vad, self.options.connect_timeout_s,
                                self.options.silent_timeout_s)
+        if self.options.draw != "server":
+            self.face_frames.prepare()
         if self.gl_at_start:
             try:
                 self._prepare_drawing((self.options.width, self.options.height))  # before ready: _prepare_drawing
