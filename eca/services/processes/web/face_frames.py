@@ -95,7 +95,10 @@ class FaceFrames:
         out = {}
         for i, view in enumerate(views):
             agent = view.agent
-            out[agent] = self.face(agent).pack(batch.frame(i), self.slots[agent], self.seq, time_ms,
-                                               sounding(agent, t_ns), mark=t_ns % 1_000_000_000 == 0)
+            # the voice sounds then: an utterance of the lip-sync plays at t (its keys and clock anchors come ahead
+            # of the sound), or the voice's own samples there are loud (they come only some 40 ms ahead)
+            voiced = view.scene.mouth_at(t_ns) is not None or sounding(agent, t_ns)
+            out[agent] = self.face(agent).pack(batch.frame(i), self.slots[agent], self.seq, time_ms, voiced,
+                                               mark=t_ns % 1_000_000_000 == 0)
         self.sent += len(out)
         return out

@@ -38,6 +38,17 @@ export class VoiceClock {
   constructor(receiver) {
     this.receiver = receiver;
     this.report = null;  // { rtp, ntpMs }
+    // what the synchronization source says was handed to the speakers still goes through the output's buffers:
+    // the audio output's own latency (as an AudioContext on the default device reports it) is heard later
+    this.outputLatencyMs = 0;
+    try {
+      const context = new AudioContext();
+      const measure = () => { this.outputLatencyMs = 1000 * ((context.outputLatency || 0) + (context.baseLatency || 0)); };
+      measure();
+      setTimeout(() => { measure(); context.close(); }, 1000);  // outputLatency is known once the context runs
+    } catch {
+      // no audio output to ask: none added
+    }
   }
 
   onReport(rtp, ntpMs) {
@@ -58,7 +69,7 @@ export class VoiceClock {
     if (!this.report) return null;
     const rtp = this.rtpNow(this.report.rtp);
     if (rtp == null) return null;
-    return this.report.ntpMs + (rtp - this.report.rtp) * 1000 / OPUS_RATE;
+    return this.report.ntpMs + (rtp - this.report.rtp) * 1000 / OPUS_RATE - this.outputLatencyMs;
   }
 }
 
@@ -195,6 +206,8 @@ export class BrowserFace {
     if (!newest) return this.render();
     let heard = this.heardFrame();
     if (!(heard.flags & VOICED) && !(newest.flags & VOICED)) heard = newest;  // silence: nothing to wait for
+    // nothing new to show (the display runs faster than the frames come): no drawing
+    if (newest.seq === this.stats.presented && heard.seq === this.stats.heardSeq && !this.vrmSprings()) return;
     let at = 0;
     this.d.primitives.forEach((p, i) => {
       const mesh = this.targets[i];
@@ -216,7 +229,11 @@ export class BrowserFace {
     if (newest.seq !== this.stats.presented) this.note(this.log.newest, { seq: newest.seq, arrivedMs: newest.arrivedMs, shownMs: now });
     if (heard.seq !== this.stats.heardSeq) {
       this.note(this.log.heard, { seq: heard.seq, timeMs: heard.timeMs, shownMs: now });
-      if (heard.flags & MARK) this.note(this.log.marks, { timeMs: heard.timeMs, shownMs: now });
+      // every marked frame the heard one reached or passed since the last drawing (a slow display skips frames)
+      const since = this.stats.heardSeq ?? heard.seq - 1;
+      for (const f of this.frames) {
+        if (f.seq > since && f.seq <= heard.seq && (f.flags & MARK)) this.note(this.log.marks, { timeMs: f.timeMs, shownMs: now });
+      }
     }
     this.stats.presented = newest.seq;
     this.stats.heardSeq = heard.seq;
@@ -227,6 +244,11 @@ export class BrowserFace {
   note(list, entry) {
     list.push(entry);
     if (list.length > LOG_MAX) list.splice(0, list.length - LOG_MAX);
+  }
+
+  vrmSprings() {
+    return !!(this.vrm && this.vrm.springBoneManager && this.vrm.springBoneManager.joints
+              && this.vrm.springBoneManager.joints.size);
   }
 
   render() {
