@@ -113,11 +113,11 @@ def test_the_mouth_opens_with_the_voice_and_closes_in_silence(instance: tuple[Bu
         client.wait_applied(client.send(Say(agent="ada", request_id=rid, pcm=tone(3.0), sample_rate=RATE)), 10.0)
         client.wait_for(lambda m: getattr(m, "request_id", None) == rid and m.TYPE == "speech_started", 10.0)
         wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the voice")
-        speaking = []
-        deadline = time.monotonic() + 2.0
-        while time.monotonic() < deadline:
+        speaking: list[float] = []
+        deadline = time.monotonic() + 2.5
+        while time.monotonic() < deadline and (len(speaking) < 20 or max(speaking) <= 0.2):
             speaking.append(mouth_open(driver))
-            time.sleep(0.05)  # sampling the face over the speech
+            time.sleep(0.05)  # sampling the face over the speech (a loaded machine samples it more slowly)
         assert isinstance(client.wait_for_speech(rid, 20.0), SpeechFinished)
         wait_for(driver, "return !window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the silence")
         time.sleep(0.5)  # the lips' own release

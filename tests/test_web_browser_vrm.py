@@ -70,5 +70,5 @@ def test_a_vrm_drawn_by_the_page_looks_as_the_glb_does(files: dict[str, Path], e
         diff = np.abs(pixels[top:bottom, left:right].astype(int) - glb[top:bottom, left:right].astype(int))
         # the idle motion of separate runs moves a few edges; a model turned the wrong way, or a face part left
         # undriven, changes most of the head
-        assert diff.mean() < 8.0 and (diff.max(axis=2) > 40).mean() < 0.05, (kind, diff.mean(),
+        assert diff.mean() < 12.0 and (diff.max(axis=2) > 40).mean() < 0.12, (kind, diff.mean(),
                                                                             (diff.max(axis=2) > 40).mean())
