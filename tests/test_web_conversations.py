@@ -115,7 +115,13 @@ def test_each_visitor_gets_an_agent_of_its_own_and_frees_it_on_leaving(instance:
     with subscriber(config, ["state."]) as states:
         states.wait_ready(10.0)
         first, second, status, busy, _stolen, refused = asyncio.run(main())
-        emotions = [m.message for m in states.drain() if isinstance(m.message, EmotionState)]
+        emotions: list[EmotionState] = []
+        deadline = time.monotonic() + 10.0  # what the dialogue service published reaches us in its time
+        while not any(m.agent == first and m.name == "surprised" for m in emotions) and time.monotonic() < deadline:
+            got = states.recv(0.2)
+            if got is not None and isinstance(got.message, EmotionState):
+                emotions.append(got.message)
+        emotions += [m.message for m in states.drain() if isinstance(m.message, EmotionState)]
     assert first != second and first.startswith("v-") and second.startswith("v-")
     assert status == 503 and busy["retry"] is True and "busy" in busy["error"], busy
     assert "conversation of its own" in refused["error"]
