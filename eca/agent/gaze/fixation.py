@@ -32,9 +32,10 @@ from eca.agent.gaze.rows import (
     aligned_rows,
     column_pair,
     grow_rows,
+    hashes,
     scatter_rows,
     stream_keys,
-    uniform_halves,
+    write_eyes,
 )
 
 NEVER_NS = 1 << 62
@@ -44,23 +45,29 @@ _N_FEATURES = len(FACE_FEATURES)
 AMPLITUDE_TABLE_INTERVALS = 4096  # cells of the microsaccade amplitudes' quantile table
 
 # Columns of the per-agent row (float fields as bit patterns). STATE packs the spread of the exponential
-# part of the interval (ns, upper bits) with the fixation's context (low 8 bits): see _state().
+# part of the interval (ns, negated: see start; upper bits) with the fixation's context (low 8 bits):
+# ((role * 2 + mutual) * 2 + preferred eye) * 4 + the feature fixated (0 = the gaze target itself, 1 + index
+# into FACE_FEATURES).
 COUNTER, KEY, OFF_YAW, OFF_PITCH, BASE_YAW, BASE_PITCH, LAST, STATE = range(8)
+OFFSET = slice(OFF_YAW, OFF_PITCH + 1)
 _WIDTH = 8  # 64 bytes: one cache line per agent
 _STATE_BITS = 8
 _STATE_MASK = (1 << _STATE_BITS) - 1
-# Each small saccade draws 32-bit uniforms, two per hash (rows.uniform_halves): the interval; scan or
-# microsaccade (and the scan's target); the microsaccade's amplitude and its turn off the corrective
-# heading; the drift's radius and angle.
+# Each small saccade draws 32-bit uniforms, two per hash, as rows.uniform_halves reads them (row j the high
+# half of hash j, row 3 + j its low half): the interval (0); scan or microsaccade, and the scan's target (1);
+# the microsaccade's amplitude (2) and its turn off the corrective heading (3); the drift's radius (4) and
+# angle (5). A uniform that only picks a table cell is read as the integer it is (see _step).
 _HASHES = 3
-_U_INTERVAL, _U_KIND, _U_AMPLITUDE, _U_JITTER, _U_DRIFT_RADIUS, _U_DRIFT_ANGLE = range(6)
 ANGLES = 4096  # angle tables: a 32-bit uniform picks one of this many evenly spaced angles
-
-
-def _state(role: np.ndarray, mutual: np.ndarray, preferred_eye: np.ndarray, feature: np.ndarray) -> np.ndarray:
-    """The fixation's context as one small integer: (role, mutual, preferred eye) then the feature fixated
-    (0 = the gaze target itself, 1 + index into FACE_FEATURES)."""
-    return ((role * 2 + mutual) * 2 + preferred_eye) * 4 + feature
+# The most agents one _step takes: its few dozen scratch arrays then stay in the core's cache (a million
+# agents run some 40,000 small saccades a tick; in batches of this size they take about a tenth less).
+_BATCH = 8192
+_ANGLE_SHIFT = 32 - 12  # a 32-bit half's top 12 bits pick one of the ANGLES
+_CELL_SHIFT = 32 - 12  # and one of the AMPLITUDE_TABLE_INTERVALS cells; the low 20 bits are the fraction
+_CELL_FRACTION = (1 << _CELL_SHIFT) - 1
+_TWO_POW_MINUS_32 = 1.0 / float(1 << 32)
+_TWO_POW_MINUS_20 = 1.0 / float(1 << _CELL_SHIFT)
+assert 1 << (32 - _ANGLE_SHIFT) == ANGLES and 1 << (32 - _CELL_SHIFT) == AMPLITUDE_TABLE_INTERVALS
 
 
 class Fixations:
@@ -72,7 +79,9 @@ class Fixations:
         self._refractory_ns = int(round(fix.refractory_s * _NS))
         self._d0_ns = params.d0_s * _NS
         self._d_ns_per_deg = params.d_s_per_deg * _NS
-        self._yaw_limit, self._pitch_limit = params.eye_yaw_limit_deg, params.eye_pitch_limit_deg
+        # Per row of a (from yaw, from pitch, to yaw, to pitch) block: the eye's limits, for np.clip as two
+        # calls (np.maximum, np.minimum) without its Python wrapper.
+        self._limits = np.array([[params.eye_yaw_limit_deg], [params.eye_pitch_limit_deg]] * 2)
         self._drift_two_d = 2.0 * fix.drift_diffusion_deg2_per_s  # per-axis variance per second
         self._correction = math.radians(fix.correction_spread_deg)
         # The points a fixation holds, indexed like the fixated feature: 0 the gaze target, then FACE_FEATURES.
@@ -83,7 +92,7 @@ class Fixations:
         # (s), and the cumulative chances of the scan's target. A scan draws its target by the features'
         # shares of dwell time, the one fixated included (then it re-centres on it), so the shares of time
         # on each feature are exactly those shares.
-        self._p_scan = np.zeros(contexts)
+        p_scan = np.zeros(contexts)
         self._mean_s = np.zeros(contexts)
         cumulative = np.zeros((contexts, _N_FEATURES))
         for r, role in enumerate(ROLES):
@@ -92,20 +101,35 @@ class Fixations:
                     c = (r * 2 + mutual) * 2 + eye
                     rate = fix.event_rate_hz(role, bool(mutual))
                     self._mean_s[c] = 1.0 / rate
-                    self._p_scan[c] = (rate - fix.microsaccade_rate_hz) / rate
+                    p_scan[c] = (rate - fix.microsaccade_rate_hz) / rate
                     cumulative[c] = np.cumsum(fix.feature_weights(role, eye))
         # A small saccade is a scan to feature j when its uniform is below p_scan and at or above p_scan times
-        # the cumulative chance of the features before j: those products, per context.
-        self._scan_edges_0, self._scan_edges_1 = self._p_scan * cumulative[:, 0], self._p_scan * cumulative[:, 1]
+        # the cumulative chance of the features before j: those products, per context. The uniform is a
+        # 32-bit integer h times 2**-32, so u < p is h < ceil(p * 2**32) and u >= e is h >= ceil(e * 2**32),
+        # exactly: the draw is compared as the integer, without converting it. Every table of the step is
+        # indexed by the state's low bits (context, then the feature fixated), so no shift or mask picks
+        # the context out of them.
+        def by_state(per_context: np.ndarray) -> np.ndarray:
+            return np.repeat(per_context, 4, axis=-1)
+
+        def ceil_bits(chance: np.ndarray) -> np.ndarray:
+            return np.array([math.ceil(float(p) * (1 << 32)) for p in chance], dtype=np.int64)
+
+        self._scan_below = by_state(ceil_bits(p_scan))
+        self._target_1_from = by_state(ceil_bits(p_scan * cumulative[:, 0]))
+        self._target_2_from = by_state(ceil_bits(p_scan * cumulative[:, 1]))
+        # The point fixated (yaw; pitch), by the state's low bits.
+        self._fixated_point = np.tile(np.stack([self._points_yaw, self._points_pitch]), contexts)
         quantiles = microsaccade_quantiles(params)
         self._amplitudes, self._amplitude_steps = quantiles[:-1], np.diff(quantiles)
         angles = (np.arange(ANGLES) + 0.5) * (2.0 * np.pi / ANGLES)
-        self._cos, self._sin = np.cos(angles), np.sin(angles)
+        self._cos_sin = np.stack([np.cos(angles), np.sin(angles)])  # (yaw; pitch) of a unit step at each angle
         jitter = (np.arange(ANGLES) + 0.5) / ANGLES * (2.0 * self._correction) - self._correction
-        self._jitter_cos, self._jitter_sin = np.cos(jitter), np.sin(jitter)
+        self._jitter_cos_sin = np.stack([np.cos(jitter), np.sin(jitter)])
         self._n = 0
         self._rows = aligned_rows(0, _WIDTH)
         self.next_ns = np.empty(0, np.int64)  # dense: scanned every tick
+        self._due = np.empty(0, bool)  # due()'s mask, kept: a fresh one per tick is a fresh megabyte at 1e6 agents
         self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._unwritten: list[np.ndarray] = []  # agents whose landing the eye state has yet to show
 
@@ -118,6 +142,7 @@ class Fixations:
         self._rows = grow_rows(self._rows, self._n, rows)
         self.next_ns = np.concatenate([self.next_ns, np.full(count, NEVER_NS, np.int64)])
         self._n += count
+        self._due = np.empty(self._n, bool)
 
     def start(
         self,
@@ -128,22 +153,40 @@ class Fixations:
         mutual: np.ndarray,
         role: np.ndarray,
         interval_scale: np.ndarray,
+        rows: np.ndarray | None = None,
     ) -> None:
         """A new fixation: the eyes land at `landing_ns` on (base_yaw, base_pitch), the gaze target when
-        `mutual`. Pending small saccades of the old fixation are dropped; the first of the new one is drawn."""
-        rows = self._rows.take(agents, axis=0)
+        `mutual`. Pending small saccades of the old fixation are dropped; the first of the new one is drawn.
+        `rows`: the agents' rows from gather(), if the caller has them (they are overwritten)."""
+        if rows is None:
+            rows = self._rows.take(agents, axis=0)
         floats = rows.view(np.float64)
-        preferred_eye = rows[:, KEY] & 1
-        context = (role * 2 + mutual) * 2 + preferred_eye
-        spread_ns = np.maximum(self._mean_s.take(context) * interval_scale * _NS - self._refractory_ns, 0.0)
-        rows[:, STATE] = (np.rint(spread_ns).astype(np.int64) << _STATE_BITS) | _state(
-            role, mutual, preferred_eye, np.zeros_like(role))
-        floats[:, OFF_YAW] = floats[:, OFF_PITCH] = 0.0
+        context = role * 2
+        context += mutual
+        context *= 2
+        context += rows[:, KEY] & 1  # the preferred eye
+        # The spread negated: -max(x - r, 0) is min(r - x, 0) exactly (a difference changes sign exactly; rint,
+        # symmetric, gives the same integer but for the sign of a zero, which the integer drops).
+        spread = self._mean_s.take(context)
+        spread *= interval_scale
+        spread *= _NS
+        np.subtract(self._refractory_ns, spread, out=spread)
+        np.minimum(spread, 0.0, out=spread)
+        np.rint(spread, out=spread)
+        state = spread.astype(np.int64)
+        state <<= _STATE_BITS
+        context <<= 2  # the feature fixated: 0, the gaze target
+        state |= context
+        rows[:, STATE] = state
+        rows[:, OFFSET] = 0  # the bits of 0.0
         floats[:, BASE_YAW], floats[:, BASE_PITCH] = base_yaw, base_pitch
         rows[:, LAST] = landing_ns
-        u = uniform_halves(rows[:, COUNTER].view(np.uint64), rows[:, KEY].view(np.uint64), 1)[0]
+        z = hashes(rows[:, COUNTER], rows[:, KEY], 1)[0]
         rows[:, COUNTER] += 1
-        self.next_ns[agents] = landing_ns + self._interval_ns(rows[:, STATE], u)
+        z >>= np.uint64(32)
+        next_ns = self._interval_ns(spread, np.multiply(z.view(np.int64), -_TWO_POW_MINUS_32))
+        next_ns += landing_ns
+        self.next_ns[agents] = next_ns
         scatter_rows(self._rows, agents, rows)
 
     def stop(self, agents: np.ndarray) -> None:
@@ -155,24 +198,38 @@ class Fixations:
         """How far each eye sits from its fixation's base point (zero for agents not in the mode)."""
         return column_pair(self._rows.view(np.float64), agents, OFF_YAW, OFF_PITCH)
 
+    def gather(self, agents: np.ndarray) -> np.ndarray:
+        """The agents' rows (a copy; float fields as bits: OFF_YAW and OFF_PITCH hold the offsets)."""
+        return self._rows.take(agents, axis=0)
+
     # ------------------------------------------------------------------ events
 
     def due(self, t: int) -> np.ndarray:
-        return np.flatnonzero(self.next_ns <= t)
+        np.less_equal(self.next_ns, t, out=self._due)
+        return self._due.nonzero()[0]
 
     def advance(self, agents: np.ndarray, before: np.ndarray | int, eyes: np.ndarray | None = None) -> None:
         """Run the agents' small saccades that start before `before` (one time, or one per agent), in time
-        order. Each landing goes into `eyes` (rows of yaw, pitch, lid); without it, into the eye state at
+        order. Each landing goes into `eyes` (rows of yaw and pitch); without it, into the eye state at
         the next write_pending (between ticks the eye state handed out stays as it was)."""
         due = self.next_ns.take(agents) < before
         if np.ndim(before):
             before = before[due]  # type: ignore[index]
         self.run_due(agents[due], before, eyes)
 
+    def mark_unwritten(self, agents: np.ndarray) -> None:
+        """Write these agents' landings at the next write_pending too (see advance)."""
+        self._unwritten.append(agents)
+
     def run_due(self, agents: np.ndarray, before: np.ndarray | int, eyes: np.ndarray | None = None) -> None:
         """advance() for agents whose next small saccade is known to start before `before` (from due())."""
         while agents.size:
-            again = self._step(agents, eyes) < before
+            if agents.size <= _BATCH:
+                next_onsets = self._step(agents, eyes)
+            else:
+                next_onsets = np.concatenate([self._step(agents[start : start + _BATCH], eyes)
+                                              for start in range(0, agents.size, _BATCH)])
+            again = next_onsets < before
             agents = agents[again]
             if np.ndim(before):
                 before = before[again]  # type: ignore[index]
@@ -183,114 +240,110 @@ class Fixations:
         Every agent computes both a scan and a microsaccade and keeps one: cheaper than splitting the batch.
         Angles come from tables, not cos/sin. With tens of thousands of agents a tick, the time goes to
         passes over memory, not to arithmetic: the reported columns are computed in place in the onset
-        matrix, scratch arrays are reused, and each row's fields are read once."""
+        matrix, scratch arrays are reused, each row's fields are read once, and the uniforms that only pick
+        a table cell stay the integers they are (their float would be converted back). Yaw and pitch go
+        through one numpy call as the two rows of a (2, agents) block where both are contiguous: with a
+        hundred thousand agents, a few thousand small saccades a tick, a call's fixed cost is much of it."""
         rows = self._rows.take(agents, axis=0)
         floats = rows.view(np.float64)
         onset = self.next_ns.take(agents)
-        u = uniform_halves(rows[:, COUNTER].view(np.uint64), rows[:, KEY].view(np.uint64), _HASHES)
+        z = hashes(rows[:, COUNTER], rows[:, KEY], _HASHES)
         rows[:, COUNTER] += _HASHES
         state = rows[:, STATE]  # a view: the fixated feature is updated in place below
-        fixated = state & 3
-        context = state & _STATE_MASK
-        context >>= 2
+        context = state & _STATE_MASK  # every table's index: see __init__
+        high = z >> np.uint64(32)
+        z &= np.uint64(0xFFFFFFFF)
+        high, low = high.view(np.int64), z.view(np.int64)  # the halves: below 2**32, exact as int64 and float
         if self._drift_two_d:  # drift since the eye landed: a Brownian displacement (radius and angle)
-            radius = u[_U_DRIFT_RADIUS]
-            np.negative(radius, out=radius)
+            radius = np.multiply(low[1], -_TWO_POW_MINUS_32)  # -u: log1p(-u) below
             np.log1p(radius, out=radius)
             radius *= (onset - rows[:, LAST]) * (-2e-9 * self._drift_two_d)
             np.sqrt(radius, out=radius)
-            turn = u[_U_DRIFT_ANGLE]
-            turn *= ANGLES
-            turn = turn.astype(np.intp)
-            off_yaw = self._cos.take(turn)
-            off_yaw *= radius
-            off_yaw += floats[:, OFF_YAW]
-            off_pitch = self._sin.take(turn)
-            off_pitch *= radius
-            off_pitch += floats[:, OFF_PITCH]
+            off = self._cos_sin.take(low[2] >> _ANGLE_SHIFT, axis=1)  # int(u * ANGLES), exactly
+            off *= radius
+            off[0] += floats[:, OFF_YAW]
+            off[1] += floats[:, OFF_PITCH]
         else:
-            off_yaw, off_pitch = floats[:, OFF_YAW].copy(), floats[:, OFF_PITCH].copy()
+            off = np.empty((2, agents.size))
+            off[0], off[1] = floats[:, OFF_YAW], floats[:, OFF_PITCH]
         # Scan or microsaccade; a scan's target from the same uniform, rescaled below p_scan.
-        u_kind = u[_U_KIND]
-        scan = u_kind < self._p_scan.take(context)
-        target = (u_kind >= self._scan_edges_0.take(context)).view(np.int8)
-        target += (u_kind >= self._scan_edges_1.take(context)).view(np.int8)
-        # A microsaccade heads back toward the point fixated, within the correction spread.
-        x = u[_U_AMPLITUDE]
-        x *= AMPLITUDE_TABLE_INTERVALS
-        cell = x.astype(np.intp)
-        x -= cell
+        u_kind = high[1]
+        scan = u_kind < self._scan_below.take(context)
+        # A microsaccade heads back toward the point fixated, within the correction spread. Its amplitude reads
+        # the quantile table at u * AMPLITUDE_TABLE_INTERVALS: the cell and the fraction are the integer's
+        # top bits and the rest, exactly.
+        cell = high[2] >> _CELL_SHIFT
+        fraction = high[2] & _CELL_FRACTION
         amplitude = self._amplitude_steps.take(cell)
-        amplitude *= x
+        amplitude *= np.multiply(fraction, _TWO_POW_MINUS_20)
         amplitude += self._amplitudes.take(cell)
-        toward_yaw = self._points_yaw.take(fixated)
-        toward_yaw -= off_yaw
-        toward_pitch = self._points_pitch.take(fixated)
-        toward_pitch -= off_pitch
-        norm = toward_yaw * toward_yaw
-        scratch = toward_pitch * toward_pitch
-        norm += scratch
+        toward = self._fixated_point.take(context, axis=1)
+        toward -= off
+        square = toward * toward
+        norm = np.add(square[0], square[1])
         np.sqrt(norm, out=norm)
         on_point = np.flatnonzero(norm < 1e-12)  # heading along the spread alone
         if on_point.size:
-            toward_yaw[on_point], norm[on_point] = 1.0, 1.0
+            toward[0][on_point], norm[on_point] = 1.0, 1.0
         amplitude /= norm
-        jitter = u[_U_JITTER]
-        jitter *= ANGLES
-        jitter = jitter.astype(np.intp)
-        cos_j, sin_j = self._jitter_cos.take(jitter), self._jitter_sin.take(jitter)
-        to_off_yaw = toward_yaw * cos_j
-        np.multiply(toward_pitch, sin_j, out=scratch)
-        to_off_yaw -= scratch
-        to_off_yaw *= amplitude
-        to_off_yaw += off_yaw
-        to_off_pitch = np.multiply(toward_yaw, sin_j, out=sin_j)
-        np.multiply(toward_pitch, cos_j, out=scratch)
-        to_off_pitch += scratch
-        to_off_pitch *= amplitude
-        to_off_pitch += off_pitch
+        # (yaw cos - pitch sin, yaw sin + pitch cos): the heading turned by the jitter.
+        turn = self._jitter_cos_sin.take(low[0] >> _ANGLE_SHIFT, axis=1)
+        np.multiply(toward, turn, out=square)
+        toward *= turn[::-1]  # (sin; cos)
+        to_off = np.empty_like(toward)
+        np.subtract(square[0], square[1], out=to_off[0])
+        np.add(toward[0], toward[1], out=to_off[1])
+        to_off *= amplitude
+        to_off += off
         hit = np.flatnonzero(scan)
-        if hit.size:
-            landed_on = target.take(hit)
+        if hit.size:  # through 1-D views: a (row, index) fancy index takes numpy's slow general path
+            hit_context, u_hit = context.take(hit), u_kind.take(hit)
+            landed_on = (u_hit >= self._target_1_from.take(hit_context)).view(np.int8)
+            landed_on += (u_hit >= self._target_2_from.take(hit_context)).view(np.int8)
             landed_on += 1
-            to_off_yaw[hit] = self._points_yaw.take(landed_on)
-            to_off_pitch[hit] = self._points_pitch.take(landed_on)
-            state[hit] += landed_on - fixated.take(hit)  # the feature fixated now, in the low bits
-        # The reported columns (events.ONSET_FLOAT_FIELDS), computed where they are reported.
+            to_off[0][hit] = self._points_yaw.take(landed_on)
+            to_off[1][hit] = self._points_pitch.take(landed_on)
+            hit_context &= 3  # the feature fixated
+            np.subtract(landed_on, hit_context, out=hit_context)
+            state[hit] += hit_context  # the feature fixated now, in the low bits
+        # The reported columns (events.ONSET_FLOAT_FIELDS), computed where they are reported. A row's columns
+        # are read one at a time: a (2, agents) block over two of them (strides of 8 and 64 bytes) makes
+        # numpy iterate the axis of two innermost, several times slower.
         out = np.empty((9, agents.size))
-        from_yaw, from_pitch, to_yaw, to_pitch, magnitude, moved, direction, duration_s, hold_s = out
-        for position, base, offset, limit in (
-            (from_yaw, BASE_YAW, off_yaw, self._yaw_limit), (from_pitch, BASE_PITCH, off_pitch, self._pitch_limit),
-            (to_yaw, BASE_YAW, to_off_yaw, self._yaw_limit), (to_pitch, BASE_PITCH, to_off_pitch, self._pitch_limit),
-        ):
-            np.add(floats[:, base], offset, out=position)
-            np.clip(position, -limit, limit, out=position)
-        delta_yaw = np.subtract(to_yaw, from_yaw, out=off_yaw)
-        delta_pitch = np.subtract(to_pitch, from_pitch, out=off_pitch)
-        np.multiply(delta_yaw, delta_yaw, out=moved)
-        np.multiply(delta_pitch, delta_pitch, out=scratch)
-        moved += scratch
+        positions = out[:4]  # from yaw, from pitch, to yaw, to pitch
+        base_yaw, base_pitch = floats[:, BASE_YAW], floats[:, BASE_PITCH]
+        np.add(base_yaw, off[0], out=positions[0])
+        np.add(base_pitch, off[1], out=positions[1])
+        np.add(base_yaw, to_off[0], out=positions[2])
+        np.add(base_pitch, to_off[1], out=positions[3])
+        np.maximum(positions, -self._limits, out=positions)  # np.clip, without its Python wrapper
+        np.minimum(positions, self._limits, out=positions)
+        delta = np.subtract(positions[2:], positions[:2], out=off)
+        moved = out[5]
+        np.multiply(delta, delta, out=square)
+        np.add(square[0], square[1], out=moved)
         np.sqrt(moved, out=moved)
-        magnitude[:] = moved
-        duration = np.multiply(moved, self._d_ns_per_deg, out=scratch)
+        out[4] = moved  # the magnitude
+        duration = np.multiply(moved, self._d_ns_per_deg, out=norm)
         duration += self._d0_ns
         end = np.rint(duration, out=duration).astype(np.int64)
         end += onset
-        next_onset = self._interval_ns(state, u[_U_INTERVAL])
+        next_onset = self._interval_ns((state >> _STATE_BITS).astype(np.float64),
+                                       np.multiply(high[0], -_TWO_POW_MINUS_32))
         next_onset += onset
-        floats[:, OFF_YAW], floats[:, OFF_PITCH] = to_off_yaw, to_off_pitch
+        floats[:, OFF_YAW], floats[:, OFF_PITCH] = to_off
         rows[:, LAST] = end
         scatter_rows(self._rows, agents, rows)
         self.next_ns[agents] = next_onset
         if eyes is None:
             self._unwritten.append(agents)
         else:
-            _write_eyes(eyes, agents, to_yaw, to_pitch)
-        np.arctan2(delta_pitch, delta_yaw, out=direction)
+            write_eyes(eyes, agents, out[2], out[3])
+        direction = np.arctan2(delta[1], delta[0], out=out[6])
         direction *= DEGREES_PER_RADIAN
         direction += (direction < 0.0) * 360.0
-        np.multiply(end - onset, 1e-9, out=duration_s)
-        np.multiply(next_onset - end, 1e-9, out=hold_s)
+        np.multiply(end - onset, 1e-9, out=out[7])  # duration_s
+        np.multiply(next_onset - end, 1e-9, out=out[8])  # hold_s
         kind = scan.view(np.int8) * np.int8(SCAN - MICRO)
         kind += np.int8(MICRO)
         self._chunks.append((agents, onset, kind, out))
@@ -301,15 +354,19 @@ class Fixations:
         the mode whose Eyes Alive saccade has landed (`landed(agents)`: a mask); an eye in flight shows its
         flight, and one that has left the mode its new mode's position."""
         if self._unwritten:
-            agents = np.unique(np.concatenate(self._unwritten))
-            self._unwritten.clear()
+            # One batch (the tick's own, see mark_unwritten) is unique and sorted already.
+            batches = self._unwritten
+            agents = batches[0] if len(batches) == 1 else np.unique(np.concatenate(batches))
+            batches.clear()
             agents = agents[self.next_ns.take(agents) != NEVER_NS]  # stop() ends an agent's fixations
             agents = agents[landed(agents)]
-            floats = self._rows.view(np.float64)
-            rows = floats.take(agents, axis=0)
-            _write_eyes(eyes, agents,
-                        np.clip(rows[:, BASE_YAW] + rows[:, OFF_YAW], -self._yaw_limit, self._yaw_limit),
-                        np.clip(rows[:, BASE_PITCH] + rows[:, OFF_PITCH], -self._pitch_limit, self._pitch_limit))
+            if not agents.size:  # at video rates the usual case: the agents' new saccades are in flight
+                return
+            rows = self._rows.view(np.float64).take(agents, axis=0)
+            position = rows[:, BASE_YAW : BASE_PITCH + 1] + rows[:, OFF_YAW : OFF_PITCH + 1]
+            np.maximum(position, -self._limits[:2, 0], out=position)  # np.clip, without its Python wrapper
+            np.minimum(position, self._limits[:2, 0], out=position)
+            write_eyes(eyes, agents, position[:, 0], position[:, 1])
 
     def take_onsets(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """The small saccades since the last call: (agents, onsets, kinds, a (9, k) float matrix in
@@ -317,23 +374,14 @@ class Fixations:
         chunks, self._chunks = self._chunks, []
         return chunks
 
-    def _interval_ns(self, state: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Onset to next onset: the refractory gap plus an exponential of the fixation's spread. `u` is
-        scratch (overwritten)."""
-        spread_ns = (state >> _STATE_BITS).astype(np.float64)
-        np.negative(spread_ns, out=spread_ns)
-        np.negative(u, out=u)
-        spread_ns *= np.log1p(u, out=u)
-        interval = np.rint(spread_ns, out=spread_ns).astype(np.int64)
+    def _interval_ns(self, negated_spread_ns: np.ndarray, negated_u: np.ndarray) -> np.ndarray:
+        """Onset to next onset: the refractory gap plus an exponential of the fixation's spread, from the
+        spread and the uniform both negated (STATE holds the spread so; -u is the uniform's integer times
+        -2**-32). Both arguments are scratch (overwritten)."""
+        negated_spread_ns *= np.log1p(negated_u, out=negated_u)
+        interval = np.rint(negated_spread_ns, out=negated_spread_ns).astype(np.int64)
         interval += self._refractory_ns
         return interval
-
-
-def _write_eyes(eyes: np.ndarray, agents: np.ndarray, yaw: np.ndarray, pitch: np.ndarray) -> None:
-    flat = eyes.reshape(-1)  # rows of (yaw, pitch, lid), C-contiguous: 1-D writes skip 2-D fancy indexing
-    cells = agents * 3
-    flat[cells] = yaw
-    flat[cells + 1] = pitch
 
 
 def microsaccade_quantiles(params: GazeParams) -> np.ndarray:

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from eca.agent.gaze.rows import write_eyes
 from eca.agent.gaze.synth import saccade_progress
 
 # Columns of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch (float bit
@@ -19,9 +20,6 @@ FLIGHT_WIDTH = 7
 _AGENT = 6
 _FLIGHT_ROW = np.dtype((np.void, FLIGHT_WIDTH * 8))
 _SACCADE = np.dtype((np.void, _AGENT * 8))  # a flight's saccade columns as one element
-
-# (agents) -> their resting yaw and pitch: where the current saccade lands.
-RestingPosition = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 class Flights:
@@ -58,16 +56,22 @@ class Flights:
         keep &= latest
         self._trim(keep)
 
-    def write_positions(self, t: int, yaw: np.ndarray, pitch: np.ndarray, resting: RestingPosition) -> None:
-        """Write every eye in flight at `t`; eyes that landed since go to their resting position and leave."""
+    def land(self, t: int, eyes: np.ndarray) -> None:
+        """Write the eyes that landed by `t` into `eyes` (rows of yaw and pitch) and drop their copies; the
+        engine lands them before the small saccades that follow a landing, and interpolates the eyes in
+        flight (write_positions) once the tick's decisions have launched theirs."""
         live = self._buffer[: self._count]
         flying = live[:, 1] > t
         if np.count_nonzero(flying) < flying.size:
-            # A relaunch by the timer comes after landing, so a landed copy never hides a newer flight;
-            # the resting position is the agent's current one, so duplicates write the same value.
-            landed = live[:, _AGENT][~flying]
-            yaw[landed], pitch[landed] = resting(landed)
-            live = self._trim(flying)
+            self._land(live, flying, eyes)
+
+    def write_positions(self, t: int, eyes: np.ndarray) -> None:
+        """Write every eye in flight at `t` into `eyes` (rows of yaw and pitch); eyes that landed since go to
+        where their saccade lands and leave (see land)."""
+        live = self._buffer[: self._count]
+        flying = live[:, 1] > t
+        if np.count_nonzero(flying) < flying.size:
+            live = self._land(live, flying, eyes)
         if not live.size:
             return
         onset = live[:, 0]
@@ -75,9 +79,23 @@ class Flights:
         progress = saccade_progress(elapsed / (live[:, 1] - onset))
         remaining = 1.0 - progress  # this form is exact at both ends of the saccade
         floats = live.view(np.float64)
-        agents = live[:, _AGENT]
-        yaw[agents] = floats[:, 2] * remaining + floats[:, 4] * progress
-        pitch[agents] = floats[:, 3] * remaining + floats[:, 5] * progress
+        yaw = floats[:, 2] * remaining
+        yaw += floats[:, 4] * progress
+        pitch = floats[:, 3] * remaining
+        pitch += floats[:, 5] * progress
+        write_eyes(eyes, live[:, _AGENT], yaw, pitch)
+
+    def _land(self, live: np.ndarray, flying: np.ndarray, eyes: np.ndarray) -> np.ndarray:
+        """Write the landed copies' landing points and keep the others; returns those.
+
+        Each copy is its agent's current saccade (keep_current drops the others), so it lands on the
+        agent's resting point, read here from the copy instead of from the agent's row (a random read per
+        landing). An agent can have landed twice since the last tick (a saccade, and the one a decision
+        launched after it): its copies are in launch order, and the later write is the one that stays."""
+        landed = live.view(_FLIGHT_ROW).reshape(-1)[~flying].view(np.int64).reshape(-1, FLIGHT_WIDTH)
+        to = landed.view(np.float64)
+        write_eyes(eyes, landed[:, _AGENT], to[:, 4], to[:, 5])
+        return self._trim(flying)
 
     def _trim(self, keep: np.ndarray) -> np.ndarray:
         count = int(np.count_nonzero(keep))
