@@ -63,13 +63,27 @@ def connect_drawing(driver: Any, url: str) -> None:
              f"the page drawing ada from face frames\n{said(url)}", lambda n: n >= 5)
 
 
+HEARD_MOUTH = """
+    const f = window.eca.drawn.ada; const heard = f.heardFrame(); let m = 0, at = 0;
+    f.d.primitives.forEach((p) => { for (let k = 0; k < p.targets; k += 1) {
+      if (p.voiced[k]) m = Math.max(m, heard.weights[at + k] / 255); } at += p.targets; });
+    return [m, !!(heard.flags & 1)];"""
+
+
 def mouth_open(driver: Any) -> float:
-    """The largest weight the page gives a target the voice moves (jaw, mouth) right now."""
+    """The largest weight the page gives a target the voice moves (jaw, mouth) right now (drawn)."""
     return float(driver.execute_script("""
         const f = window.eca.drawn.ada; f.present(); let m = 0;
         f.d.primitives.forEach((p, i) => { const mesh = f.targets[i]; if (!mesh) return;
           p.voiced.forEach((v, k) => { if (v) m = Math.max(m, mesh.morphTargetInfluences[k]); }); });
         return m;"""))
+
+
+def heard_mouth(driver: Any) -> tuple[float, bool]:
+    """What the page would draw on the voiced targets for the frame heard now, and whether that frame is voiced:
+    the page's own choice of frame, read without drawing (a loaded machine's software WebGL draws slowly)."""
+    mouth, voiced = driver.execute_script(HEARD_MOUTH)
+    return float(mouth), bool(voiced)
 
 
 def tone(seconds: float) -> bytes:
@@ -114,16 +128,20 @@ def test_the_mouth_opens_with_the_voice_and_closes_in_silence(instance: tuple[Bu
         client.wait_for(lambda m: getattr(m, "request_id", None) == rid and m.TYPE == "speech_started", 10.0)
         wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the voice")
         speaking: list[float] = []
-        deadline = time.monotonic() + 2.5
-        while time.monotonic() < deadline and (len(speaking) < 20 or max(speaking) <= 0.2):
-            speaking.append(mouth_open(driver))
-            time.sleep(0.05)  # sampling the face over the speech (a loaded machine samples it more slowly)
+        deadline = time.monotonic() + 8.0  # the 3 s voice, late on a loaded machine
+        while time.monotonic() < deadline:
+            mouth, voiced = heard_mouth(driver)
+            if not voiced and len(speaking) >= 5:
+                break  # the voice heard to its end
+            speaking.append(mouth)
+            time.sleep(0.03)  # sampling the face over the speech
         assert isinstance(client.wait_for_speech(rid, 20.0), SpeechFinished)
         wait_for(driver, "return !window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the silence")
         time.sleep(0.5)  # the lips' own release
         after = max(mouth_open(driver) for _ in range(10))
         synced = driver.execute_script("return window.eca.drawn.ada.stats.syncedMs")
     assert synced is not None, "the page never knew what the voice played"
+    assert len(speaking) >= 5, speaking
     assert max(speaking) > 0.2, f"the mouth never opened with the voice: {max(speaking):.3f}"
     assert np.std(speaking) > 0.03, "the mouth did not move with the voice"
     assert quiet < 0.1 and after < 0.1, (quiet, after)

@@ -376,8 +376,8 @@ class EcaVideoService(FrameProcessor):
             if picture is None:
                 continue
             frame = OutputImageRawFrame(image=picture.rgb, size=(picture.width, picture.height), format="RGB")
-            frame.metadata["eca_face"] = {"frame_ns": picture.frame_ns, "mouth": picture.mouth,
-                                          "agent": self.params.agent}
+            frame.metadata["eca_face"] = {"frame_ns": picture.frame_ns, "drawn_ns": picture.drawn_ns,
+                                          "mouth": picture.mouth, "agent": self.params.agent}
             pushed_ns = time.monotonic_ns()
             await self.push_frame(frame)
             self.pictures_pushed += 1
