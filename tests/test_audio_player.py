@@ -109,6 +109,32 @@ def test_queue_plays_in_order_with_one_terminal_event_each() -> None:
     assert all(e.agent == "ada" for e in rig.events)
 
 
+@pytest.mark.parametrize("latency_s", [0.0, 0.0237])
+def test_a_say_with_a_start_time_is_heard_from_that_time_to_the_sample(latency_s: float) -> None:
+    rig = Rig(latency_s=latency_s)
+    start_ns = 1_000_000_000 + 123_456_789  # inside a block, after the first blocks of silence
+    a = noise(0.1)
+    rig.player.say_pcm("later", a, SR, start_ns=start_ns)
+    rig.player.say_pcm("next", noise(0.05, seed=2), SR)  # queued behind it: after it, back to back
+    rig.run_until_idle()
+    (started, next_started) = rig.of(PlayerStarted)
+    assert 0 <= started.dac_time_ns - start_ns < 1_000_000_000 // SR  # the first sample at its time
+    assert next_started.dac_time_ns == started.dac_time_ns + 100_000_000
+    first = -(-(start_ns - 1_000_000_000 - round(latency_s * 1e9)) * SR // 1_000_000_000)  # the sample index out
+    out = rig.sink.output
+    assert not out[:first].any() and np.array_equal(out[first:first + len(a)], a)
+    rig.check_keys_precede_their_sound()
+
+
+def test_a_start_time_already_past_plays_at_once() -> None:
+    rig = Rig()
+    rig.sink.advance(10)
+    rig.player.say_pcm("late", noise(0.05), SR, start_ns=1)
+    rig.run_until_idle()
+    (started,) = rig.of(PlayerStarted)
+    assert started.dac_time_ns == 1_000_000_000 + 10 * BLOCK * 1_000_000_000 // SR
+
+
 def test_output_is_exactly_the_utterances_back_to_back() -> None:
     rig = Rig()
     a, b = noise(0.1234), noise(0.0777, seed=5)

@@ -128,7 +128,7 @@ def test_barge_in_stops_the_voice_and_makes_the_agent_listen(client: AgentClient
 def test_an_unexpected_player_error_still_ends_the_request(client: AgentClient, monkeypatch) -> None:
     from eca.services.processes.audio.player import Player
 
-    def broken(self, utterance_id, samples, sample_rate):  # noqa: ANN001, ARG001
+    def broken(self, utterance_id, samples, sample_rate, start_ns=0):  # noqa: ANN001, ARG001
         raise RuntimeError("device went away")
 
     monkeypatch.setattr(Player, "say_pcm", broken)
@@ -142,7 +142,7 @@ def test_a_request_the_player_refuses_ends_with_speech_failed_and_leaves_no_pend
 ) -> None:
     from eca.services.processes.audio.player import Player
 
-    def refuse(self, utterance_id, samples, sample_rate):  # noqa: ANN001, ARG001
+    def refuse(self, utterance_id, samples, sample_rate, start_ns=0):  # noqa: ANN001, ARG001
         raise ValueError(f"utterance {utterance_id!r} is already in flight")
 
     monkeypatch.setattr(Player, "say_pcm", refuse)

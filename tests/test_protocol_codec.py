@@ -31,6 +31,7 @@ from eca.protocol.messages import (
     AgentsState,
     EmotionState,
     Error,
+    Expression,
     EyeState,
     FaceFrame,
     Message,
@@ -128,6 +129,9 @@ def messages(draw: st.DrawFn, cls: type[Message] | None = None) -> Message:
         configured = draw(st.integers(min(1, len(agents)), len(agents)))
         values["agents"], values["created"] = agents, agents[configured:]
         values["like"] = [draw(st.sampled_from(agents[:configured])) for _ in agents[configured:]]
+    if cls is Expression:  # its times in order, or the message is inconsistent
+        times = sorted(values.get(k, 0) for k in ("onset_ns", "peak_ns", "relax_ns", "end_ns"))
+        values.update(zip(("onset_ns", "peak_ns", "relax_ns", "end_ns"), times, strict=True))
     if cls is MouthKeys:  # one weight per sample position, or the message is inconsistent
         n = len(values.get("sample_index", []))
         values["weights"] = {k: (v * n)[:n] if v else [0.0] * n for k, v in values.get("weights", {}).items()}

@@ -203,4 +203,4 @@ def test_attention_turns_the_head_on_top_of_the_scripted_head_and_nods_dip_the_c
         sc.nod(6 * S, 90.0, 0.5)  # beyond the head's range
     for k in range(1000):  # a flood of nods keeps a bounded list
         sc.nod(7 * S + k, 1.0, 0.2)
-    assert len(sc.model.nods._nods) <= 32
+    assert len(sc.model.gestures) <= 32

@@ -30,6 +30,7 @@ from eca.protocol.endpoints import BusConfig, load_bus_config
 from eca.protocol.messages import (
     TERMINAL_SPEECH_EVENTS,
     Ack,
+    Bml,
     CreateAgent,
     Error,
     Interrupt,
@@ -123,12 +124,18 @@ class AgentClient:
         return self.command(SetGazeTarget, request_id, yaw_deg=yaw_deg, pitch_deg=pitch_deg, target=target)
 
     def say(self, audio_path: str | None = None, pcm: bytes | None = None, sample_rate: int = 0,
-            text: str | None = None, request_id: str | None = None, to: Sequence[str] = ()) -> str:
-        """`to`: who it is said to (other agents of the instance, `user`); empty: everyone."""
+            text: str | None = None, request_id: str | None = None, to: Sequence[str] = (),
+            start_ns: int = 0) -> str:
+        """`to`: who it is said to (other agents of the instance, `user`); empty: everyone. `start_ns`: heard no
+        earlier than this master-clock time."""
         rid = request_id or f"say-{secrets.token_hex(6)}"
         self.send(Say(agent=self.agent, request_id=rid, audio_path=audio_path, pcm=pcm, sample_rate=sample_rate,
-                      text=text, to=list(to)))
+                      text=text, to=list(to), start_ns=start_ns))
         return rid
+
+    def bml(self, xml: str, request_id: str | None = None) -> Message:
+        """A BML block for the agent's realizer (the bml service); its feedback comes as `bml_feedback` events."""
+        return self.send(Bml(agent=self.agent, request_id=self._rid(request_id), xml=xml))
 
     def say_stream(self, chunks: Iterable[bytes], sample_rate: int, text: str | None = None,
                    request_id: str | None = None) -> str:

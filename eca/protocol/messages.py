@@ -177,6 +177,8 @@ class Say(Message):
     TYPE = "say"
     CATEGORY = "cmd"
     request_id: str = bounded(max_len=64, doc="unique per request; lifecycle events carry it")
+    start_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="its first sample is heard no earlier than this master-clock "
+                                                       "time (0: as soon as it can play); silence until then")
     audio_path: str | None = bounded(None, max_len=4096, doc="a sound file the audio service can read")
     pcm: bytes | None = bounded(None, doc="inline mono PCM, signed 16-bit little-endian")
     sample_rate: int = bounded(0, lo=0, hi=192_000, doc="of pcm or of the streamed chunks; 0 with a file")
@@ -232,6 +234,22 @@ class RemoveAgent(Message):
     TYPE = "remove_agent"
     CATEGORY = "cmd"
     request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+
+
+MAX_BML_CHARS = 65_536  # one BML block's text: a long utterance with its marks and a few dozen behaviours
+
+
+@dataclass(frozen=True, kw_only=True)
+class Bml(Message):
+    """A BML 1.0 block for the agent's realizer (the bml service; docs/bml.md): its behaviours are scheduled
+    on the master clock and realized on the agent's face and voice, with the standard's feedback on
+    `event.<agent>.bml_feedback`."""
+
+    TYPE = "bml"
+    CATEGORY = "cmd"
+    request_id: str = bounded("", max_len=64, doc=REQUEST_ID_DOC)
+    xml: str = bounded(max_len=MAX_BML_CHARS, doc="one <bml> element (BML 1.0 namespace, none, or SmartBody's "
+                                                  "<act> around it), as text")
 
 
 # --- states: the dialogue service's current state per agent (kept by the broker's last-value cache)
@@ -492,6 +510,70 @@ class Nod(Message):
     amplitude_deg: float = bounded(lo=0.0, hi=30.0, doc="how far it dips")
     duration_s: float = bounded(lo=0.05, hi=5.0, doc="down and back up")
     reason: Literal["backchannel"] = bounded("backchannel", doc="why: a listener's response at a partner's pause")
+
+
+BmlFeedbackKind = Literal["blockProgress", "syncPointProgress", "warningFeedback", "predictionFeedback"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class BmlFeedback(Message):
+    """The BML realizer's feedback, as the standard defines it: the fields for a client that reads them, and
+    the standard's own feedback element in `xml` for one that forwards it (the ActiveMQ bridge)."""
+
+    TYPE = "bml_feedback"
+    CATEGORY = "event"
+    kind: BmlFeedbackKind = bounded(doc="blockProgress, syncPointProgress, warningFeedback or predictionFeedback")
+    block: str = bounded(max_len=64, doc="the block's id")
+    behaviour: str = bounded("", max_len=64, doc="the behaviour's id (syncPointProgress, a warning about one)")
+    sync: str = bounded("", max_len=64, doc="start or end (blockProgress); the sync point (syncPointProgress); "
+                                            "the warning's type (warningFeedback)")
+    time_s: float = bounded(0.0, lo=-86_400.0, hi=86_400.0, doc="when, in seconds from the block's start")
+    global_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="when, on the master clock (predicted, for predictions)")
+    end_ns: int = bounded(0, lo=0, hi=2**63 - 1, doc="predictionFeedback: the block's predicted end")
+    text: str = bounded("", max_len=2000, doc="warningFeedback: what, naming the behaviour and the line")
+    request_id: str = bounded("", max_len=64, doc="the bml command's request id")
+    xml: str = bounded("", max_len=8192, doc="the standard's feedback element (bml-1.0 namespace)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Expression(Message):
+    """A facial behaviour on the master clock (a BML faceLexeme or faceFacs): flexor offsets added over the
+    emotion, rising from `onset_ns` to full at `peak_ns`, held until `relax_ns`, gone at `end_ns`. One with
+    the `id` of an expression the face holds replaces it (an earlier end cuts it short)."""
+
+    TYPE = "expression"
+    CATEGORY = "event"
+    id: str = bounded(max_len=64, doc="the behaviour (block:behaviour)")
+    onset_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when it starts")
+    peak_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when it reaches full strength (attackPeak)")
+    relax_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when it starts to go")
+    end_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when it is gone")
+    flexors: dict[str, float] = bounded({}, lo=-1.0, hi=1.0, max_len=32,
+                                        doc="flexor name -> offset at full strength, flexor units")
+
+    def consistency_problem(self) -> tuple[str, str] | None:
+        if not self.onset_ns <= self.peak_ns <= self.relax_ns <= self.end_ns:
+            return "end_ns", "onset_ns <= peak_ns <= relax_ns <= end_ns does not hold"
+        return None
+
+
+HeadLexeme = Literal["nod", "shake", "tilt"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class HeadGesture(Message):
+    """A head gesture on the master clock (a BML head behaviour): `repetitions` strokes of a nod (the chin
+    down), a shake (left-right) or a tilt, from `onset_ns` over `duration_s`; repetition i's stroke is at
+    onset + (i + 0.5) * duration / repetitions. One with the `id` of a gesture under way replaces it."""
+
+    TYPE = "head_gesture"
+    CATEGORY = "event"
+    id: str = bounded(max_len=64, doc="the behaviour (block:behaviour)")
+    lexeme: HeadLexeme = bounded(doc="nod, shake or tilt")
+    onset_ns: int = bounded(lo=0, hi=2**63 - 1, doc="when the head starts to move")
+    duration_s: float = bounded(lo=0.0, hi=30.0, doc="all repetitions, start to end (0: cut short at onset)")
+    repetitions: int = bounded(1, lo=1, hi=20, doc="strokes")
+    amplitude_deg: float = bounded(lo=0.0, hi=30.0, doc="each stroke's angle")
 
 
 # --- streams: continuous data -------------------------------------------------------------------

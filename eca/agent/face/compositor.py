@@ -54,6 +54,9 @@ DEFAULT_LAYERS: tuple[LayerSpec, ...] = (
     LayerSpec("gaze", Blend.REPLACE),
     LayerSpec("mouth", Blend.REPLACE),
     LayerSpec("blink", Blend.REPLACE),
+    # timed facial behaviours (BML faceLexeme, faceFacs, blink): over everything the face does, so a lexeme's open
+    # mouth adds to the speech's and a blink closes the lids whatever the gaze's lid is
+    LayerSpec("expression", Blend.ADD),
     LayerSpec("idle", Blend.ADD),
 )
 

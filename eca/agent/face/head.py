@@ -96,39 +96,3 @@ class HeadMotion:
         return vector
 
 
-_NOD = FLEXOR_INDEX["nod"]
-
-
-MAX_NODS = 32  # nods kept at once: far more than overlap in any real exchange
-
-
-class Nods:
-    """Head nods, each a smooth dip of the chin and back (a raised-cosine bump of the nod flexor), added on
-    top of the head's moves; nods that overlap add up. Caring about nothing between nods."""
-
-    def __init__(self) -> None:
-        self._nods: list[tuple[int, float, int]] = []  # (onset ns, depth in flexor units, duration ns)
-
-    def add(self, t_ns: int, depth: float, duration_s: float) -> None:
-        if not (math.isfinite(depth) and 0.0 < depth <= 1.0):
-            raise ValueError(f"a nod's depth must lie in (0, 1] flexor units, got {depth!r}")
-        if not (math.isfinite(duration_s) and duration_s > 0):
-            raise ValueError(f"a nod lasts a finite number of seconds > 0, got {duration_s!r}")
-        self._nods.append((int(t_ns), float(depth), round(duration_s * 1e9)))
-        if len(self._nods) > MAX_NODS:  # a flood of nods from outside never grows the face without bound
-            self._nods.sort()
-            del self._nods[: len(self._nods) - MAX_NODS]
-
-    def values_at(self, t_ns: int) -> np.ndarray:
-        vector = dont_care_vector()
-        total, active = 0.0, False
-        for onset, depth, duration in self._nods:
-            if onset <= t_ns < onset + duration:
-                total -= depth * 0.5 * (1.0 - math.cos(2.0 * math.pi * (t_ns - onset) / duration))
-                active = True
-        if active:
-            vector[_NOD] = total
-        # Nods long over can go: times only move forward for a face.
-        if len(self._nods) > 8:
-            self._nods = [n for n in self._nods if n[0] + n[2] > t_ns]
-        return vector

@@ -21,9 +21,11 @@ from eca.agent.face.emotions import (
     check_intensity,
     load_emotion_table,
 )
+from eca.agent.face.expressions import Expressions
 from eca.agent.face.flexors import FLEXOR_INDEX
 from eca.agent.face.frame import FlexorFrame, check_flexor_value, dont_care_vector
-from eca.agent.face.head import HeadMotion, Nods
+from eca.agent.face.gestures import HeadGestures, HeadLexeme
+from eca.agent.face.head import HeadMotion
 from eca.agent.face.idle import IdleNoise
 from eca.agent.face.settings import FaceSettings, FlexorUnits, load_face_settings, load_flexor_units
 
@@ -65,8 +67,10 @@ class FaceModel:
         self.compositor.set_action("head", self.head)
         self.attention = HeadMotion(t_ns=t_ns)
         self.compositor.set_action("attention", self.attention)
-        self.nods = Nods()
-        self.compositor.set_action("gesture", self.nods)
+        self.gestures = HeadGestures()
+        self.compositor.set_action("gesture", self.gestures)
+        self.expressions = Expressions()
+        self.compositor.set_action("expression", self.expressions)
         self._gaze, self._mouth, self._blink = _Held(), _Held(), _Held()
         self.compositor.set_action("gaze", self._gaze)
         self.compositor.set_action("mouth", self._mouth)
@@ -113,7 +117,22 @@ class FaceModel:
 
     def nod(self, amplitude_deg: float, duration_s: float, t_ns: int) -> None:
         """A nod from t_ns: the chin dips by amplitude_deg and comes back within duration_s."""
-        self.nods.add(t_ns, amplitude_deg / self.units.nod_deg, duration_s)
+        self.gestures.add("nod", t_ns, amplitude_deg / self.units.nod_deg, duration_s)
+
+    def head_gesture(self, gesture_id: str, lexeme: HeadLexeme, amplitude_deg: float, duration_s: float,
+                     repetitions: int, t_ns: int) -> None:
+        """A gesture from t_ns (BML head): `repetitions` strokes of amplitude_deg within duration_s; it
+        replaces the gesture of the same id (duration 0 ends that one)."""
+        per_unit = {"nod": self.units.nod_deg, "shake": self.units.turn_deg, "tilt": self.units.tilt_deg}[lexeme]
+        depth = min(1.0, amplitude_deg / per_unit)
+        if duration_s > 0 and depth <= 0:
+            return  # a gesture of no amplitude: nothing moves
+        self.gestures.add(lexeme, t_ns, depth, duration_s, repetitions, gesture_id)
+
+    def expression(self, expression_id: str, onset_ns: int, peak_ns: int, relax_ns: int, end_ns: int,
+                   flexors: Mapping[str, float]) -> None:
+        """Hold (or replace) a timed facial expression over the emotion (BML faceLexeme, faceFacs)."""
+        self.expressions.set(expression_id, onset_ns, peak_ns, relax_ns, end_ns, flexors)
 
     def set_eyes(self, yaw_deg: float | None, pitch_deg: float | None, lid: float | None = None) -> None:
         """Gaze in degrees (yaw to the agent's right, pitch up; None = leave to the layers below) and lid

@@ -29,6 +29,7 @@ import numpy as np
 
 from eca.agent.face.composed import ComposedFace
 from eca.agent.face.frame import FlexorFrame
+from eca.agent.face.gestures import HEAD_LEXEMES
 from eca.agent.face.model import MOUTH_FLEXORS, FaceModel
 from eca.agent.gaze.params import default_eye_mode
 from eca.agent.gaze.synth import eye_position_one
@@ -176,6 +177,20 @@ class LiveScene:
     def nod(self, onset_ns: int, amplitude_deg: float, duration_s: float) -> None:
         """A listener's nod from onset_ns (a backchannel)."""
         self.model.nod(amplitude_deg, duration_s, int(onset_ns))
+
+    def head_gesture(self, gesture_id: str, lexeme: str, onset_ns: int, amplitude_deg: float, duration_s: float,
+                     repetitions: int) -> None:
+        """A head gesture on the master clock (a BML head behaviour); it replaces the one of the same id."""
+        if lexeme not in HEAD_LEXEMES:
+            raise ValueError(f"a head gesture is one of {', '.join(HEAD_LEXEMES)}, got {lexeme!r}")
+        self.model.head_gesture(gesture_id, lexeme, amplitude_deg, duration_s, repetitions,
+                                int(onset_ns))
+
+    def expression(self, expression_id: str, onset_ns: int, peak_ns: int, relax_ns: int, end_ns: int,
+                   flexors: Mapping[str, float]) -> None:
+        """A facial expression on the master clock (a BML faceLexeme, faceFacs); it replaces the one of the
+        same id."""
+        self.model.expression(expression_id, onset_ns, peak_ns, relax_ns, end_ns, flexors)
 
     def set_eye_mode(self, mode: str) -> None:
         """The commanded eye mode; the eye samples' own mode takes precedence once they arrive."""

@@ -86,6 +86,7 @@ AGENTS_TOPIC = f"state.{ALL_AGENTS}.{AgentsState.TYPE}"
 DEFAULT_MAX_CREATED = 60  # [conversations] max when the config does not say
 USER = "user"  # the person the agents talk to: never an agent id
 REMOVED_REASON = "the agent was removed"
+MAX_START_AHEAD_NS = 60_000_000_000  # a say's start_ns at most this far ahead: a scheduled utterance, not a timer
 
 
 def conversation_settings(config: BusConfig) -> tuple[int, str]:
@@ -510,6 +511,9 @@ class DialogueService(Service):
         if wrong:
             raise Rejected(f"'to' names {', '.join(map(repr, wrong))}: a say is addressed to other agents of its "
                            f"conversation ({', '.join(peers) or 'none'}) or 'user'", cmd.request_id)
+        if cmd.start_ns > self.clock.now_ns() + MAX_START_AHEAD_NS:
+            raise Rejected(f"start_ns lies more than {MAX_START_AHEAD_NS // 1_000_000_000} s ahead of the master "
+                           "clock (a monotonic time of the audio service's host, in ns)", cmd.request_id)
         if len(state.pending) >= MAX_PENDING_SAYS:
             raise Rejected(f"agent '{cmd.agent}' already has {MAX_PENDING_SAYS} say requests pending; "
                            "send this one when one of them has ended", cmd.request_id)

@@ -18,6 +18,7 @@ SERVICES: dict[str, str] = {
     "renderer": "eca.services.processes.renderer.service:RendererService",
     "web": "eca.services.processes.web.service:WebService",
     "rig": "eca.services.processes.rig.service:RigService",
+    "bml": "eca.services.processes.bml.service:BmlService",
 }
 
 

@@ -211,10 +211,11 @@ class _Track:
     """One utterance. The preparer appends chunks; the callback owns the cursor and drops played chunks."""
 
     __slots__ = ("uid", "source", "chunks", "fed", "complete", "cut", "played", "chunk_off", "resampler",
-                 "estimator", "held", "started", "closed", "failure", "ended")
+                 "estimator", "held", "started", "closed", "failure", "ended", "start_ns")
 
-    def __init__(self, uid: str, source: _Source | None) -> None:
+    def __init__(self, uid: str, source: _Source | None, start_ns: int = 0) -> None:
         self.uid = uid
+        self.start_ns = start_ns  # its first sample reaches the DAC no earlier (0: as soon as it can)
         self.source = source  # None: nothing to prepare (a request refused at once)
         self.chunks: deque[np.ndarray] = deque()
         self.fed = 0  # samples appended so far (published after the chunk itself)
@@ -332,14 +333,17 @@ class Player:
 
     # ------------------------------------------------------------------ requests (caller thread)
 
-    def say_file(self, request_id: str, path: str | Path) -> None:
+    # Each say_* takes `start_ns`: its first sample reaches the DAC at that time (master clock), or as soon after
+    # as the queue allows; the output plays silence until then (a BML block's speech lands on its schedule).
+
+    def say_file(self, request_id: str, path: str | Path, start_ns: int = 0) -> None:
         """Play an audio file (WAV, FLAC, OGG... through soundfile). It is opened, decoded and analysed
         by the preparer, slice by slice ahead of playback; a file that cannot be read fails the request
         with a reason naming the file."""
         self._check_new(request_id)
-        self._enqueue(_Track(request_id, _FileSource(path, self.config.max_utterance_s)))
+        self._enqueue(_Track(request_id, _FileSource(path, self.config.max_utterance_s), start_ns))
 
-    def say_pcm(self, request_id: str, samples: np.ndarray, sample_rate: int) -> None:
+    def say_pcm(self, request_id: str, samples: np.ndarray, sample_rate: int, start_ns: int = 0) -> None:
         """Play PCM held in memory: float in [-1, 1] or int16, mono or frames x channels. The player reads
         `samples` later, on the preparer: the array must not change until the request has ended."""
         self._check_new(request_id)
@@ -351,18 +355,18 @@ class Player:
         except ValueError as exc:
             self._enqueue_failed(request_id, f"bad PCM: {exc}")
             return
-        self._enqueue(_Track(request_id, _PcmSource(pcm, int(sample_rate))))
+        self._enqueue(_Track(request_id, _PcmSource(pcm, int(sample_rate)), start_ns))
 
-    def say_text(self, request_id: str, text: str) -> None:
+    def say_text(self, request_id: str, text: str, start_ns: int = 0) -> None:
         """Speak `text` through the player's text-to-speech engine; the engine runs on the preparer, and a
         missing or failing engine fails the request with its reason."""
         self._check_new(request_id)
         if self.tts is None:
             self._enqueue_failed(request_id, "the text could not be spoken: no text-to-speech engine is set up")
             return
-        self._enqueue(_Track(request_id, _TextSource(text, self.tts, self.config.max_utterance_s)))
+        self._enqueue(_Track(request_id, _TextSource(text, self.tts, self.config.max_utterance_s), start_ns))
 
-    def say_stream(self, request_id: str, sample_rate: int) -> None:
+    def say_stream(self, request_id: str, sample_rate: int, start_ns: int = 0) -> None:
         """Open an utterance whose PCM arrives later through `feed` (streaming TTS). It takes its place
         in the queue now; if its chunks arrive late, the output waits in silence for them."""
         self._check_new(request_id)
@@ -371,7 +375,7 @@ class Player:
         except ValueError as exc:
             self._enqueue_failed(request_id, f"bad stream: {exc}")
             return
-        self._enqueue(_Track(request_id, _StreamSource(int(sample_rate))))
+        self._enqueue(_Track(request_id, _StreamSource(int(sample_rate)), start_ns))
 
     def feed(self, request_id: str, chunk: np.ndarray, last: bool = False) -> bool:
         """Append a chunk to a streamed utterance (read later, on the preparer: it must not change).
@@ -558,7 +562,8 @@ class Player:
 
     def _render(self, out: np.ndarray, stamp: Any) -> None:
         records = self._records
-        records.append((_BUFFER, stamp))
+        block_dac_ns = self.sink.dac_time_ns(stamp)  # once per block (the clock map follows the blocks)
+        records.append((_BUFFER, block_dac_ns))
         tracks = self._tracks
         n = len(out)
         pos = 0
@@ -576,6 +581,14 @@ class Player:
                     tracks.popleft()
                     continue
                 break  # the next samples are not prepared (or not streamed) yet: silence until they are
+            if t.played == 0 and t.start_ns:
+                # Not yet due: silence up to the sample that reaches the DAC at its start time.
+                wait = -(-(t.start_ns - block_dac_ns) * self.sample_rate // 1_000_000_000) - pos
+                if wait > 0:
+                    if pos + wait >= n:
+                        break
+                    out[pos : pos + wait] = 0.0
+                    pos += wait
             chunk = t.chunks[0]
             take = min(n - pos, len(chunk) - t.chunk_off)
             out[pos : pos + take] = chunk[t.chunk_off : t.chunk_off + take]
@@ -615,7 +628,7 @@ class Player:
             rec = records.popleft()
             kind = rec[0]
             if kind == _BUFFER:
-                self._buffer_dac_ns = self.sink.dac_time_ns(rec[1])
+                self._buffer_dac_ns = rec[1]
                 continue
             if kind == _VOICE:  # the block's last record: its _BUFFER set the DAC time above
                 block = rec[1]

@@ -193,13 +193,13 @@ class AudioService(Service):
             return
         try:
             if msg.audio_path is not None:
-                player.say_file(msg.request_id, msg.audio_path)
+                player.say_file(msg.request_id, msg.audio_path, msg.start_ns)
             elif msg.pcm is not None:
-                player.say_pcm(msg.request_id, pcm16(msg.pcm), msg.sample_rate)
+                player.say_pcm(msg.request_id, pcm16(msg.pcm), msg.sample_rate, msg.start_ns)
             elif msg.streamed:
-                player.say_stream(msg.request_id, msg.sample_rate)
+                player.say_stream(msg.request_id, msg.sample_rate, msg.start_ns)
             else:  # text only (the dialogue service lets no other request through)
-                player.say_text(msg.request_id, msg.text or "")
+                player.say_text(msg.request_id, msg.text or "", msg.start_ns)
         except ValueError as exc:
             self._refuse(msg, f"the audio service refused it: {exc}")
             return

@@ -31,9 +31,11 @@ from eca.protocol.messages import (
     AttentionState,
     ClockAnchor,
     EmotionState,
+    Expression,
     EyesState,
     EyeState,
     GazeTargetState,
+    HeadGesture,
     HeadState,
     Message,
     MouthKeys,
@@ -96,6 +98,8 @@ class BusScenes:
             (GazeTargetState, lambda m: None),
             (AttentionState, self.on_attention),
             (Nod, self.on_nod),
+            (HeadGesture, self.on_head_gesture),
+            (Expression, self.on_expression),
             (Saccade, self.on_saccade),
             (EyeState, self.on_eye_state),
             (ClockAnchor, self.on_anchor),
@@ -255,6 +259,13 @@ class BusScenes:
 
     def on_nod(self, m: Nod) -> None:
         self._guard(m, lambda s: s.nod(m.onset_ns, m.amplitude_deg, m.duration_s))
+
+    def on_head_gesture(self, m: HeadGesture) -> None:
+        self._guard(m, lambda s: s.head_gesture(m.id, m.lexeme, m.onset_ns, m.amplitude_deg, m.duration_s,
+                                                m.repetitions))
+
+    def on_expression(self, m: Expression) -> None:
+        self._guard(m, lambda s: s.expression(m.id, m.onset_ns, m.peak_ns, m.relax_ns, m.end_ns, m.flexors))
 
     def on_eyes(self, m: EyesState) -> None:
         if self._guard(m, lambda s: s.set_eye_mode(m.mode)):

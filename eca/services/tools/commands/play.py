@@ -17,17 +17,27 @@ from eca.services.tools.script_input import AGENT_HELP, load_run, open_voices, p
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("play", help="replay scripts over the bus to a running instance")
-    p.add_argument("scripts", nargs="+", help="dialogue XML and/or parameter files")
+    p = sub.add_parser("play", help="replay scripts over the bus to a running instance, or send it BML blocks")
+    p.add_argument("scripts", nargs="+", help="dialogue XML and/or parameter files, or BML blocks (.bml, one after "
+                                              "the other, each waited for; needs the bml service: eca up --bml)")
     p.add_argument("--config", default=None)
     p.add_argument("--instance", default=None)
     p.add_argument("--agent", default=None, help=AGENT_HELP)
     p.add_argument("--speed", type=float, default=1.0, help="playback speed factor (2 = twice as fast)")
     p.add_argument("--no-voice", action="store_true", help="do not speak lines that have only text")
+    p.add_argument("--timeout", type=float, default=120.0, help="BML: seconds to wait for each block's end")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    bml = [path.lower().endswith(".bml") for path in args.scripts]
+    if any(bml):
+        if not all(bml):
+            print("eca play: BML blocks (.bml) play on their own, not mixed with dialogue scripts", file=sys.stderr)
+            return 2
+        from eca.services.tools.bml_play import play_bml
+
+        return play_bml(args)
     if not 0.05 <= args.speed <= 100:
         print(f"eca play: --speed {args.speed} must lie in [0.05, 100]", file=sys.stderr)
         return 2

@@ -33,6 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     face.add_argument("--size", default=None, metavar="WxH", help="window or image size")
     face.add_argument("--fps", type=float, default=None, help="frames per second")
     face.add_argument("--view", choices=("full", "upper"), default=None, help="full face or upper face only")
+    p.add_argument("--bml", action="store_true",
+                   help="also start the BML realizer: BML 1.0 blocks on cmd.<agent>.bml, feedback on "
+                        "event.<agent>.bml_feedback (docs/bml.md)")
     web = p.add_argument_group("web", "the web front-end: the agents in a browser over WebRTC")
     web.add_argument("--web", action="store_true", help="also serve the agents to browsers (the web service)")
     add_web_arguments(web)
@@ -102,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
 
             if not face_argv and "renderer" in services and not display_available():
                 services.remove("renderer")  # headless, the page is the face: no second drawing loop
+        if args.bml and "bml" not in services:
+            services.append("bml")
         rig_argv = rig_args(args, config, services)
         if args.face is not None or config.raw.get("faces"):
             from eca.services.processes.renderer.faces import agent_faces  # no GL or drawing code: names only

@@ -1,0 +1,98 @@
+"""BML 1.0 (Behavior Markup Language, SAIBA) for eca's face: a block parsed, scheduled and answered.
+
+`parse_block` reads one block (BML 1.0, its older namespace, SmartBody's and Greta's dialects) into behaviours,
+constraints and warnings; `schedule` turns its references and constraints into absolute times; feedback.py
+writes the standard's feedback. Pure: no clock, no bus, no audio; the realizer feeds in speech timings.
+"""
+
+from eca.agent.bml.errors import (
+    BEHAVIOR_TYPE_NOT_SUPPORTED,
+    CANNOT_CREATE_BEHAVIOR,
+    CUSTOM_ATTRIBUTE_NOT_SUPPORTED,
+    CUSTOM_BEHAVIOUR_NOT_SUPPORTED,
+    IMPOSSIBLE_TO_SCHEDULE,
+    NO_SUCH_TARGET,
+    PARSING_FAILURE,
+    WARNING_TYPES,
+    BmlError,
+    BmlWarning,
+)
+from eca.agent.bml.feedback import (
+    block_progress_xml,
+    prediction_feedback_xml,
+    sync_point_progress_xml,
+    warning_feedback_xml,
+)
+from eca.agent.bml.mapping import BehaviourTimings, BmlTables, bml_tables
+from eca.agent.bml.model import (
+    BML_NS,
+    CORE_EXTENSIONS_NS,
+    ECA_NS,
+    MAX_BML_CHARS,
+    MINDMAKERS_NS,
+    Behaviour,
+    BlinkParams,
+    Block,
+    Constraint,
+    EmotionParams,
+    FaceParams,
+    GazeParams,
+    HeadDirectionParams,
+    HeadParams,
+    Params,
+    RoleParams,
+    SpeechParams,
+    SpeechTiming,
+    SyncRef,
+    Timeline,
+    UnrealizedBehaviour,
+    WaitParams,
+    sync_points,
+)
+from eca.agent.bml.parse import parse_block
+from eca.agent.bml.schedule import schedule
+
+__all__ = [
+    "BEHAVIOR_TYPE_NOT_SUPPORTED",
+    "BML_NS",
+    "CANNOT_CREATE_BEHAVIOR",
+    "CORE_EXTENSIONS_NS",
+    "CUSTOM_ATTRIBUTE_NOT_SUPPORTED",
+    "CUSTOM_BEHAVIOUR_NOT_SUPPORTED",
+    "ECA_NS",
+    "IMPOSSIBLE_TO_SCHEDULE",
+    "MAX_BML_CHARS",
+    "MINDMAKERS_NS",
+    "NO_SUCH_TARGET",
+    "PARSING_FAILURE",
+    "WARNING_TYPES",
+    "Behaviour",
+    "BehaviourTimings",
+    "BlinkParams",
+    "Block",
+    "BmlError",
+    "BmlTables",
+    "BmlWarning",
+    "Constraint",
+    "EmotionParams",
+    "FaceParams",
+    "GazeParams",
+    "HeadDirectionParams",
+    "HeadParams",
+    "Params",
+    "RoleParams",
+    "SpeechParams",
+    "SpeechTiming",
+    "SyncRef",
+    "Timeline",
+    "UnrealizedBehaviour",
+    "WaitParams",
+    "block_progress_xml",
+    "bml_tables",
+    "parse_block",
+    "prediction_feedback_xml",
+    "schedule",
+    "sync_point_progress_xml",
+    "sync_points",
+    "warning_feedback_xml",
+]
