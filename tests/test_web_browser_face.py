@@ -116,34 +116,50 @@ def test_the_page_draws_the_head_and_an_emotion_changes_its_brows_and_mouth(inst
     assert still < min(brows, mouth), (brows, mouth, still)
 
 
+RECORD_FRAMES = """
+    const f = window.eca.drawn.ada; window.ecaRecorded = []; const push = f.push.bind(f);
+    f.push = (buffer) => {
+      const before = f.frames.length ? f.frames[f.frames.length - 1].seq : -1;
+      const ok = push(buffer); const last = f.frames[f.frames.length - 1];
+      if (last && last.seq !== before) {
+        let m = 0, at = 0;
+        f.d.primitives.forEach((p) => { for (let k = 0; k < p.targets; k += 1) {
+          if (p.voiced[k]) m = Math.max(m, last.weights[at + k] / 255); } at += p.targets; });
+        window.ecaRecorded.push([last.timeMs, last.flags & 1, m]);
+      }
+      return ok;
+    };"""
+
+
 def test_the_mouth_opens_with_the_voice_and_closes_in_silence(instance: tuple[BusConfig, str]) -> None:
+    """Every face frame the page receives is recorded by the page itself as it arrives (a loaded machine's
+    software WebGL makes each round trip from the test slow, so the test reads the record once, after)."""
     config, url = instance
     with chromium() as driver, AgentClient(config) as client:
         connect_drawing(driver, url + "?mic=0")
         client.wait_applied(client.set_emotion("natural", transition_s=0.1), 10.0)
         time.sleep(1.0)  # the transition's time
-        quiet = max(mouth_open(driver) for _ in range(10))
+        quiet = max(heard_mouth(driver)[0] for _ in range(3))
+        driver.execute_script(RECORD_FRAMES)
         rid = client.new_request_id()
         client.wait_applied(client.send(Say(agent="ada", request_id=rid, pcm=tone(3.0), sample_rate=RATE)), 10.0)
         client.wait_for(lambda m: getattr(m, "request_id", None) == rid and m.TYPE == "speech_started", 10.0)
         wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the voice")
-        speaking: list[float] = []
-        deadline = time.monotonic() + 8.0  # the 3 s voice, late on a loaded machine
-        while time.monotonic() < deadline:
-            mouth, voiced = heard_mouth(driver)
-            if not voiced and len(speaking) >= 5:
-                break  # the voice heard to its end
-            speaking.append(mouth)
-            time.sleep(0.03)  # sampling the face over the speech
         assert isinstance(client.wait_for_speech(rid, 20.0), SpeechFinished)
         wait_for(driver, "return !window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the silence")
         time.sleep(0.5)  # the lips' own release
-        after = max(mouth_open(driver) for _ in range(10))
+        after = max(heard_mouth(driver)[0] for _ in range(3))
         synced = driver.execute_script("return window.eca.drawn.ada.stats.syncedMs")
+        recorded = np.array(driver.execute_script("return window.ecaRecorded"), dtype=np.float64)
     assert synced is not None, "the page never knew what the voice played"
-    assert len(speaking) >= 5, speaking
-    assert max(speaking) > 0.2, f"the mouth never opened with the voice: {max(speaking):.3f}"
-    assert np.std(speaking) > 0.03, "the mouth did not move with the voice"
+    voiced = recorded[recorded[:, 1] == 1]
+    assert len(voiced) >= 30, f"{len(voiced)} voiced frames for 3 s of voice"  # 30 fps asked; a loaded host sends fewer
+    speaking = voiced[:, 2]
+    assert speaking.max() > 0.2, f"the mouth never opened with the voice: {speaking.max():.3f}"
+    assert np.std(speaking) > 0.03, "the mouth did not move with the voice"  # the tone's 4 Hz swell
+    last_voiced = voiced[-1, 0]
+    closed = recorded[(recorded[:, 1] == 0) & (recorded[:, 0] > last_voiced + 300)]  # past the lips' release
+    assert len(closed) and closed[:, 2].max() < 0.1, closed[:, 2].max() if len(closed) else "no frames after"
     assert quiet < 0.1 and after < 0.1, (quiet, after)
 
 
