@@ -260,3 +260,29 @@ def test_fuzzed_blocks_are_each_answered_and_never_take_the_realizer_down(instan
         feedback = feedback_until_end(client, "after")
     assert answered["ack"] + answered["refused"] == 40 and answered["refused"] > 0, answered
     assert [f.sync for f in feedback if f.kind == "blockProgress"] == ["start", "end"]
+
+
+def test_a_barge_in_ends_the_speaking_block_once_with_its_reason(instance: BusConfig) -> None:
+    text = "Here is a long explanation that the user will not let me finish, because they start to speak. " * 2
+    xml = block("barge1", f'<speech id="s1"><text>{text}</text></speech>'
+                          '<head id="h1" lexeme="SHAKE" start="s1:end"/>')
+    with AgentClient(instance, agent="ada") as client:
+        client.wait_applied(client.bml(xml), 15.0)
+        client.wait_for(lambda m: isinstance(m, SpeechStarted), 10.0)
+        client.wait_applied(client.user_speaking(True), 5.0)
+        feedback = feedback_until_end(client, "barge1")
+        nothing_more(client, lambda m: isinstance(m, BmlFeedback) and m.block == "barge1", 1.0)
+        client.wait_applied(client.user_speaking(False), 5.0)
+    (end,) = [f for f in feedback if f.kind == "blockProgress" and f.sync == "end"]
+    assert "user started speaking" in end.text, end.text
+    assert not [f for f in feedback if f.behaviour == "h1"]  # the shake after the speech never came
+
+
+def test_a_gaze_cut_short_by_replace_gives_the_gaze_back_at_once(instance: BusConfig) -> None:
+    with AgentClient(instance, agent="ada") as client:
+        before = client.expect_state(GazeTargetState, timeout_s=5.0)
+        client.wait_applied(client.bml(block("gazecut", '<gaze id="g1" target="bob" start="0" end="8"/>')), 10.0)
+        client.expect_state(GazeTargetState, lambda m: m.target == "bob", timeout_s=5.0)
+        client.wait_applied(client.bml(block("gazecut2", '<head id="h" lexeme="NOD"/>', "REPLACE")), 10.0)
+        back = client.expect_state(GazeTargetState, lambda m: m.target != "bob", timeout_s=3.0)
+    assert (back.target, back.yaw_deg) == (before.target, before.yaw_deg)

@@ -53,6 +53,7 @@ class Timed:
     at_ns: int
     block: str
     message: Message
+    restore: bool = False  # puts back what the block changed (a gaze's end): sent at once if the block is cut
 
 
 @dataclass
@@ -132,11 +133,11 @@ def realize(agent: str, block: Block, timeline: Timeline, voices: Mapping[str, S
                 if gaze_now is not None:
                     out.timed.append(Timed(end, block.id, SetGazeTarget(agent=agent, yaw_deg=gaze_now.yaw_deg,
                                                                         pitch_deg=gaze_now.pitch_deg,
-                                                                        target=gaze_now.target)))
+                                                                        target=gaze_now.target), restore=True))
                 if turns_head:
                     back = head_now or HeadState(agent=agent)
                     out.timed.append(Timed(end, block.id, MoveHead(agent=agent, turn=back.turn, nod=back.nod,
-                                                                   tilt=back.tilt, duration_s=0.4)))
+                                                                   tilt=back.tilt, duration_s=0.4), restore=True))
         elif isinstance(p, HeadDirectionParams):
             yaw, pitch = direction(agent, p.target) or (0.0, 0.0)
             start, end = at(beh.id, "start"), at(beh.id, "end")

@@ -284,7 +284,11 @@ class BmlService(Service):
                 self.publish(m)
             for say in realization.says.values():
                 self.publish(Interrupt(agent=agent, request_id=say, reason=reason[:200]))
+        cut = [t for t in self.timed if t.message.agent == agent and t.block in ids]
         self.timed = [t for t in self.timed if not (t.message.agent == agent and t.block in ids)]
+        for t in cut:  # what a cut gaze changed goes back now, and the gaze model's saccades go on from there
+            if t.restore:
+                self.publish(t.message)
         for item in realizer.interrupt(now_ns, reason, ids):
             self._feedback(agent, item)
 
