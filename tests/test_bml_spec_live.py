@@ -60,7 +60,7 @@ def test_the_spec_examples_are_realized_at_the_times_the_standard_requires(insta
     feedback: dict[str, list[BmlFeedback]] = {block: [] for block in blocks}
     ended: set[str] = set()
     with AgentClient(instance, agent="ada") as client:
-        for block, (_, xml, _) in blocks.items():
+        for _, xml, _ in blocks.values():
             client.wait_applied(client.bml(xml), 10.0)
 
         def collect(m: Message) -> bool:
