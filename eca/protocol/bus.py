@@ -7,7 +7,11 @@ over the same reconnected pipe) is seen too: `new_broker()` tells the owner of a
 again for the new broker's empty cache (the zguide's Clone pattern).
 Subscribers connect a SUB to the broker's XPUB; their barrier is a probe subscription
 `sys.<nonce>.hello` that the broker answers once the subscription is live.
-Every option (HWM, linger) is set before connect: options set later do not take.
+Every option (HWM, linger, CURVE keys, ZMTP heartbeats) is set before connect: options set later do not take.
+Over TCP (a link that can drop and heal, docs/protocol.md §15) each socket sends ZMTP heartbeats, so a link
+that stays silent past the heartbeat timeout is dropped and made again when the network is back: the
+subscriber's subscriptions reach the broker again, and its last-value cache answers them with the current
+states (the Clone pattern's snapshot) instead of a backlog of old ones.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from dataclasses import dataclass
 import zmq
 
 from eca.protocol.codec import DEFAULT_MAX_BYTES, ProtocolError, decode, encode
+from eca.protocol.curve import client_options, link_options
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import Hello, Message
 from eca.protocol.topics import split_topic, topic_for
@@ -30,6 +35,7 @@ class BusTimeout(TimeoutError):
 
 
 MAX_TOPICS_KEPT = 65_536  # per socket: topics whose count or last state is remembered
+STALE_WINDOW_NS = 60_000_000_000  # a state older than the held one by more than this is taken as new
 
 
 class TopicCounts:
@@ -53,6 +59,54 @@ def _now_ns() -> int:
     return time.monotonic_ns()
 
 
+_AUTH_FAILED = zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+
+
+class _Link:
+    """The options of a socket onto the broker (CURVE keys, heartbeats over TCP) and, with CURVE, a monitor
+    of its handshakes: a broker that refuses this host's key says nothing to the sockets themselves (their
+    messages just go nowhere), so without it a refused client could only say "no broker"."""
+
+    def __init__(self, sock: zmq.Socket[bytes], config: BusConfig) -> None:
+        self._config = config
+        self._monitor: zmq.Socket[bytes] | None = None
+        if config.curve is not None:
+            client_options(sock, config.curve)
+            self._monitor = sock.get_monitor_socket(_AUTH_FAILED)
+        if config.remote_link:
+            link_options(sock, config.heartbeat_interval_s, config.heartbeat_timeout_s)
+        self._sock = sock
+
+    def refused(self) -> str | None:
+        """Why the broker refused this socket's handshake, when it did (never blocks)."""
+        if self._monitor is None:
+            return None
+        from zmq.utils.monitor import recv_monitor_message
+
+        why = None
+        while self._monitor.poll(0, zmq.POLLIN):
+            event = recv_monitor_message(self._monitor, zmq.NOBLOCK)
+            keys = self._config.curve
+            assert keys is not None
+            if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+                why = (f"the broker at {event['endpoint'].decode(errors='replace')} refused this host's key "
+                       f"{keys.client_public.decode()} ({keys.client_key_file}; status {event['value']}): add its "
+                       f"public key file to the broker's curve_allowed_dir")
+            else:
+                why = (f"the CURVE handshake with {event['endpoint'].decode(errors='replace')} failed: is "
+                       f"curve_server_key ({keys.server_key_file}) the broker's key?")
+        return why
+
+    def timeout(self, default: str) -> BusTimeout:
+        return BusTimeout(self.refused() or default)
+
+    def close(self) -> None:
+        if self._monitor is not None:
+            self._sock.disable_monitor()
+            self._monitor.close(linger=0)
+            self._monitor = None
+
+
 class Publisher:
     """Stamps each message with sequence number, time and source, validates it, and sends it.
 
@@ -71,12 +125,13 @@ class Publisher:
         self.socket.setsockopt(zmq.LINGER, 500)  # let the last events out on a clean stop
         # every subscription frame, repeats included: a restarted broker re-subscribes over the same pipe
         self.socket.setsockopt(zmq.XPUB_VERBOSE, 1)
+        self.link = _Link(self.socket, config)
         self.socket.connect(config.frontend)
 
     def wait_ready(self, timeout_s: float = 5.0) -> None:
         """Block until the broker's subscription arrives, so nothing sent afterwards is lost."""
         if not self.socket.poll(int(timeout_s * 1000), zmq.POLLIN):
-            raise BusTimeout(f"no broker subscription within {timeout_s:g} s: is the broker running?")
+            raise self.link.timeout(f"no broker subscription within {timeout_s:g} s: is the broker running?")
         self._drain_subscriptions()
 
     def new_broker(self) -> bool:
@@ -115,6 +170,7 @@ class Publisher:
                 self.brokers_seen += 1
 
     def close(self) -> None:
+        self.link.close()
         self.socket.close()
 
 
@@ -147,8 +203,12 @@ class Subscriber:
         # The last-value cache re-sends a state to every subscriber of its topic when someone new
         # subscribes; a byte-identical repeat carries nothing new.
         self._last_state: dict[str, bytes] = {}
+        # (source, t_ns) of the last state taken per topic: an older one from the same publisher is stale
+        self._last_stamp: dict[str, tuple[str, int]] = {}
+        self.stale = 0  # states skipped as older than the one already held for their topic
         for p in prefixes:
             self.socket.setsockopt(zmq.SUBSCRIBE, p.encode())
+        self.link = _Link(self.socket, config)
         self.socket.connect(config.backend)
 
     def subscribe(self, prefix: str) -> None:
@@ -170,7 +230,7 @@ class Subscriber:
             while True:
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise BusTimeout(f"no answer from the broker within {timeout_s} s: is it running?")
+                    raise self.link.timeout(f"no answer from the broker within {timeout_s} s: is it running?")
                 got = self.recv(left)
                 if got is None:
                     continue
@@ -223,12 +283,68 @@ class Subscriber:
             # byte-identical = the same message re-sent (a restarted publisher's seq starts again at 1)
             if self._last_state.get(got.topic) == frames[1]:
                 return None
+            if self._is_stale(got.topic, msg):
+                self.stale += 1
+                return None
             if got.topic not in self._last_state and len(self._last_state) >= MAX_TOPICS_KEPT:
                 del self._last_state[next(iter(self._last_state))]  # bounded: peers choose topics
+                self._last_stamp.pop(next(iter(self._last_stamp)), None)
             self._last_state[got.topic] = frames[1]
+            self._last_stamp[got.topic] = (msg.source, msg.t_ns)
         return got
 
+    def _is_stale(self, topic: str, msg: Message) -> bool:
+        """Whether `msg` is older than the state already taken for `topic` from the same publisher: one that
+        waited out a partition behind a newer one is never applied as current (docs/protocol.md §15). Only
+        stamps of one source are compared (monotonic clocks of different hosts are not comparable), and one
+        older by more than STALE_WINDOW_NS is taken as new: its host restarted its clock (a reboot), or the
+        one held was stamped far ahead, and no publisher pins a topic at a subscriber for longer."""
+        held = self._last_stamp.get(topic)
+        if held is None or held[0] != msg.source or not msg.t_ns or not held[1]:
+            return False
+        return held[1] - STALE_WINDOW_NS <= msg.t_ns < held[1]
+
     def close(self) -> None:
+        self.link.close()
+        self.socket.close()
+
+
+class LinkWatch:
+    """Whether the broker is there, from its own heartbeats (`sys.*.heartbeat` from `broker`, docs/protocol.md
+    §10): none for the heartbeat timeout means the link is down (a partition, a broker gone), whatever the
+    sockets think. Its own SUB socket, so it neither takes nor misses the owner's messages; `up()` reads what
+    came and never blocks."""
+
+    def __init__(self, ctx: zmq.Context[zmq.Socket[bytes]], config: BusConfig) -> None:
+        self.timeout_ns = int(config.heartbeat_timeout_s * 1e9)
+        self.socket = ctx.socket(zmq.SUB)
+        self.socket.setsockopt(zmq.RCVHWM, 1000)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        self.socket.setsockopt(zmq.SUBSCRIBE, b"sys.*.heartbeat")
+        self.link = _Link(self.socket, config)
+        self.socket.connect(config.backend)
+        self.last_beat_ns = time.monotonic_ns()  # its owner passed the readiness barriers just now
+        self.beats = 0
+        self.broker_started_ns = 0  # the broker's started_ns: a new value means a new broker
+
+    def up(self) -> bool:
+        while self.socket.poll(0, zmq.POLLIN):
+            frames = self.socket.recv_multipart(zmq.NOBLOCK)
+            if len(frames) != 2 or b"broker" not in frames[1]:
+                continue  # another service's beat: decoding it is not needed to know that
+            msg = parse_frames(frames).message
+            if msg is not None and getattr(msg, "service", "") == "broker" and msg.source == "broker":
+                self.last_beat_ns = time.monotonic_ns()
+                self.beats += 1
+                self.broker_started_ns = getattr(msg, "started_ns", 0)
+        return self.silent_ns() <= self.timeout_ns
+
+    def silent_ns(self) -> int:
+        """How long since the broker's last heartbeat arrived."""
+        return time.monotonic_ns() - self.last_beat_ns
+
+    def close(self) -> None:
+        self.link.close()
         self.socket.close()
 
 

@@ -17,6 +17,7 @@ the one or raises `CommandRejected` for the other, so "applied" never means "the
 
 from __future__ import annotations
 
+import logging
 import secrets
 import time
 from collections import deque
@@ -25,7 +26,7 @@ from typing import Any, TypeVar
 
 import zmq
 
-from eca.protocol.bus import BusTimeout, Publisher, Subscriber
+from eca.protocol.bus import BusTimeout, LinkWatch, Publisher, Subscriber
 from eca.protocol.endpoints import BusConfig, load_bus_config
 from eca.protocol.messages import (
     TERMINAL_SPEECH_EVENTS,
@@ -48,6 +49,7 @@ from eca.protocol.messages import (
 )
 
 M = TypeVar("M", bound=Message)
+log = logging.getLogger("eca.client")
 
 
 class CommandRejected(RuntimeError):
@@ -75,10 +77,28 @@ class AgentClient:
         except BaseException:  # no broker: give the sockets (and our own context) back before raising
             self.close()
             raise
+        self.link = LinkWatch(self.ctx, self.config)
+        self._link_was_up = True
         self._inbox: deque[Message] = deque(m.message for m in early if m.message)
         self.state: dict[str, Message] = {}
         for msg in self._inbox:
             self._note(msg)
+
+    # --- the link ---------------------------------------------------------------------------------
+
+    def link_up(self) -> bool:
+        """Whether the broker's heartbeats reach this client (none for [heartbeat] timeout_s: the link is down,
+        a partition or a broker gone). A change is logged once. Commands sent meanwhile wait in this client's
+        queue and go out when the link heals; send them with a request id and `wait_applied`."""
+        up = self.link.up()
+        if up != self._link_was_up:
+            self._link_was_up = up
+            if up:
+                log.info("the link to the broker at %s is back", self.config.backend)
+            else:
+                log.warning("the link to the broker at %s is down: no heartbeat for %.1f s", self.config.backend,
+                            self.link.silent_ns() / 1e9)
+        return up
 
     # --- commands ---------------------------------------------------------------------------------
 
@@ -204,8 +224,9 @@ class AgentClient:
                 break
             except BusTimeout:
                 if time.monotonic() >= deadline:
-                    raise BusTimeout(f"no acknowledgement of {command} within {timeout_s:g} s: is the dialogue "
-                                     "service running?") from None
+                    why = "is the dialogue service running?" if self.link_up() else \
+                        f"the link to the broker is down (no heartbeat for {self.link.silent_ns() / 1e9:.1f} s)"
+                    raise BusTimeout(f"no acknowledgement of {command} within {timeout_s:g} s: {why}") from None
             if request_id:  # without an id a repeat could not be told from a new command
                 self.pub.publish(sent)
             interval = min(2 * interval, 2.0)
@@ -255,6 +276,8 @@ class AgentClient:
     def close(self) -> None:
         self.pub.close()
         self.sub.close()
+        if hasattr(self, "link"):  # not there when the broker never answered
+            self.link.close()
         if self._own_ctx:
             self.ctx.term()
 

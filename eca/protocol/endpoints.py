@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from eca import shipped_configs
+from eca.protocol.curve import CurveKeyError, CurveKeys, load_keys
 
 _AGENT_ID = re.compile(r"[A-Za-z0-9_-]{1,32}")  # as the codec's agent ids (protocol/codec.py)
 
@@ -37,6 +38,12 @@ class BusConfig:
     config_path: Path
     raw: dict[str, Any]  # the whole file, for service-specific tables
     agents: tuple[str, ...] = ("ada",)  # [agents] ids: the agents this instance animates, in seat order
+    curve: CurveKeys | None = None  # CURVE keys: every socket onto the bus encrypts and authenticates (§15)
+
+    @property
+    def remote_link(self) -> bool:
+        """Whether the bus runs over TCP, where a link can drop for a while and heal (ZMTP heartbeats on)."""
+        return self.frontend.startswith("tcp://")
 
 
 def load_config_file(path: str | Path | None = None) -> tuple[Path, dict[str, Any]]:
@@ -60,6 +67,7 @@ def load_bus_config(path: str | Path | None = None, instance: str | None = None,
     if not instance.replace("-", "").replace("_", "").isalnum() or len(instance) > 40:
         raise BusConfigError(f"{where}: instance {instance!r} must be 1-40 letters, digits, '-' or '_'")
     transport = _get(bus, "transport", str, where)
+    curve = _curve(bus, config_path, where)
     # Every instance has its private directory, whatever the transport: the broker's lock, the
     # supervisor's liveness socket and the dialogue service's state snapshot live there.
     runtime_dir = Path(_get(bus, "runtime_dir", str, where) or default_runtime_root()) / instance
@@ -74,6 +82,11 @@ def load_bus_config(path: str | Path | None = None, instance: str | None = None,
         if not is_loopback(host) and not _get(bus, "allow_remote", bool, where):
             raise BusConfigError(f"{where}: tcp_host {host!r} is not loopback; set allow_remote = true to "
                                  "expose the bus beyond this machine")
+        if not is_loopback(host) and curve is None:
+            # no plaintext bus off this machine: anyone on the network could read and drive the agents
+            raise BusConfigError(f"{where}: tcp_host {host!r} is not loopback and no CURVE keys are set: the bus "
+                                 "leaves this machine only encrypted; set curve_server_key and curve_client_key "
+                                 "(`eca keys new NAME`, docs/protocol.md §15)")
         front_port = _get(bus, "tcp_frontend_port", int, where)
         back_port = _get(bus, "tcp_backend_port", int, where)
         frontend, backend = f"tcp://{host}:{front_port}", f"tcp://{host}:{back_port}"
@@ -93,7 +106,35 @@ def load_bus_config(path: str | Path | None = None, instance: str | None = None,
                      max_message_bytes=_get(bus, "max_message_bytes", int, where),
                      heartbeat_interval_s=interval, heartbeat_timeout_s=timeout,
                      connect_timeout_s=connect_timeout, config_path=config_path,
-                     raw=raw, agents=_agents(raw, config_path))
+                     raw=raw, agents=_agents(raw, config_path), curve=curve)
+
+
+CURVE_KEYS = ("curve_server_key", "curve_client_key", "curve_allowed_dir")
+
+
+def _curve(bus: dict[str, Any], path: Path, where: str) -> CurveKeys | None:
+    """The [bus] CURVE keys, loaded and checked (None when none is set). Relative paths are the config file's
+    neighbours, so a folder of config and keys can be copied to another host as it is."""
+    given: dict[str, Path | None] = {}
+    for key in CURVE_KEYS:
+        value = bus.get(key, "")
+        if not isinstance(value, str):
+            raise BusConfigError(f"{where}: '{key}' must be a path (a string), got {value!r}"[:300])
+        given[key] = (path.parent / Path(value).expanduser()) if value.strip() else None
+    server, client, allowed = (given[k] for k in CURVE_KEYS)
+    if server is None and client is None:
+        if allowed is not None:
+            raise BusConfigError(f"{where}: curve_allowed_dir is set but curve_server_key is not: the allow-list "
+                                 "is the broker's, and needs the server's key pair")
+        return None
+    if server is None or client is None:
+        missing = "curve_server_key" if server is None else "curve_client_key"
+        raise BusConfigError(f"{where}: CURVE needs both curve_server_key and curve_client_key; '{missing}' is "
+                             "not set")
+    try:
+        return load_keys(server, client, allowed)
+    except CurveKeyError as exc:
+        raise BusConfigError(f"{where}: {exc}") from None
 
 
 MAX_AGENTS = 64  # one instance's faces; far more than share a screen

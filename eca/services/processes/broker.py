@@ -20,6 +20,12 @@ the live ones. When it changes, the broker forgets the cached states of every ag
 visitor's agent, created and removed, leaves nothing behind; and from then on it caches a state of an agent
 missing from the list only when the dialogue service sends it (a new agent's states come just before the list
 that names it): what another service still says of a removed agent is forwarded, not kept.
+
+With CURVE keys (docs/protocol.md §15) both sockets are CURVE servers and the broker is its context's ZAP
+handler, in its own loop: a handshake is let in only with a client public key in `curve_allowed_dir` (or the
+host's own key, with which its services connect), so nothing an unknown key sends reaches the proxy. Each
+refusal is reported on `error.*.error` (kind `unauthorized`, the peer's address and key), rate-limited, so a
+flood of bad handshakes costs the bus a few messages a second at most.
 """
 
 from __future__ import annotations
@@ -36,8 +42,9 @@ import zmq
 
 from eca.protocol.bus import TopicCounts, parse_frames
 from eca.protocol.codec import ProtocolError, encode
+from eca.protocol.curve import CurveKeyError, CurveKeys, link_options, load_allowed, server_options
 from eca.protocol.endpoints import BusConfig
-from eca.protocol.messages import ALL_AGENTS, AgentsState, Heartbeat, Hello
+from eca.protocol.messages import ALL_AGENTS, AgentsState, Error, Heartbeat, Hello, Message
 from eca.protocol.topics import STATE_PREFIX, topic_for
 from eca.services.processes.liveness import LivenessSender
 
@@ -51,6 +58,92 @@ _ALL = ALL_AGENTS.encode()
 
 class BrokerAlreadyRunning(RuntimeError):
     pass
+
+
+ZAP_ENDPOINT = "inproc://zeromq.zap.01"  # where libzmq asks its context's handler (RFC 27)
+REPORT_KEY_EVERY_NS = 10_000_000_000  # one report per refused key (and address) at most this often
+REPORT_MIN_GAP_NS = 250_000_000  # and at most four reports a second in all
+MAX_REPORTED_KEYS = 4096  # refused keys remembered for the rate limit (a flood of fresh keys cycles them)
+
+
+class ZapHandler:
+    """The ZAP handler of the broker's context: admits CURVE handshakes whose client key is allowed.
+
+    Run from the broker's loop (no thread: a refusal is reported through the broker's own socket, which no
+    other thread may touch). The allowed folder is read again when it changes, so a key added or removed
+    takes effect at the next handshake without a restart."""
+
+    def __init__(self, ctx: zmq.Context[zmq.Socket[bytes]], keys: CurveKeys) -> None:
+        self.keys = keys
+        self.allowed: dict[bytes, str] = {}
+        self._dir_mtime_ns = -1
+        self.refused = 0
+        self.unreported = 0  # refusals not reported (the rate limit) since the last report
+        self._reported: dict[bytes, int] = {}  # key + address -> when it was last reported
+        self._last_report_ns = 0
+        self._reload()
+        self.socket = ctx.socket(zmq.REP)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        try:
+            self.socket.bind(ZAP_ENDPOINT)
+        except zmq.ZMQError as exc:
+            self.socket.close()
+            raise zmq.ZMQError(exc.errno, f"another ZAP handler serves this context ({exc})") from None
+
+    def _reload(self) -> None:
+        allowed = {self.keys.client_public: "this host's own key"}
+        folder = self.keys.allowed_dir
+        if folder is not None:
+            try:
+                mtime = folder.stat().st_mtime_ns
+            except OSError:
+                mtime = -2
+            if mtime == self._dir_mtime_ns:
+                return
+            self._dir_mtime_ns = mtime
+            try:
+                allowed.update(load_allowed(folder))
+            except CurveKeyError as exc:  # a bad file dropped in later: keep the list that was good
+                log.error("allowed keys not re-read: %s", exc)
+                if self.allowed:
+                    return
+        self.allowed = allowed
+
+    def handle(self, report: Any) -> None:
+        """Answer one ZAP request; `report(address, key_z85, reason)` is called for a refusal due a report."""
+        frames = self.socket.recv_multipart(zmq.NOBLOCK)
+        if len(frames) < 6:  # only libzmq talks here (inproc), but a reply must go back whatever came
+            self.socket.send_multipart([b"1.0", frames[1] if len(frames) > 1 else b"", b"500", b"bad request",
+                                        b"", b""])
+            return
+        request_id, address, mechanism, credentials = frames[1], frames[3], frames[5], frames[6:]
+        if mechanism == b"CURVE" and len(credentials) == 1 and len(credentials[0]) == 32:
+            key = zmq.utils.z85.encode(credentials[0])
+            self._reload()
+            if key in self.allowed:
+                self.socket.send_multipart([b"1.0", request_id, b"200", b"OK", key, b""])
+                return
+            reason = "the key is not in the broker's allowed keys"
+        else:
+            key = b""
+            reason = f"mechanism {mechanism[:16].decode(errors='replace')} is not allowed (CURVE only)"
+        self.socket.send_multipart([b"1.0", request_id, b"400", b"unknown key", b"", b""])
+        self.refused += 1
+        now = time.monotonic_ns()
+        tag = key + b"@" + address
+        if now - self._last_report_ns < REPORT_MIN_GAP_NS or now - self._reported.get(tag, -REPORT_KEY_EVERY_NS) \
+                < REPORT_KEY_EVERY_NS:
+            self.unreported += 1
+            return
+        if tag not in self._reported and len(self._reported) >= MAX_REPORTED_KEYS:
+            del self._reported[next(iter(self._reported))]
+        self._reported.pop(tag, None)
+        self._reported[tag] = now
+        self._last_report_ns = now
+        report(address.decode(errors="replace")[:64], key.decode(), reason)
+
+    def close(self) -> None:
+        self.socket.close()
 
 
 class Broker:
@@ -67,6 +160,13 @@ class Broker:
         self._seq = TopicCounts()
         self._lock_fd: int | None = None
         self._lock_runtime_dir(config.runtime_dir)
+        self.zap: ZapHandler | None = None
+        if config.curve is not None:
+            try:  # the handler first: a CURVE socket bound before it would let every key in
+                self.zap = ZapHandler(self.ctx, config.curve)
+            except BaseException:
+                self._unlock()
+                raise
         self.frontend = self.ctx.socket(zmq.XSUB)
         self.frontend.setsockopt(zmq.RCVHWM, config.hwm)
         self.frontend.setsockopt(zmq.LINGER, 0)
@@ -77,15 +177,22 @@ class Broker:
         self.backend.setsockopt(zmq.LINGER, 0)
         self.backend.setsockopt(zmq.XPUB_VERBOSE, 1)
         try:
+            for sock in (self.frontend, self.backend):
+                if config.curve is not None:
+                    server_options(sock, config.curve)
+                if config.remote_link:  # a subscriber gone silent past the timeout is dropped, its queue freed
+                    link_options(sock, config.heartbeat_interval_s, config.heartbeat_timeout_s)
             self.frontend.bind(config.frontend)
             self.backend.bind(config.backend)
-        except zmq.ZMQError:
+        except (zmq.ZMQError, CurveKeyError):
             self.close()  # a failed start leaves no socket or lock behind
             raise
         self.frontend.send(b"\x01")  # subscribe to everything: the cache must see every state message
         self.poller = zmq.Poller()
         self.poller.register(self.frontend, zmq.POLLIN)
         self.poller.register(self.backend, zmq.POLLIN)
+        if self.zap is not None:
+            self.poller.register(self.zap.socket, zmq.POLLIN)
         self.forwarded = 0
 
     def _lock_runtime_dir(self, runtime_dir: Path) -> None:
@@ -119,7 +226,22 @@ class Broker:
                     break
                 self._guarded(self._on_subscription, event)
                 handled += 1
+        if self.zap is not None and self.zap.socket in events:
+            for _ in range(100):
+                if not self.zap.socket.poll(0, zmq.POLLIN):
+                    break
+                self._guarded(self.zap.handle, self._report_refused)
+                handled += 1
         return handled
+
+    def _report_refused(self, address: str, key: str, reason: str) -> None:
+        assert self.zap is not None
+        more = f"; {self.zap.unreported} more refusals not reported since the last report" \
+            if self.zap.unreported else ""
+        self.zap.unreported = 0
+        log.warning("refused a CURVE handshake from %s, key %s: %s", address, key or "-", reason)
+        self._send_own(Error(agent=ALL_AGENTS, kind="unauthorized", service="broker",
+                             reason=f"refused a connection from {address} with key {key or '-'}: {reason}{more}"))
 
     def _guarded(self, handle: Any, item: Any) -> None:
         # Whatever one message does to a bug in here, the broker and its cache stay up for the rest.
@@ -192,10 +314,12 @@ class Broker:
                 self.backend.send_multipart(frames)
 
     def heartbeat(self) -> Heartbeat:
+        refused = self.zap.refused if self.zap is not None else 0
         return self._send_own(Heartbeat(agent=ALL_AGENTS, service="broker", pid=os.getpid(),
-                                        started_ns=self.started_ns, dropped=self.stale + self.failures))  # type: ignore[return-value]
+                                        started_ns=self.started_ns, dropped=self.stale + self.failures,
+                                        bad_messages=refused))  # type: ignore[return-value]
 
-    def _send_own(self, msg: Hello | Heartbeat) -> Hello | Heartbeat:
+    def _send_own(self, msg: Message) -> Message:
         topic = topic_for(msg)
         seq = self._seq.next(topic)
         self._seq.sent(topic, seq)
@@ -211,6 +335,11 @@ class Broker:
     def close(self) -> None:
         self.frontend.close()
         self.backend.close()
+        if self.zap is not None:
+            self.zap.close()
+        self._unlock()
+
+    def _unlock(self) -> None:
         if self._lock_fd is not None:
             # the socket files are this broker's (it holds the lock): none stays behind a clean stop
             for endpoint in (self.config.frontend, self.config.backend):
@@ -230,7 +359,7 @@ def run_broker(config: BusConfig, parent_pid: int | None = None, liveness: str |
         signal.signal(sig, lambda *_: stop.set())
     try:
         broker = Broker(config)
-    except (BrokerAlreadyRunning, zmq.ZMQError) as exc:
+    except (BrokerAlreadyRunning, zmq.ZMQError, CurveKeyError) as exc:
         log.error("cannot start: %s", exc)
         return 2
     log.info("ready (pid %d): publishers -> %s, subscribers -> %s", os.getpid(), config.frontend,

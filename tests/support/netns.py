@@ -1,0 +1,118 @@
+"""Network namespaces as hosts, for tests of eca across machines (as root; CI runs as root).
+
+`hosts("dm", "model", "web")` makes one namespace per name, each with its own address on a private /24, all
+linked through a bridge in the root namespace (which has an address on it too, so the test itself reaches every
+host). Loopback is up in each. A "host" runs a command with `host.popen(argv)` / `host.run(argv)`; `host.cut()`
+and `host.heal()` take its link down and up (a partition, as `ip link set dev down` does to a real cable).
+Everything is removed on exit, whatever happened. Names carry the pid and a counter, so parallel test workers
+never collide.
+
+A filesystem `ipc://` endpoint is reachable from every namespace (one filesystem): cross-host links in a test
+must be `tcp://` to these addresses, or the test passes through the filesystem without noticing.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import shutil
+import subprocess
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+_count = itertools.count(1)
+
+
+def netns_available() -> str | None:
+    """None when namespaces can be made here; otherwise why not (a skip reason)."""
+    if os.geteuid() != 0:
+        return "network namespaces need root"
+    if shutil.which("ip") is None:
+        return "the ip command (iproute2) is not installed"
+    probe = f"ecap{os.getpid() % 100000}"
+    made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
+    if made.returncode != 0:
+        return f"cannot create a network namespace: {made.stderr.strip()}"
+    subprocess.run(["ip", "netns", "delete", probe], capture_output=True)
+    return None
+
+
+def _ip(*args: str) -> None:
+    done = subprocess.run(["ip", *args], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"ip {' '.join(args)}: {done.stderr.strip()}")
+
+
+@dataclass
+class Host:
+    name: str  # the namespace
+    address: str  # its address on the bridge's /24
+    veth_outside: str  # its cable's end in the root namespace (cut/heal take it down/up)
+
+    def argv(self, argv: Sequence[str]) -> list[str]:
+        return ["ip", "netns", "exec", self.name, *argv]
+
+    def popen(self, argv: Sequence[str], **kwargs: Any) -> subprocess.Popen[bytes]:
+        return subprocess.Popen(self.argv(argv), **kwargs)
+
+    def run(self, argv: Sequence[str], **kwargs: Any) -> subprocess.CompletedProcess[Any]:
+        return subprocess.run(self.argv(argv), **kwargs)
+
+    def cut(self) -> None:
+        """Partition this host from every other (its link goes down; sockets stay open on both sides)."""
+        _ip("link", "set", "dev", self.veth_outside, "down")
+
+    def heal(self) -> None:
+        _ip("link", "set", "dev", self.veth_outside, "up")
+
+
+@dataclass
+class Network:
+    hosts: dict[str, Host]
+    bridge: str
+    root_address: str  # the root namespace's (the test's own) address on the bridge
+
+    def __getitem__(self, name: str) -> Host:
+        return self.hosts[name]
+
+
+@contextmanager
+def hosts(*names: str) -> Iterator[Network]:
+    """One namespace per name on a private bridge; all removed afterwards."""
+    if not 1 <= len(names) <= 50:
+        raise ValueError("between 1 and 50 hosts")
+    tag = f"{os.getpid() % 100000}{next(_count)}"
+    subnet = 10 + (os.getpid() + next(_count)) % 200  # a /24 of 10.<x>.<y>.0, unlikely to collide
+    third = (os.getpid() // 200) % 250
+    prefix = f"10.{subnet}.{third}"
+    bridge = f"ecb{tag}"[:15]
+    made_ns: list[str] = []
+    made_links: list[str] = []
+    try:
+        _ip("link", "add", bridge, "type", "bridge")
+        made_links.append(bridge)
+        _ip("addr", "add", f"{prefix}.1/24", "dev", bridge)
+        _ip("link", "set", bridge, "up")
+        out: dict[str, Host] = {}
+        for i, name in enumerate(names, start=2):
+            ns = f"eca{tag}{name}"[:32]
+            _ip("netns", "add", ns)
+            made_ns.append(ns)
+            outside, inside = f"eo{tag}{i}"[:15], f"ei{tag}{i}"[:15]
+            _ip("link", "add", outside, "type", "veth", "peer", "name", inside)
+            made_links.append(outside)
+            _ip("link", "set", inside, "netns", ns)
+            _ip("link", "set", outside, "master", bridge)
+            _ip("link", "set", outside, "up")
+            _ip("netns", "exec", ns, "ip", "addr", "add", f"{prefix}.{i}/24", "dev", inside)
+            _ip("netns", "exec", ns, "ip", "link", "set", inside, "up")
+            _ip("netns", "exec", ns, "ip", "link", "set", "lo", "up")
+            out[name] = Host(ns, f"{prefix}.{i}", outside)
+        yield Network(out, bridge, f"{prefix}.1")
+    finally:
+        for link in reversed(made_links):
+            subprocess.run(["ip", "link", "delete", link], capture_output=True)
+        for ns in made_ns:
+            subprocess.run(["ip", "netns", "delete", ns], capture_output=True)
