@@ -64,6 +64,15 @@ class Conversations:
             self._by_agent[agent] = conversation
             return conversation
 
+    def free(self) -> int | None:
+        """How many more conversations `begin` would accept now (None until the dialogue service's first list):
+        what the health endpoint reports to a load balancer (web/health.py). Read-only; counted as `begin` does."""
+        with self._lock:
+            if self.max_created is None:
+                return None
+            pending = sum(1 for c in self._by_agent.values() if not c.live)
+            return max(0, self.max_created - self.created_count - pending)
+
     def refused(self, agent: str, reason: str) -> None:
         """The dialogue service refused to create it (on the bus loop): its page is told why."""
         with self._lock:

@@ -30,6 +30,7 @@ from eca.protocol.codec import ProtocolError, decode, describe, is_agent_id
 from eca.protocol.messages import MESSAGE_TYPES, PROTOCOL_VERSION
 from eca.services.processes.web.conversations import Busy, Conversation, Conversations
 from eca.services.processes.web.face_frames import FaceFrames
+from eca.services.processes.web.health import health_handler
 from eca.services.processes.web.options import WebOptions
 from eca.services.processes.web.viewers import Backend, Viewers, ViewRequest
 
@@ -199,6 +200,7 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
     app.router.add_post("/offer", offer)
     app.router.add_post("/conversation", conversation)
     app.router.add_post("/command", command)
+    app.router.add_get("/health", health_handler(viewers, conversations))  # web/health.py: for a load balancer
     return app
 
 
