@@ -3,7 +3,8 @@
 Routes: `GET /` the page, `GET /static/<path>` its files (the page's own and the vendored three.js and
 three-vrm, static/vendor/), `GET /avatars/<slot>/<file>` the avatar file of a face the page draws itself (and,
 for a .gltf, the buffers and images it names; nothing else of its folder), `POST /offer` a WebRTC offer answered
-with the viewer's answer, `POST /command` one bus command from the page's developer panel. With a token
+with the viewer's answer, `POST /command` one bus command from the page's developer panel, `GET /health` readiness
+and free conversations for a load balancer (web/health.py; no token: it tells only counts). With a token
 configured, every route but the page's static files wants it (`?token=` on the page and the avatars, or an
 `X-Eca-Token` header; `token` in the JSON bodies): a request without the right one gets 403 and nothing else
 happens. Every request body is bounded and checked field by
