@@ -24,14 +24,14 @@ from aiortc.contrib.media import MediaPlayer
 from eca.agent.clock import VirtualClock
 from eca.protocol.bus import Publisher, Subscriber
 from eca.protocol.endpoints import BusConfig
-from eca.protocol.messages import EmotionState, UserAudio, UserSpeech, VoiceBlock
+from eca.protocol.messages import EmotionState, UserAudio, UserSpeech
 from eca.services.processes.runtime import wait_until
 from eca.services.processes.web.feeds import Picture
 from eca.services.processes.web.options import WebOptions
 from eca.services.processes.web.service import WebService
 from eca.services.processes.web.viewers import ViewRequest
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
-from tests.support.web_client import SMALL, Client, post, user_speech_wav
+from tests.support.web_client import SMALL, Client, post, speak_tone, user_speech_wav
 
 pytestmark = pytest.mark.gl
 S = 1_000_000_000
@@ -104,13 +104,7 @@ def test_the_voice_on_the_bus_is_heard_and_silence_is_silent(web: tuple[BusConfi
     pub.wait_ready()
 
     def speak(seconds: float) -> None:
-        """Voice blocks of a loud tone, stamped ahead of time as the audio service stamps them."""
-        start = time.monotonic_ns() + 60_000_000
-        t = np.arange(480) / 48_000
-        for k in range(int(seconds * 100)):
-            tone = (0.5 * np.sin(2 * np.pi * 440 * (t + k * 0.01)) * 32767).astype("<i2")
-            pub.publish(VoiceBlock(agent="ada", sample_rate=48_000, first_sample=k * 480,
-                                   dac_time_ns=start + k * 10_000_000, pcm=tone.tobytes(), request_id="r"))
+        speak_tone(pub, seconds)
 
     async def main() -> tuple[float, float]:
         client = Client(base(service), ["ada"])

@@ -129,3 +129,16 @@ class FaceClient(Client):
         while len(got := self.frames_of(agent)) < count and time.monotonic() < deadline:
             await asyncio.sleep(0.05)  # polling what has arrived: the channel's events fill the list
         return got
+
+
+def speak_tone(pub: Any, seconds: float, agent: str = "ada") -> None:
+    """Voice blocks of a loud tone on `pub` (a bus Publisher), stamped ahead of time as the audio service stamps
+    them: what a web service plays to its viewers."""
+    from eca.protocol.messages import VoiceBlock
+
+    start = time.monotonic_ns() + 60_000_000
+    t = np.arange(480) / 48_000
+    for k in range(int(seconds * 100)):
+        tone = (0.5 * np.sin(2 * np.pi * 440 * (t + k * 0.01)) * 32767).astype("<i2")
+        pub.publish(VoiceBlock(agent=agent, sample_rate=48_000, first_sample=k * 480,
+                               dac_time_ns=start + k * 10_000_000, pcm=tone.tobytes(), request_id="r"))

@@ -12,10 +12,12 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from eca.protocol.endpoints import is_loopback
 
 MAX_TOKEN_CHARS = 256
+MAX_SFU_URL_CHARS = 2000
 DRAW_MODES = ("auto", "browser", "server")
 
 
@@ -68,6 +70,9 @@ class WebOptions:
     # a conversation per visitor: each page gets an agent of its own, created for it over the bus and removed when
     # it leaves (web/conversations.py); the instance's [conversations] max bounds how many at once
     per_visitor: bool = False
+    # Janus's HTTP API (e.g. "http://sfu:8088/janus"): each agent's face published once into a Streaming mountpoint
+    # there (web/sfu.py), which pages then watch through Janus; None: every page peers with this service
+    sfu: str | None = None
 
     def check(self) -> WebOptions:
         if not 0 <= self.port < 65536:
@@ -95,8 +100,33 @@ class WebOptions:
             raise WebOptionsError(f"web per_visitor must be true or false, got {self.per_visitor!r}")
         if self.draw not in DRAW_MODES:
             raise WebOptionsError(f"web draw must be one of {', '.join(DRAW_MODES)}, got {self.draw!r}")
+        if self.sfu is not None:
+            self._check_sfu()
         self.vad.check()
         return self
+
+    def _check_sfu(self) -> None:
+        url = self.sfu
+        if not isinstance(url, str) or not 0 < len(url) <= MAX_SFU_URL_CHARS or not url.isprintable() or " " in url:
+            raise WebOptionsError(f"web sfu must be a URL of 1-{MAX_SFU_URL_CHARS} printable characters without "
+                                  "spaces (Janus's HTTP API, e.g. http://sfu.example:8088/janus)")
+        try:
+            parts = urlsplit(url)
+            parts.port  # noqa: B018 (a port out of range raises here)
+        except ValueError as exc:
+            raise WebOptionsError(f"web sfu {url!r} is not a URL: {exc}") from None
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise WebOptionsError(f"web sfu must be an http:// or https:// URL with a host (Janus's HTTP API, e.g. "
+                                  f"http://sfu.example:8088/janus), got {url!r}")
+        if parts.query or parts.fragment or parts.username or parts.password:
+            raise WebOptionsError(f"web sfu must be Janus's API's base URL, without a query, fragment or user, got "
+                                  f"{url!r}")
+        if self.per_visitor:
+            raise WebOptionsError("web sfu publishes the instance's agents once for every viewer; a conversation per "
+                                  "visitor (per_visitor) has one viewer each: use one or the other")
+        if self.draw == "browser":
+            raise WebOptionsError("web sfu sends the server-drawn video through Janus; draw = \"browser\" draws no "
+                                  "video: use draw = \"auto\" or \"server\" with an SFU")
 
     def url(self, port: int | None = None) -> str:
         """The page's address (with the token): on `port` when given (the one bound for port 0)."""
@@ -162,6 +192,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--web-draw", default=None, choices=DRAW_MODES,
                         help="who draws the faces: auto (a page with WebGL draws 3D faces itself, default), browser "
                              "(pages draw every face; the server needs no GL) or server (video)")
+    parser.add_argument("--web-sfu", "--sfu", dest="web_sfu", default=None, metavar="URL",
+                        help="publish each face once into Janus (its HTTP API, e.g. http://sfu:8088/janus; the "
+                             "Streaming plugin) and let pages watch through it (default: pages peer with this service)")
 
 
 def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
@@ -180,6 +213,8 @@ def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
         changes["per_visitor"] = True
     if args.web_draw is not None:
         changes["draw"] = args.web_draw
+    if getattr(args, "web_sfu", None) is not None:
+        changes["sfu"] = args.web_sfu
     if args.web_face is not None:
         from eca.services.processes.renderer import check_face  # GL libraries load only here
 

@@ -167,7 +167,9 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
                                   "fps": options.fps, "max_width": options.max_width,
                                   "max_height": options.max_height, "max_fps": options.max_fps,
                                   "draw": options.draw, "drawable": drawable(),
-                                  "per_visitor": conversations is not None})
+                                  "per_visitor": conversations is not None,
+                                  # with an SFU: where pages watch each agent's video through Janus (web/sfu.py)
+                                  "sfu": getattr(backend, "sfu_info", lambda: None)()})
 
     async def offer(request: web.Request) -> web.Response:
         body = await _json_body(request)

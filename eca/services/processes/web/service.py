@@ -47,8 +47,10 @@ from eca.services.processes.web.encoding import EncodedStreams
 from eca.services.processes.web.event_loop import EventLoopThread
 from eca.services.processes.web.face_frames import FaceFrames
 from eca.services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
+from eca.services.processes.web.janus import JanusError, check_server
 from eca.services.processes.web.options import WebOptions, WebOptionsError, add_arguments, options_from
 from eca.services.processes.web.server import make_app
+from eca.services.processes.web.sfu import SfuError, SfuPublisher
 from eca.services.processes.web.viewers import Viewers, ViewRequest
 
 MAX_SUBMITTED = 10_000  # messages from the pages waiting for the bus loop; past that they are dropped
@@ -122,6 +124,12 @@ class WebService(Service):
         self._events: EventLoopThread | None = None
         self._runner: web.AppRunner | None = None
         self.viewers: Viewers | None = None
+        self.sfu: SfuPublisher | None = None  # with [web] sfu: the faces published into Janus (web/sfu.py)
+        if self.options.sfu is not None:
+            try:  # fail fast: a Janus that does not answer now is a wrong URL far more often than a late one
+                check_server(self.options.sfu)
+            except JanusError as exc:
+                raise WebOptionsError(f"--sfu: {exc}") from None
         self.port = self.options.port  # the one bound, once serving (for port 0: whichever was free)
         self.url = ""
 
@@ -162,7 +170,7 @@ class WebService(Service):
         = "server"). Otherwise it is made ready when a page is first asked for and may want video (a 2D face, a
         browser without WebGL), while that page loads: an instance at rest holds no GL context nor the 2D
         face's compiled code (some 200 MB), and pages that draw the faces themselves never make it load."""
-        return self.options.draw == "server"
+        return self.options.draw == "server" or self.options.sfu is not None  # an SFU watches from the start
 
     def expect_viewer(self) -> None:
         """A page was asked for (called on the event loop's thread): get drawing ready, if any page may want
@@ -174,6 +182,10 @@ class WebService(Service):
 
     def voice(self, agent: str) -> VoiceFeed:
         return self.voices[agent]
+
+    def sfu_info(self) -> dict[str, Any] | None:
+        """Where pages watch through Janus (GET /config's "sfu"), or None without an SFU."""
+        return self.sfu.page_info() if self.sfu is not None else None
 
     def face_slot(self, agent: str) -> int:
         return self.face_frames.slots[agent]
@@ -296,6 +308,15 @@ class WebService(Service):
             except HeadlessContextError as exc:
                 raise CannotStart(str(exc)) from None
         self._events = EventLoopThread().start()
+        if self.options.sfu is not None:
+            publisher = SfuPublisher(self, self.options.sfu, tuple(self.agent_ids), self.options.width,
+                                     self.options.height, self.options.fps)
+            try:
+                self._events.call(publisher.start(), timeout_s=30.0)
+            except (SfuError, TimeoutError) as exc:
+                raise CannotStart(str(exc) or f"Janus at {self.options.sfu} did not make the mountpoints in 30 s") \
+                    from None
+            self.sfu = publisher
         app = make_app(self, self.viewers, self.options, tuple(self.agent_ids), self.face_frames, self.conversations,
                        self.create_conversation if self.conversations is not None else None)
         try:
@@ -319,6 +340,11 @@ class WebService(Service):
 
     def teardown(self) -> None:
         if self._events is not None:
+            if self.sfu is not None:
+                try:
+                    self._events.call(self.sfu.stop(), timeout_s=10.0)
+                except Exception:  # a Janus that will not answer must not keep the process
+                    self.log.exception("unpublishing from Janus failed")
             if self.viewers is not None and self._runner is not None:
                 try:
                     self._events.call(self._stop_serving(), timeout_s=10.0)

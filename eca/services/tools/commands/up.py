@@ -59,7 +59,7 @@ def renderer_args(args: argparse.Namespace) -> list[str]:
 def web_args(args: argparse.Namespace) -> list[str]:
     """The web service's command-line arguments among `eca up`'s."""
     argv = []
-    for name in ("web_host", "web_port", "web_token", "web_token_file", "web_face", "web_draw"):
+    for name in ("web_host", "web_port", "web_token", "web_token_file", "web_face", "web_draw", "web_sfu"):
         value = getattr(args, name)
         if value is not None:
             argv += [f"--{name.replace('_', '-')}", str(value)]

@@ -7,7 +7,11 @@
 // without WebGL or with draw=server, as video.
 //
 // URL parameters: token (when the server wants one), agents=ada,bob (default: the instance's first),
-// width, height, fps (within the server's limits), mic=0 (start without the microphone), draw=server (video).
+// width, height, fps (within the server's limits), mic=0 (start without the microphone), draw=server (video),
+// sfu=0 (peer with eca even when it publishes through Janus).
+//
+// With an SFU (GET /config's "sfu"), the page watches each agent's video and voice through Janus (janus_watch.js)
+// instead of peering with eca: no microphone and no face drawn here then (those need the direct connection).
 "use strict";
 
 const params = new URLSearchParams(location.search);
@@ -92,11 +96,36 @@ async function gatheringDone(pc) {
   });
 }
 
+async function connectThroughJanus(sfu, agents) {
+  const { JanusWatch } = await import("./janus_watch.js");
+  eca.agents = agents;
+  eca.janus = [];
+  for (const agent of agents) {
+    const mountpoint = sfu.mountpoints[agent];
+    if (mountpoint == null) throw new Error(`the SFU carries no mountpoint for ${agent}`);
+    const watch = new JanusWatch(sfu.url, mountpoint);
+    eca.janus.push(watch);
+    const element = faceFor(agent);
+    const pc = await watch.start((event) => {
+      if (!element.srcObject) element.srcObject = new MediaStream();
+      element.srcObject.addTrack(event.track);
+    });
+    if (!eca.pc) {
+      eca.pc = pc;  // the status line's figures: the first agent's connection
+      pc.onconnectionstatechange = () => {
+        eca.state = pc.connectionState === "connected" ? "connected" : pc.connectionState;
+        showStats();
+      };
+    }
+  }
+}
+
 async function connect() {
   const config = await (await fetch(withToken("/config"))).json();
   // drawn left to right in the instance's order, the seats its agents look at each other by
   const seat = (a) => (config.agents.indexOf(a) < 0 ? config.agents.length : config.agents.indexOf(a));
   let agents = (params.get("agents") || config.agents[0]).split(",").filter(Boolean).sort((a, b) => seat(a) - seat(b));
+  if (config.sfu && params.get("sfu") !== "0") return connectThroughJanus(config.sfu, agents);
   eca.key = null;
   if (config.per_visitor) {
     // a conversation of this page's own: an agent made for it, which only this page (its key) watches and commands
@@ -181,6 +210,8 @@ async function connect() {
 async function disconnect() {
   if (eca.pc) eca.pc.close();
   eca.pc = null;
+  for (const watch of eca.janus || []) await watch.close();
+  eca.janus = [];
   eca.channel = null;
   for (const face of Object.values(eca.drawn)) face.dispose();
   eca.drawn = {};

@@ -1,0 +1,391 @@
+"""Faces fanned out by Janus (`eca web --sfu URL`): each agent's face and voice published ONCE, as RTP, into a Janus
+Streaming mountpoint, which every viewer watches through Janus instead of peering with eca.
+
+Per agent, the publisher creates a mountpoint through Janus's HTTP API (web/janus.py) with an Opus and a VP8 section
+on ports Janus picks, and sends it RTP over UDP: the VP8 pictures of the same shared encoder the direct viewers'
+tracks send (web/encoding.py: one encode per picture at the configured size and rate, also shared with direct
+viewers of that size), and the voice as the direct path's VoiceTrack paces it (20 ms frames, each sent when its
+first sample reaches the output), Opus-encoded once for all. eca's cost is one viewer's, however many watch Janus.
+
+Timing. Both streams' RTP timestamps come from the master clock's stamps (a picture's `frame_ns`, a voice frame's
+DAC time) from one origin, and each packet leaves at its stamp, as on the direct path. Janus strips the RTCP sender
+reports a source sends (janus_rtcp_filter drops SR/RR/SDES) and writes its own for each viewer, mapping the newest
+RTP timestamp it forwarded to the wall-clock time it forwarded it (src/ice.c): so the browser's lip sync through
+Janus rests on the packets leaving on time, as it does with aiortc's own reports on the direct path. The publisher
+still sends a sender report per video stream every second to the mountpoint's RTCP port: that is how Janus learns
+where to send keyframe requests (it latches the address RTCP comes from) and it sends one (PLI) when a viewer starts
+watching and when a viewer's browser asks (at most one a second): each makes the shared encoder's next picture a
+keyframe, so a new viewer sees the face at once rather than at the next periodic keyframe (10 s).
+
+Faults. Janus is asked `info` on each mountpoint every `check_s`, which also keeps the session alive (Janus drops a
+session after 60 s without a request). A mountpoint or session Janus lost (a restart) is made again, under the same
+id when Janus allows, with back-off; meanwhile RTP goes to the old ports and is dropped, and direct viewers are not
+affected. On stop the mountpoints are destroyed and the session closed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import fractions
+import logging
+import random
+import secrets
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol, cast
+from urllib.parse import urlsplit
+
+import av
+from aiortc.codecs.opus import OpusEncoder
+from aiortc.codecs.vpx import Vp8Encoder as Vp8Packetizer
+from aiortc.rtp import RtcpPacket, RtcpPsfbPacket, RtcpSenderInfo, RtcpSrPacket, RtpPacket
+
+from eca.agent.clock import Clock
+from eca.services.processes.web.encoding import VIDEO_RATE, EncodedStream, EncodedStreams
+from eca.services.processes.web.feeds import VoiceFeed
+from eca.services.processes.web.janus import MOUNTPOINT_EXISTS, NO_SUCH_MOUNTPOINT, JanusClient, JanusError
+from eca.services.processes.web.tracks import VoiceTrack
+from eca.services.processes.web.viewers import ViewRequest
+
+log = logging.getLogger("web")
+
+AUDIO_PT, VIDEO_PT = 111, 96  # the payload types the mountpoints are made with (Janus offers them to viewers)
+AUDIO_RATE = 48_000  # Opus' RTP clock
+SR_EVERY_S = 1.0
+CHECK_EVERY_S = 2.0  # how often each mountpoint is looked at (also the session's keepalive: Janus waits 60 s)
+RETRY_MAX_S = 10.0
+PSFB_PLI, PSFB_FIR = 1, 4  # RTCP payload-specific feedback formats (RFC 4585, RFC 5104): keyframe requests
+PUBLISHER_VIEWER = 0  # the number the publisher watches under (the viewers' own numbers start at 1)
+NTP_EPOCH_S = 2_208_988_800
+
+
+class SfuError(RuntimeError):
+    """The publisher cannot start: the message says why, in one line."""
+
+
+class PublisherBackend(Protocol):
+    """What the publisher needs of the web service (called on its event loop)."""
+
+    clock: Clock
+    encoded: EncodedStreams
+
+    def voice(self, agent: str) -> VoiceFeed: ...
+
+    def watch(self, viewer: int, request: ViewRequest) -> None: ...
+
+    def unwatch(self, viewer: int) -> None: ...
+
+
+class RtpStream:
+    """One RTP stream's numbering (SSRC, sequence, timestamps from the master clock) and its sender reports."""
+
+    def __init__(self, payload_type: int, rate: int, origin_ns: int) -> None:
+        self.payload_type, self.rate, self.origin_ns = payload_type, rate, origin_ns
+        self.ssrc = random.getrandbits(32) or 1
+        self.seq = random.getrandbits(16)
+        self.ts_offset = random.getrandbits(32)  # RFC 3550: a random start, so streams cannot be told apart by it
+        self.packets = 0
+        self.octets = 0
+        self.last_ns: int | None = None  # the master-clock stamp of the newest packet sent, and its RTP timestamp
+        self.last_ts = 0
+
+    def timestamp(self, stamp_ns: int) -> int:
+        return (self.ts_offset + (stamp_ns - self.origin_ns) * self.rate // 1_000_000_000) & 0xFFFFFFFF
+
+    def packetize(self, payloads: list[bytes], stamp_ns: int) -> list[bytes]:
+        ts = self.timestamp(stamp_ns)
+        out = []
+        for i, payload in enumerate(payloads):
+            packet = RtpPacket(payload_type=self.payload_type, marker=int(i == len(payloads) - 1),
+                               sequence_number=self.seq, timestamp=ts, ssrc=self.ssrc, payload=payload)
+            self.seq = (self.seq + 1) & 0xFFFF
+            out.append(packet.serialize())
+            self.packets += 1
+            self.octets += len(payload)
+        self.last_ns, self.last_ts = stamp_ns, ts
+        return out
+
+    def sender_report(self, now_ns: int, wall_s: float) -> bytes | None:
+        """An SR for now: the wall clock's NTP time and the RTP timestamp of this instant (the newest packet's
+        timestamp carried forward on the master clock), so the two clocks' mapping is exact, not the send time's."""
+        if self.last_ns is None:
+            return None
+        ts = (self.last_ts + (now_ns - self.last_ns) * self.rate // 1_000_000_000) & 0xFFFFFFFF
+        ntp = (int((wall_s + NTP_EPOCH_S) * (1 << 32))) & 0xFFFFFFFFFFFFFFFF
+        report = RtcpSrPacket(ssrc=self.ssrc, sender_info=RtcpSenderInfo(
+            ntp_timestamp=ntp, rtp_timestamp=ts, packet_count=self.packets & 0xFFFFFFFF,
+            octet_count=self.octets & 0xFFFFFFFF))
+        return bytes(report)
+
+
+class _Socket(asyncio.DatagramProtocol):
+    """A UDP socket to Janus; what comes back (Janus's RTCP: keyframe requests) goes to `on_datagram`."""
+
+    def __init__(self, on_datagram: Callable[[bytes], None] | None = None) -> None:
+        self.on_datagram = on_datagram
+        self.transport: asyncio.DatagramTransport | None = None
+        self.errors = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.DatagramTransport, transport)  # the selector's own class does not derive from it
+
+    def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
+        if self.on_datagram is not None:
+            self.on_datagram(data)
+
+    def error_received(self, exc: Exception) -> None:
+        self.errors += 1  # ICMP port unreachable while Janus restarts: the packets were lost, nothing else to do
+
+    def send(self, data: bytes, address: tuple[str, int]) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.sendto(data, address)
+
+
+@dataclass
+class Mountpoint:
+    """One agent's mountpoint in Janus and what was sent into it."""
+
+    agent: str
+    id: int = 0
+    audio_port: int = 0
+    video_port: int = 0
+    video_rtcp_port: int = 0
+    viewers: int = 0  # as Janus said at the last check
+    pictures: int = 0
+    voice_frames: int = 0
+    keyframe_requests: int = 0
+    video: RtpStream | None = None
+    audio: RtpStream | None = None
+    tasks: list[asyncio.Task[None]] = field(default_factory=list)
+
+
+class SfuPublisher:
+    """The faces of `agents`, each published once into a Janus Streaming mountpoint at one size and rate."""
+
+    def __init__(self, backend: PublisherBackend, url: str, agents: tuple[str, ...], width: int, height: int,
+                 fps: float, check_s: float = CHECK_EVERY_S) -> None:
+        self.backend, self.url, self.agents = backend, url.rstrip("/"), agents
+        self.width, self.height, self.fps = width, height, fps
+        self.check_s = check_s
+        self.janus = JanusClient(self.url)
+        self.host = urlsplit(self.url).hostname or ""  # RTP goes to the host of the API (mountpoints bind to all)
+        self.secret = secrets.token_urlsafe(18)  # our mountpoints' secret: no one else may destroy or edit them
+        self.mountpoints = {a: Mountpoint(a) for a in agents}
+        self.recreated = 0  # how many times the mountpoints were made again after Janus lost them
+        self._streams: dict[str, EncodedStream] = {}
+        self._video_socket: dict[str, _Socket] = {}
+        self._audio_socket: _Socket | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._lost = False
+        self._origin_ns = 0
+
+    # --- what the page and the tests see -------------------------------------------------------------------
+
+    def page_info(self) -> dict[str, Any]:
+        """What `GET /config` tells pages: where Janus is and which mountpoint shows which agent."""
+        ids = {a: m.id for a, m in self.mountpoints.items()}
+        return {"url": self.url, "mountpoints": ids, "mountpoint": ids[self.agents[0]] if self.agents else None,
+                "width": self.width, "height": self.height, "fps": self.fps}
+
+    def stats(self) -> dict[str, Any]:
+        """What was sent into Janus (per agent), independent of how many watch there."""
+        return {"recreated": self.recreated, "lost": self._lost,
+                "agents": {a: {"mountpoint": m.id, "viewers": m.viewers, "pictures": m.pictures,
+                               "voice_frames": m.voice_frames, "keyframe_requests": m.keyframe_requests,
+                               "video_packets": m.video.packets if m.video else 0,
+                               "audio_packets": m.audio.packets if m.audio else 0}
+                           for a, m in self.mountpoints.items()}}
+
+    # --- start and stop ------------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """The mountpoints made and the media flowing; SfuError (one line) when Janus will not make them."""
+        if not self.host:
+            raise SfuError(f"the SFU URL {self.url} names no host")
+        try:
+            resolved = await asyncio.get_running_loop().getaddrinfo(self.host, None, type=socket.SOCK_DGRAM)
+            self.host = str(resolved[0][4][0])  # once: every packet goes to the same address
+            await self._create_all()
+        except (JanusError, OSError) as exc:
+            await self.janus.close()
+            raise SfuError(f"cannot publish into Janus at {self.url}: {exc}") from None
+        loop = asyncio.get_running_loop()
+        self._origin_ns = self.backend.clock.now_ns()
+        _, audio = await loop.create_datagram_endpoint(_Socket, local_addr=("0.0.0.0", 0))
+        self._audio_socket = audio
+        self.backend.watch(PUBLISHER_VIEWER, ViewRequest(self.agents, self.width, self.height, self.fps, (), None))
+        for agent in self.agents:
+            stream = self._streams[agent] = self.backend.encoded.use(agent, self.width, self.height, self.fps)
+            _, video = await loop.create_datagram_endpoint(self._rtcp_socket(agent, stream), local_addr=("0.0.0.0", 0))
+            self._video_socket[agent] = video
+            mp = self.mountpoints[agent]
+            mp.video = RtpStream(VIDEO_PT, VIDEO_RATE, self._origin_ns)
+            mp.audio = RtpStream(AUDIO_PT, AUDIO_RATE, self._origin_ns)
+            self._tasks += [asyncio.ensure_future(self._send_video(mp, stream, video)),
+                            asyncio.ensure_future(self._send_voice(mp, audio)),
+                            asyncio.ensure_future(self._send_reports(mp, video))]
+        self._tasks.append(asyncio.ensure_future(self._watch_janus()))
+        log.info("publishing %s into Janus at %s (mountpoints %s) at %dx%d, %g fps", ", ".join(self.agents),
+                 self.url, ", ".join(f"{a}: {m.id}" for a, m in self.mountpoints.items()), self.width, self.height,
+                 self.fps)
+
+    def _rtcp_socket(self, agent: str, stream: EncodedStream) -> Callable[[], _Socket]:
+        return lambda: _Socket(lambda data: self._on_rtcp(agent, stream, data))
+
+    async def stop(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        self.backend.unwatch(PUBLISHER_VIEWER)
+        for stream in self._streams.values():
+            self.backend.encoded.release(stream)
+        self._streams = {}
+        for sock in [*self._video_socket.values(), self._audio_socket]:
+            if sock is not None and sock.transport is not None:
+                sock.transport.close()
+        self._video_socket, self._audio_socket = {}, None
+        if not self._lost:
+            for mp in self.mountpoints.values():
+                if mp.id:
+                    try:
+                        await self.janus.request({"request": "destroy", "id": mp.id, "secret": self.secret})
+                    except JanusError as exc:
+                        log.info("Janus did not destroy mountpoint %d (%s): it goes with Janus", mp.id, exc)
+        await self.janus.close()
+
+    # --- the mountpoints ------------------------------------------------------------------------------------
+
+    async def _create_all(self) -> None:
+        await self.janus.open()
+        for mp in self.mountpoints.values():
+            await self._create(mp)
+
+    async def _create(self, mp: Mountpoint) -> None:
+        """The agent's mountpoint: under its old id when it had one (pages keep watching the same id), else
+        wherever Janus puts it. Only the mountpoint's own secret lets anyone destroy it."""
+        body: dict[str, Any] = {
+            "request": "create", "type": "rtp", "permanent": False, "is_private": False,
+            "name": f"eca-{mp.agent}", "description": f"eca {mp.agent} {self.width}x{self.height} {self.fps:g} fps",
+            "secret": self.secret,
+            "media": [{"type": "audio", "mid": "a", "codec": "opus", "pt": AUDIO_PT, "port": 0},
+                      # rtcpport: Janus sends keyframe requests (PLI) back to where our reports come from
+                      {"type": "video", "mid": "v", "codec": "vp8", "pt": VIDEO_PT, "port": 0, "rtcpport": 0}],
+        }
+        if mp.id:
+            body["id"] = mp.id
+        try:
+            created = await self.janus.request(body)
+        except JanusError as exc:
+            if not (mp.id and exc.code == MOUNTPOINT_EXISTS):
+                raise
+            # the id is still there (our session timed out, the mountpoint did not): ours, by its secret
+            await self.janus.request({"request": "destroy", "id": mp.id, "secret": self.secret})
+            created = await self.janus.request(body)
+        stream = created["stream"]
+        ports = {p.get("type"): p for p in stream.get("ports", []) if isinstance(p, dict)}
+        try:
+            mp.id = int(stream["id"])
+            mp.audio_port = int(ports["audio"]["port"])
+            mp.video_port = int(ports["video"]["port"])
+            mp.video_rtcp_port = int(ports["video"].get("rtcp_port") or 0)
+        except (KeyError, TypeError, ValueError):
+            raise JanusError(f"Janus's answer to create has no ports: {stream}") from None
+
+    async def _watch_janus(self) -> None:
+        """Every `check_s`: each mountpoint still there (which keeps the session alive); those Janus lost made
+        again, with back-off."""
+        delay = self.check_s
+        while True:
+            await asyncio.sleep(delay)
+            try:
+                if self._lost:
+                    await self._create_all()
+                    self._lost = False
+                    self.recreated += 1
+                    for agent, stream in self._streams.items():
+                        stream.request_keyframe()  # the new mountpoint's viewers start from a keyframe
+                        self.mountpoints[agent].viewers = 0
+                    log.warning("Janus at %s: mountpoints made again (%s)", self.url,
+                                ", ".join(f"{a}: {m.id}" for a, m in self.mountpoints.items()))
+                else:
+                    for mp in self.mountpoints.values():
+                        # with the secret: Janus tells the viewers' count only to the mountpoint's owner
+                        asked = {"request": "info", "id": mp.id, "secret": self.secret}
+                        info = (await self.janus.request(asked))["info"]
+                        mp.viewers = int(info.get("viewers") or 0)
+                delay = self.check_s
+            except JanusError as exc:
+                if not self._lost:
+                    log.warning("Janus at %s lost our mountpoints or does not answer (%s): making them again; direct "
+                                "viewers are not affected", self.url, exc)
+                self._lost = self._lost or exc.lost or exc.code in (0, NO_SUCH_MOUNTPOINT)
+                delay = min(RETRY_MAX_S, delay * 2) if self._lost else self.check_s
+            except Exception:  # a bug here must not end the publishing: said, and tried again
+                log.exception("watching Janus at %s failed", self.url)
+                delay = RETRY_MAX_S
+
+    # --- the media ------------------------------------------------------------------------------------------
+
+    async def _send_video(self, mp: Mountpoint, stream: EncodedStream, sock: _Socket) -> None:
+        """Each encoded picture as it comes, packetized (VP8 payload descriptors by aiortc) and sent at once; a
+        picture that cannot be decoded after the last one sent (one was missed) waits for a keyframe, as a
+        direct viewer's FaceTrack does."""
+        assert mp.video is not None
+        packetizer = Vp8Packetizer()
+        sent_seq = seen = -1
+        while True:
+            picture = await stream.next_after(seen)
+            if picture is None:
+                return  # the stream stopped: the service is stopping
+            seen = picture.seq
+            if not (picture.keyframe or (sent_seq >= 0 and picture.seq == sent_seq + 1)):
+                stream.request_keyframe()
+                continue
+            sent_seq = picture.seq
+            packet = av.Packet(picture.data)
+            packet.pts, packet.time_base = 0, fractions.Fraction(1, VIDEO_RATE)
+            payloads, _ = packetizer.pack(packet)
+            for datagram in mp.video.packetize(payloads, picture.frame_ns):
+                sock.send(datagram, (self.host, mp.video_port))
+            mp.pictures += 1
+
+    async def _send_voice(self, mp: Mountpoint, sock: _Socket) -> None:
+        """The voice in 20 ms frames, each when its first sample reaches the output (the direct path's
+        VoiceTrack), Opus-encoded once for every viewer of Janus."""
+        assert mp.audio is not None
+        track = VoiceTrack(self.backend.voice(mp.agent), self.backend.clock)
+        encoder = OpusEncoder()
+        while True:
+            frame = await track.recv()
+            payloads, _ = encoder.encode(frame)
+            if not payloads:
+                continue  # the encoder's first frame: it holds samples back
+            start_ns = track.frame_start_ns((frame.pts or 0) // track.samples_per_frame)
+            for datagram in mp.audio.packetize(payloads, start_ns):
+                sock.send(datagram, (self.host, mp.audio_port))
+            mp.voice_frames += 1
+
+    async def _send_reports(self, mp: Mountpoint, sock: _Socket) -> None:
+        """A sender report on the video stream every second, to the mountpoint's RTCP port (see the module's
+        docstring: Janus keeps its own, but learns from ours where keyframe requests go)."""
+        assert mp.video is not None
+        while True:
+            await asyncio.sleep(SR_EVERY_S if mp.video.last_ns is not None else 0.1)
+            report = mp.video.sender_report(self.backend.clock.now_ns(), time.time())
+            if report is not None and mp.video_rtcp_port:
+                sock.send(report, (self.host, mp.video_rtcp_port))
+
+    def _on_rtcp(self, agent: str, stream: EncodedStream, data: bytes) -> None:
+        """Janus's RTCP on a video socket: a keyframe request (a viewer started, or its browser lost a picture)
+        makes the shared encoder's next picture a keyframe."""
+        try:
+            packets = RtcpPacket.parse(data)
+        except ValueError:
+            return  # not RTCP: nothing Janus sends us otherwise
+        for packet in packets:
+            if isinstance(packet, RtcpPsfbPacket) and packet.fmt in (PSFB_PLI, PSFB_FIR):
+                stream.request_keyframe()
+                self.mountpoints[agent].keyframe_requests += 1

@@ -1,0 +1,104 @@
+// Watching an agent through Janus (its Streaming plugin) instead of peering with eca: the web service publishes each
+// face once into a mountpoint (eca/services/processes/web/sfu.py) and GET /config says where ({"sfu": {"url",
+// "mountpoints": {agent: id}}}). Janus's own HTTP API, spoken directly (no janus.js): a session, a handle on
+// janus.plugin.streaming, "watch" the mountpoint, answer Janus's offer with "start", trickle this page's ICE
+// candidates, and long-poll the session for Janus's events (its offer, its candidates); the long poll also keeps the
+// session alive (Janus drops one after 60 s without a request). Janus must allow this page's origin (its HTTP
+// transport's cors allow_origin). Only the server-drawn video and the voice come this way: the faces a page draws
+// itself (face frames on a data channel) and the microphone stay on a direct connection with eca.
+"use strict";
+
+const transaction = () => Math.random().toString(36).slice(2, 14);
+
+async function janusPost(url, body) {
+  const response = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" },
+                                      body: JSON.stringify({ ...body, transaction: transaction() }) });
+  const answer = await response.json();
+  if (answer.janus === "error") throw new Error(`Janus: ${answer.error ? answer.error.reason : "an error"}`);
+  const data = answer.plugindata && answer.plugindata.data;
+  if (data && data.error) throw new Error(`Janus streaming: ${data.error}`);
+  return answer;
+}
+
+export class JanusWatch {
+  constructor(url, mountpoint) {
+    this.url = url.replace(/\/+$/, "");
+    this.mountpoint = mountpoint;
+    this.pc = null;
+    this.session = null;
+    this.handle = null;
+    this.closed = false;
+    this.offers = [];  // Janus's offers (jsep) not yet taken, and who waits for one
+    this.waiting = null;
+    this.candidates = [];  // Janus's candidates that came before its offer was taken
+  }
+
+  get handleUrl() { return `${this.url}/${this.session}/${this.handle}`; }
+
+  // Watch the mountpoint; `onTrack` gets each received track's event (as RTCPeerConnection.ontrack).
+  async start(onTrack, timeoutMs = 20000) {
+    this.session = (await janusPost(this.url, { janus: "create" })).data.id;
+    this.handle = (await janusPost(`${this.url}/${this.session}`,
+                                   { janus: "attach", plugin: "janus.plugin.streaming" })).data.id;
+    this.poll();
+    await janusPost(this.handleUrl, { janus: "message", body: { request: "watch", id: this.mountpoint } });
+    const offer = await this.nextOffer(timeoutMs);
+    const pc = new RTCPeerConnection();
+    this.pc = pc;
+    pc.ontrack = onTrack;
+    pc.onicecandidate = (event) => {
+      const candidate = event.candidate
+        ? { candidate: event.candidate.candidate, sdpMid: event.candidate.sdpMid,
+            sdpMLineIndex: event.candidate.sdpMLineIndex }
+        : { completed: true };
+      if (!this.closed) janusPost(this.handleUrl, { janus: "trickle", candidate }).catch(() => {});
+    };
+    await pc.setRemoteDescription(offer);
+    for (const c of this.candidates.splice(0)) await pc.addIceCandidate(c.completed ? null : c).catch(() => {});
+    await pc.setLocalDescription(await pc.createAnswer());
+    await janusPost(this.handleUrl, { janus: "message", body: { request: "start" },
+                                      jsep: { type: "answer", sdp: pc.localDescription.sdp } });
+    return pc;
+  }
+
+  nextOffer(timeoutMs) {
+    if (this.offers.length) return Promise.resolve(this.offers.shift());
+    return new Promise((resolve, reject) => {
+      const timer = setTimeout(() => reject(new Error("Janus sent no offer for the mountpoint")), timeoutMs);
+      this.waiting = (jsep) => { clearTimeout(timer); resolve(jsep); };
+    });
+  }
+
+  async poll() {
+    while (!this.closed) {
+      let events;
+      try {
+        const response = await fetch(`${this.url}/${this.session}?maxev=10&rid=${Date.now()}`);
+        events = await response.json();
+      } catch (error) {
+        await new Promise((resolve) => setTimeout(resolve, 1000));  // Janus away for a moment: ask again
+        continue;
+      }
+      for (const event of Array.isArray(events) ? events : [events]) this.onEvent(event);
+    }
+  }
+
+  onEvent(event) {
+    if (event.janus === "error" && event.error && event.error.code === 458) this.closed = true;  // session gone
+    if (event.jsep && event.jsep.type === "offer") {
+      if (this.waiting) { const w = this.waiting; this.waiting = null; w(event.jsep); } else this.offers.push(event.jsep);
+    }
+    if (event.janus === "trickle") {
+      const c = event.candidate || {};
+      if (this.pc && this.pc.remoteDescription) this.pc.addIceCandidate(c.completed ? null : c).catch(() => {});
+      else this.candidates.push(c);
+    }
+    if (event.janus === "hangup" && this.onhangup) this.onhangup(event.reason);
+  }
+
+  async close() {
+    this.closed = true;
+    if (this.pc) this.pc.close();
+    if (this.session) await janusPost(`${this.url}/${this.session}`, { janus: "destroy" }).catch(() => {});
+  }
+}

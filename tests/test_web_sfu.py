@@ -1,0 +1,272 @@
+"""Faces fanned out by Janus (`eca web --sfu URL`, web/sfu.py): the web service publishes each face once into a Janus
+Streaming mountpoint, and viewers watch through Janus.
+
+Hosts are network namespaces (tests/support/netns.py): Janus on an "sfu" host, the viewers (aiortc, in a process of
+their own) on a "viewer" host; the web service runs in this process (its counters are read directly) and reaches
+Janus over the bridge, as a web host would. WebRTC through Janus needs those addresses: libnice and aioice skip
+127.0.0.1. Skipped without root (namespaces) or without Debian's janus.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+import pytest
+import zmq
+
+from eca.protocol.bus import Publisher
+from eca.protocol.endpoints import BusConfig
+from eca.protocol.messages import EmotionState
+from eca.services.processes.runtime import wait_until
+from eca.services.processes.web.options import WebOptions, WebOptionsError
+from eca.services.processes.web.service import WebService
+from eca.services.processes.web.sfu import RtpStream
+from tests.support.browser import browser_available, chromium, page_stats, wait_for, wait_for_frames
+from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
+from tests.support.janus import Janus, janus_available, janus_server
+from tests.support.netns import Host, Network, hosts, netns_available
+from tests.support.web_client import SMALL, Client, speak_tone
+
+ROOT = Path(__file__).resolve().parents[1]
+WIDTH, HEIGHT, FPS = 160, 120, 15.0  # tests/support/web_client.py's SMALL: what direct viewers there ask
+
+
+def _skip_reason() -> str | None:
+    return netns_available() or janus_available()
+
+
+needs_janus = pytest.mark.skipif(_skip_reason() is not None, reason=str(_skip_reason()))
+
+
+# --- options and RTP numbering (no Janus) -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("url", ["not a url", "ftp://sfu/janus", "http:///janus", "sfu:8088/janus",
+                                 "http://sfu:99999/janus", "http://sfu/janus?x=1", "http://u:p@sfu/janus",
+                                 "http://sfu/" + "a" * 2000, ""])
+def test_a_bad_sfu_url_is_refused_with_a_sentence(url: str) -> None:
+    with pytest.raises(WebOptionsError, match="sfu"):
+        WebOptions(sfu=url).check()
+
+
+def test_an_sfu_excludes_conversations_per_visitor_and_pages_drawing_every_face() -> None:
+    assert WebOptions(sfu="https://sfu.example/janus").check().sfu == "https://sfu.example/janus"
+    with pytest.raises(WebOptionsError, match="per_visitor"):
+        WebOptions(sfu="http://sfu:8088/janus", per_visitor=True).check()
+    with pytest.raises(WebOptionsError, match="browser"):
+        WebOptions(sfu="http://sfu:8088/janus", draw="browser").check()
+
+
+def test_rtp_timestamps_follow_the_master_clock_stamps() -> None:
+    """Audio and video stamps from one origin: their RTP timestamps advance with the stamps, at their own rates."""
+    video, audio = RtpStream(96, 90_000, origin_ns=5_000_000_000), RtpStream(111, 48_000, origin_ns=5_000_000_000)
+    first = video.packetize([b"a", b"b"], 5_000_000_000)
+    later = video.packetize([b"c"], 5_500_000_000)
+    seqs = [int.from_bytes(p[2:4], "big") for p in first + later]
+    assert seqs == [(seqs[0] + i) & 0xFFFF for i in range(3)]
+
+    def stamp(packet: bytes) -> int:
+        return int.from_bytes(packet[4:8], "big")
+
+    assert (stamp(later[0]) - stamp(first[0])) & 0xFFFFFFFF == 45_000
+    assert [p[1] >> 7 for p in first] == [0, 1]  # the marker on a picture's last packet
+    a0, a1 = audio.packetize([b"x"], 5_000_000_000), audio.packetize([b"y"], 5_020_000_000)
+    assert (stamp(a1[0]) - stamp(a0[0])) & 0xFFFFFFFF == 960
+    report = video.sender_report(5_600_000_000, 1_700_000_000.0)
+    assert report is not None and report[1] == 200  # an RTCP SR
+    assert (int.from_bytes(report[16:20], "big") - stamp(later[0])) & 0xFFFFFFFF == 9_000  # carried 100 ms on
+
+
+# --- through a real Janus ----------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def network() -> Iterator[Network]:
+    why = _skip_reason()
+    if why is not None:
+        pytest.skip(why)
+    with hosts("sfu", "viewer") as net:
+        yield net
+
+
+@pytest.fixture(scope="module")
+def janus(network: Network) -> Iterator[Janus]:
+    with janus_server(network["sfu"]) as server:
+        yield server
+
+
+@pytest.fixture(scope="module")
+def web(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
+    with private_bus_config(agents=["ada"]) as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, sfu=janus.url, width=WIDTH, height=HEIGHT, fps=FPS))
+        with ServiceThread(service):
+            yield config, service
+
+
+def watch_from(host: Host, url: str, mountpoint: int, seconds: float, viewers: int = 1) -> subprocess.Popen[str]:
+    """Viewers of a mountpoint in a process on `host` (tests/support/janus.py's `watch`)."""
+    argv = [sys.executable, "-m", "tests.support.janus", "watch", url, str(mountpoint), str(seconds),
+            "--viewers", str(viewers)]
+    proc = host.popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return cast("subprocess.Popen[str]", proc)  # text=True: its pipes carry str
+
+
+def result_of(proc: subprocess.Popen[str], timeout_s: float = 60.0) -> dict[str, Any]:
+    out, err = proc.communicate(timeout=timeout_s)
+    assert proc.returncode == 0, err[-3000:]
+    got: dict[str, Any] = json.loads(out)
+    return got
+
+
+def mean_thumb(stats: list[dict[str, Any]]) -> np.ndarray:
+    return np.asarray(np.mean([np.asarray(s["thumb"], dtype=np.float64) for s in stats], axis=0))
+
+
+@needs_janus
+def test_a_viewer_through_janus_sees_and_hears_the_face_and_its_change(network: Network, janus: Janus,
+                                                                       web: tuple[BusConfig, WebService]) -> None:
+    config, service = web
+    assert service.sfu is not None
+    info = service.sfu_info()
+    assert info is not None and info["url"] == janus.url and info["mountpoints"]["ada"] == info["mountpoint"]
+    mp = service.sfu.mountpoints["ada"]
+    requests = mp.keyframe_requests
+    ctx = zmq.Context()
+    audio, dialogue = Publisher(ctx, config, "audio"), Publisher(ctx, config, "dialogue")
+    try:
+        audio.wait_ready()
+        dialogue.wait_ready()
+        dialogue.publish(EmotionState(agent="ada", name="natural", transition_s=0.0))
+        proc = watch_from(network["viewer"], janus.url, info["mountpoint"], 7.0)
+        # Janus asks for a keyframe (PLI) as the viewer starts: that is when it watches
+        assert wait_until(lambda: mp.keyframe_requests > requests, 20.0), "Janus never asked for a keyframe"
+        time.sleep(2.0)
+        speak_tone(audio, 1.0)
+        changed_at = time.time()
+        dialogue.publish(EmotionState(agent="ada", name="surprised", transition_s=0.0))
+        got = result_of(proc)
+    finally:
+        audio.close()
+        dialogue.close()
+        ctx.term()
+    viewer = got["viewers"][0]
+    assert viewer["pictures"] >= 0.6 * SMALL["fps"] * 5, viewer["pictures"]
+    assert {(s["w"], s["h"]) for s in viewer["stats"]} == {(SMALL["width"], SMALL["height"])}
+    assert min(s["std"] for s in viewer["stats"][-10:]) > 10, "a face, not a blank picture"
+    assert viewer["audio_frames"] >= 150 and viewer["audio_rms"] > 1000, (viewer["audio_frames"], viewer["audio_rms"])
+    before = [s for s in viewer["stats"] if s["t"] < changed_at]
+    after = [s for s in viewer["stats"] if s["t"] > changed_at + 1.0]
+    assert len(before) >= 10 and len(after) >= 10, (len(before), len(after))
+    still = np.abs(mean_thumb(before[-10:-5]) - mean_thumb(before[-5:])).mean()
+    change = np.abs(mean_thumb(before[-5:]) - mean_thumb(after[-5:])).mean()
+    assert change > 0.5 and change > 3 * still, f"the expression's change: {change:.2f} levels (still: {still:.2f})"
+
+
+@needs_janus
+def test_five_viewers_through_janus_cost_eca_one_stream(network: Network, janus: Janus,
+                                                         web: tuple[BusConfig, WebService]) -> None:
+    """Five viewers of one face: eca encodes and sends each picture once (its counters), peers with none of them,
+    and Janus counts five viewers."""
+    config, service = web
+    assert service.sfu is not None
+    mp = service.sfu.mountpoints["ada"]
+    stream = service.encoded.streams[("ada", WIDTH, HEIGHT, FPS)]
+    proc = watch_from(network["viewer"], janus.url, mp.id, 6.0, viewers=5)
+    assert wait_until(lambda: mp.viewers == 5, 20.0), f"Janus counts {mp.viewers} viewers"
+    assert mp.video is not None
+    pictures, encoded, packets, began = mp.pictures, stream.encoded, mp.video.packets, time.monotonic()
+    time.sleep(3.0)
+    elapsed = time.monotonic() - began
+    sent = mp.pictures - pictures
+    sent_packets = mp.video.packets - packets
+    encodes = stream.encoded - encoded
+    got = result_of(proc)
+    assert len(service.viewers.open if service.viewers else []) == 0  # no viewer peers with eca
+    # one picture sent per picture encoded, at the stream's rate, whatever the number of viewers
+    assert abs(sent - encodes) <= 1, (sent, encodes)
+    assert sent <= SMALL["fps"] * elapsed * 1.2 + 2, f"{sent} pictures in {elapsed:.1f} s at {SMALL['fps']} fps"
+    assert sent_packets <= 3 * sent + 3, (sent_packets, sent)
+    counts = [v["pictures"] for v in got["viewers"]]
+    assert all(n >= 0.5 * SMALL["fps"] * 4 for n in counts), counts
+
+
+@needs_janus
+def test_a_mountpoint_janus_lost_is_made_again_and_direct_viewers_carry_on(network: Network, janus: Janus,
+                                                                            web: tuple[BusConfig, WebService]) -> None:
+    """Janus restarted (every session and mountpoint gone): eca makes the mountpoint again under the same id, and a
+    viewer watches again; meanwhile a viewer peering with eca directly keeps its face."""
+    import asyncio
+
+    config, service = web
+    assert service.sfu is not None
+    mp = service.sfu.mountpoints["ada"]
+    old_id, recreated = mp.id, service.sfu.recreated
+    janus.stop()
+
+    async def direct() -> int:
+        client = Client(f"http://127.0.0.1:{service.port}/", ["ada"])
+        await client.connect()
+        try:
+            return len(await client.frames("ada", "video", 3.0))
+        finally:
+            await client.pc.close()
+
+    try:
+        seen_directly = asyncio.run(direct())
+    finally:
+        janus.start()
+    assert seen_directly >= 10, f"a direct viewer saw {seen_directly} pictures while Janus was down"
+    assert wait_until(lambda: service.sfu is not None and service.sfu.recreated > recreated, 30.0), \
+        "the mountpoint was not made again"
+    assert mp.id == old_id  # pages keep watching the same id
+    got = result_of(watch_from(network["viewer"], janus.url, mp.id, 4.0))
+    assert got["viewers"][0]["pictures"] >= 0.5 * SMALL["fps"] * 3, got["viewers"][0]["pictures"]
+
+
+@needs_janus
+def test_a_janus_that_does_not_answer_stops_eca_web_at_once_with_one_line(network: Network) -> None:
+    with private_bus_config(agents=["ada"]) as config:
+        unreachable = f"http://{network['sfu'].address}:1/janus"  # the host is there, nothing listens on port 1
+        for url, said in ((unreachable, "no answer from"), ("ftp://sfu/janus", "http:// or https://")):
+            began = time.monotonic()
+            done = subprocess.run([sys.executable, "-m", "eca.services.tools.cli", "web", "--config",
+                                   str(config.config_path), "--sfu", url], capture_output=True, text=True, cwd=ROOT,
+                                  timeout=60)
+            assert done.returncode == 2, (done.returncode, done.stderr[-2000:])
+            lines = [line for line in done.stderr.splitlines() if line.strip()]
+            assert len(lines) == 1 and said in lines[0] and lines[0].startswith("eca web:"), done.stderr[-2000:]
+            assert time.monotonic() - began < 20
+
+
+@needs_janus
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_the_page_in_a_real_browser_watches_the_face_through_janus(web: tuple[BusConfig, WebService],
+                                                                   tmp_path: Path) -> None:
+    """The page as a person opens it, in a real headless Chromium: /config names the SFU, the page watches the
+    agent through Janus's HTTP API (its own small client, trickle included), and the face plays: pictures decoded
+    at the stream's size, the voice's track there, and the picture is the face, not a blank."""
+    _, service = web
+    with chromium() as driver:
+        driver.get(service.url + "?mic=0")
+        driver.find_element("id", "connect").click()
+        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
+                 lambda s: s == "connected")
+        assert driver.execute_script("return (window.eca.janus || []).length") == 1  # watched through Janus
+        stats = wait_for_frames(driver, 20, 30.0)
+        pixels = np.array(driver.execute_script("""
+            const v = document.querySelector('#faces video'); const c = document.createElement('canvas');
+            c.width = v.videoWidth; c.height = v.videoHeight; const g = c.getContext('2d'); g.drawImage(v, 0, 0);
+            return Array.from(g.getImageData(0, 0, c.width, c.height).data);"""), dtype=np.uint8)
+        driver.save_screenshot(str(tmp_path / "through_janus.png"))
+        audio = page_stats(driver)
+    assert (stats["frameWidth"], stats["frameHeight"]) == (WIDTH, HEIGHT)
+    assert audio is not None and audio["audio"] and audio["audio"][0]["packetsReceived"] > 0
+    rgb = pixels.reshape(HEIGHT, WIDTH, 4)[:, :, :3].astype(int)
+    assert rgb.std() > 20, "a blank picture"  # the face on its background: many colours
