@@ -227,7 +227,6 @@ class EcaHost:
     def kill(self) -> None:
         """The whole host gone at once (its supervisor and every service), as a machine that loses power."""
         import os
-
         import socket
         import time
 
