@@ -94,8 +94,8 @@ def test_a_dialogue_manager_drives_a_face_drawn_on_a_web_host_and_watched_from_a
                 line = web_out.lines[web_out.wait_for("serving http://", 60.0)]
                 match = re.search(r"(http://\S+/)", line)
                 assert match and net["web"].address in match.group(1), line
-                with running(net["viewer"].argv(role_argv("view", match.group(1).split("?")[0], token, str(tmp_path), str(signals)))) \
-                        as (viewer, view_out):
+                watch = role_argv("view", match.group(1).split("?")[0], token, str(tmp_path), str(signals))
+                with running(net["viewer"].argv(watch)) as (viewer, view_out):
                     view_out.wait_for("READY", 60.0)
                     with running(net["dm"].argv(role_argv("emote", str(dm_config)))) as (dm, dm_out):
                         dm_out.wait_for("APPLIED", 30.0)
