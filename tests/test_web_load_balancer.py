@@ -6,16 +6,19 @@ only its own conversations and new visitors are served by the others at once.
 
 The first tests run HAProxy over small aiohttp hosts that answer /health with the real handler
 (eca/services/processes/web/health.py): the balancer's rules, in seconds. The slow ones run three real
-`eca up --web --per-visitor` hosts on 127.0.0.1 (ports of their own; each with its private bus) behind it, with
-WebRTC visitors (aiortc, tests/support/web_client.py) whose signalling goes through HAProxy.
+`eca up --web --per-visitor` hosts behind it, each a network namespace of its own with its address (as root;
+ports of 127.0.0.1 otherwise), each with its private bus and a token for its pages, with WebRTC visitors (aiortc,
+tests/support/web_client.py) whose signalling goes through HAProxy and whose media goes to their host.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import secrets
 import time
 from collections.abc import Iterator
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
@@ -40,6 +43,7 @@ from tests.support.haproxy import (
     haproxy_available,
     render_config,
 )
+from tests.support.netns import hosts, netns_available
 from tests.support.web_client import FaceClient
 
 needs_haproxy = pytest.mark.skipif(haproxy_available() is not None, reason=str(haproxy_available()))
@@ -189,7 +193,9 @@ class StubHost:
 
 
 async def ask(session: aiohttp.ClientSession, method: str, url: str) -> tuple[int, Any, str | None]:
-    async with session.request(method, url, data=b"{}") as response:
+    """One request with the pages' token (an eca host off loopback wants it; the stub hosts ignore it)."""
+    body = json.dumps({"token": TOKEN}).encode()
+    async with session.request(method, url, data=body, params={"token": TOKEN}) as response:
         text = await response.text()
         cookie = response.cookies.get("SERVERID")
         try:
@@ -269,6 +275,7 @@ def test_haproxy_drains_a_full_host_and_replays_only_a_busy_conversation() -> No
 # --- real eca hosts -------------------------------------------------------------------------------------------
 
 
+TOKEN = secrets.token_hex(16)  # the pages' token: hosts off loopback (in namespaces) want one
 MAXIMA = {"h1": 1, "h2": 4, "h3": 4}  # h1 holds one conversation: the full host; the others keep room after a kill
 
 
@@ -284,7 +291,7 @@ class Visitor(FaceClient):
         """The page, `POST /conversation` and the offer, all through `url`. `pinned`: a cookie for that host
         already (a visitor who was there before)."""
         session = aiohttp.ClientSession(cookie_jar=jar_with(url, pinned))
-        async with session.get(url) as page:
+        async with session.get(url, params={"token": TOKEN}) as page:
             assert page.status == 200, await page.text()
         status, made, _ = await ask_json(session, url + "conversation", {})
         if status != 201:
@@ -315,7 +322,7 @@ class Visitor(FaceClient):
 
 
 async def ask_json(session: aiohttp.ClientSession, url: str, body: Any) -> tuple[int, Any, str | None]:
-    async with session.post(url, json=body) as response:
+    async with session.post(url, json={**body, "token": TOKEN}) as response:
         text = await response.text()
         cookie = response.cookies.get("SERVERID")
         try:
@@ -363,10 +370,15 @@ def farm() -> Iterator[Farm]:
         pytest.skip(str(haproxy_available()))
     loop = EventLoopThread("visitors").start()
     try:
-        with eca_hosts(list(MAXIMA.values())) as started:
-            hosts = dict(zip(MAXIMA, started, strict=True))
-            with balancer([(name, host.address) for name, host in hosts.items()], CHECK_MS) as lb:
-                farm = Farm(hosts, lb, loop)
+        with ExitStack() as stack:
+            # each eca host a network namespace of its own when this machine can make them (as root), else a port
+            # of 127.0.0.1; HAProxy and the visitors on the test's own side
+            network = None if netns_available() else stack.enter_context(hosts(*MAXIMA))
+            started = stack.enter_context(eca_hosts(list(MAXIMA.values()), token=TOKEN,
+                                                    network=[network[n] for n in MAXIMA] if network else None))
+            by_name = dict(zip(MAXIMA, started, strict=True))
+            with balancer([(name, host.address) for name, host in by_name.items()], CHECK_MS) as lb:
+                farm = Farm(by_name, lb, loop)
                 try:
                     yield farm
                 finally:
@@ -400,7 +412,7 @@ def test_visitors_are_spread_over_hosts_with_room_and_stay_on_theirs(farm: Farm)
         assert farm.run(visitor.command())[0] == 202
         for _ in range(3):
             async def page(v: Visitor = visitor) -> str | None:
-                async with v.session.get(v.base + "config") as response:
+                async with v.session.get(v.base + "config", params={"token": TOKEN}) as response:
                     assert response.status == 200
                 return v.host
             assert farm.run(page()) == visitor.host

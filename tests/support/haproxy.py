@@ -30,6 +30,7 @@ from eca import shipped_configs
 from eca.protocol.endpoints import BusConfig
 from eca.services.tools.child_processes import LineReader, eca_command
 from tests.support.bus import private_bus_config, running
+from tests.support.netns import Host
 
 TEMPLATE = shipped_configs() / "haproxy.cfg"
 PLACEHOLDERS = ("bind", "stats_socket", "check_inter", "servers", "tracked_servers")
@@ -227,8 +228,6 @@ class EcaHost:
     def kill(self) -> None:
         """The whole host gone at once (its supervisor and every service), as a machine that loses power."""
         import os
-        import socket
-        import time
 
         os.killpg(self.process.pid, signal.SIGKILL)
         self.process.wait(timeout=10)
@@ -246,14 +245,18 @@ class EcaHost:
 
 @contextmanager
 def eca_hosts(max_conversations: Sequence[int], extra_args: Sequence[str] = (), ready_timeout_s: float = 180.0,
-              max_viewers: int | None = None) -> Iterator[list[EcaHost]]:
+              max_viewers: int | None = None, network: Sequence[Host] | None = None,
+              token: str | None = None) -> Iterator[list[EcaHost]]:
     """One `eca up --web --per-visitor` per entry of `max_conversations` (its `[conversations] max`; `[web]
     max_viewers` too, when given), each on a private bus, with faces the pages draw (no GL on the server) and
-    silent audio, listening on a free port of 127.0.0.1. All are started before any is waited for: their starts
-    overlap. Stopped (SIGINT to each group, SIGKILL after 5 s) when the block ends."""
+    silent audio, listening on a free port of 127.0.0.1, or, with `network`, each in its own network namespace on
+    its address (a host of its own; off loopback the pages need `token`). All are started before any is waited
+    for: their starts overlap. Stopped (SIGINT to each group, SIGKILL after 5 s) when the block ends."""
+    if network is not None and (len(network) != len(max_conversations) or token is None):
+        raise ValueError("one network host per eca host, and a token for pages off loopback")
     with ExitStack() as stack:
         started = []
-        for count in max_conversations:
+        for i, count in enumerate(max_conversations):
             config = stack.enter_context(private_bus_config(services=["dialogue", "gaze", "audio"]))
             text, found = re.subn(r"^(\[conversations\][^\[]*?^max = )\d+", rf"\g<1>{count}",
                                   config.config_path.read_text(), count=1, flags=re.MULTILINE | re.DOTALL)
@@ -268,6 +271,9 @@ def eca_hosts(max_conversations: Sequence[int], extra_args: Sequence[str] = (), 
             argv = eca_command("up", "--config", str(config.config_path), "--instance", config.instance, "--quiet",
                                "--web", "--web-port", "0", "--per-visitor", "--face", "head", "--web-draw", "browser",
                                "--silent-audio", *extra_args)
+            if network is not None:
+                assert token is not None
+                argv = network[i].argv([*argv, "--web-host", network[i].address, "--web-token", token])
             proc, reader = stack.enter_context(running(argv))
             started.append((config, proc, reader))
         hosts = []
