@@ -67,9 +67,13 @@ class Waiting:
     voices: concurrent.futures.Future[dict[str, SpeechAudio]]
 
 
+BUSY_TICK_HZ = 200.0  # with blocks under way: sync points reported within 5 ms of their time
+IDLE_TICK_HZ = 4.0  # with none: a block's arrival wakes the loop anyway (a message), so ticks are only bookkeeping
+
+
 class BmlService(Service):
     name = "bml"
-    tick_hz = 200.0  # sync points reported within 5 ms of their time
+    tick_hz = IDLE_TICK_HZ
 
     def __init__(self, config: BusConfig, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
@@ -154,6 +158,7 @@ class BmlService(Service):
         for warning in block.warnings:
             self._feedback(msg.agent, Feedback("warningFeedback", block.id, warning.behaviour, warning.type,
                                                text=warning.text, request_id=msg.request_id))
+        self._busy()
         if not speeches:
             self._start(msg, block, {})
             return
@@ -173,6 +178,13 @@ class BmlService(Service):
                 self._feedback(agent, item)
                 if item.kind == "blockProgress" and item.sync == "end":
                     self.realizations.pop((agent, item.block), None)
+        busy = bool(self.timed or self.waiting or any(r.blocks for r in self.realizers.values()))
+        self.tick_hz = BUSY_TICK_HZ if busy else IDLE_TICK_HZ
+
+    def _busy(self) -> None:
+        """Something is under way: tick at once, and often, until it is over."""
+        self.tick_hz = BUSY_TICK_HZ
+        self._next_tick_ns = 0
 
     def _voiced(self, w: Waiting) -> None:
         try:
