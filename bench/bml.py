@@ -97,7 +97,7 @@ def arrival_figures(trials: int) -> dict[str, float | int]:
                         msg = Bml(agent="ada", request_id=rid, xml=(
                             f'<bml xmlns="{BML}" xmlns:eca="urn:eca:bml:1.0" id="e{k}">'
                             f'<eca:emotion id="x" name="{name}" transition="0"/></bml>'))
-                    client._inbox.clear()
+                    client.take_held()  # what came before this trial
                     sent = client.send(msg)
 
                     def shown(m: Message, surprised: bool = surprised) -> bool:

@@ -9,7 +9,7 @@ import pytest
 from eca.agent.bml import SpeechTiming, parse_block, schedule
 from eca.agent.face.gestures import HeadGesture as Gesture
 from eca.protocol.messages import Expression, GazeTargetState, HeadGesture, MoveHead, Say, SetGazeTarget
-from eca.services.processes.bml.realize import cut_messages, realize
+from eca.services.processes.bml.realize import HeadAim, cut_messages, realize
 from eca.services.processes.bml.speech import SpeechAudio
 
 NS = 1_000_000_000
@@ -23,7 +23,8 @@ def realized(body: str, start_s: float = 100.0, speech: dict[str, SpeechTiming] 
     voices = {k: SpeechAudio(b"\0\0" * 10, 16000, None, v, False) for k, v in speech.items()}
     out = realize("ada", block, timeline, voices, lambda beh: f"say-{beh}",
                   lambda agent, target: {"bob": (-32.0, 0.0), "user": (0.0, 0.0)}.get(target),
-                  GazeTargetState(agent="ada", yaw_deg=2.0, pitch_deg=1.0, target="user"), None)
+                  GazeTargetState(agent="ada", yaw_deg=2.0, pitch_deg=1.0, target="user"), None,
+                  HeadAim(40.0, 25.0, 0.25))
     return timeline, out
 
 

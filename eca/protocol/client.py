@@ -199,6 +199,13 @@ class AgentClient:
                 self._inbox.popleft()
         raise BusTimeout(f"nothing matching arrived within {timeout_s} s")
 
+    def take_held(self) -> list[Message]:
+        """The messages received while waiting that matched no wait (the newest 10,000), oldest first; the client
+        holds none of them afterwards."""
+        held = list(self._inbox)
+        self._inbox.clear()
+        return held
+
     def wait_applied(self, sent: Message, timeout_s: float = 5.0, resend_s: float = 0.5) -> Ack:
         """The acknowledgement of a command sent with a request id: the owning service applied it (and the
         state it caused has arrived before it). Raises CommandRejected when it was refused, BusTimeout

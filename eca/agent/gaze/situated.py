@@ -51,6 +51,16 @@ class SituatedParams:
     head_turn_s: float
     head_limits_deg: tuple[float, float]  # turn, nod (configs/flexor_units.toml [head])
 
+    def direction(self, agents: Sequence[str], agent: str, person: str) -> tuple[float, float]:
+        """Where `person` (USER, or one of `agents`, the instance's in seat order) is seen from `agent`, relative
+        to its body (which faces the user): the user where [seats] puts it, another agent toward its face on the
+        screen (a face further right on the screen is to the agent's left: negative yaw)."""
+        if person == USER:
+            return self.user_direction_deg
+        apart = agents.index(person) - agents.index(agent)
+        yaw = min(abs(apart) * self.neighbour_yaw_deg, self.max_neighbour_yaw_deg)
+        return (-math.copysign(yaw, apart), 0.0)
+
     @classmethod
     def load(cls, name: str = "conversation", units: str = "flexor_units") -> SituatedParams:
         doc, where = load_toml(name), f"configs/{name}.toml" if not name.endswith(".toml") else name
@@ -143,14 +153,8 @@ class Conversation:
         self.attending: dict[str, str] = {a: USER for a in self.agents}
 
     def direction(self, agent: str, person: str) -> tuple[float, float]:
-        """Where `person` is seen from `agent`, relative to its body (which faces the user): the user where
-        [seats] puts it, another agent toward its face on the screen (a face further right on the screen is
-        to the agent's left: negative yaw)."""
-        if person == USER:
-            return self.params.user_direction_deg
-        apart = self.agents.index(person) - self.agents.index(agent)
-        yaw = min(abs(apart) * self.params.neighbour_yaw_deg, self.params.max_neighbour_yaw_deg)
-        return (-math.copysign(yaw, apart), 0.0)
+        """Where `person` is seen from `agent` (SituatedParams.direction)."""
+        return self.params.direction(self.agents, agent, person)
 
     def start_turn(self, t_ns: int, speaker: str | None, addressees: Sequence[str] = (),
                    duration_s: float | None = None) -> list[Action]:

@@ -10,10 +10,6 @@ from eca.services.processes.audio.config import AudioConfig
 from eca.services.processes.bml.speech import voice
 
 
-def is_bml(path: str) -> bool:
-    return path.lower().endswith(".bml")
-
-
 def read_bml(path: str) -> str:
     """The file's text; ValueError naming the file when it cannot be read, is too long or is not UTF-8."""
     file = Path(path)
@@ -56,4 +52,4 @@ def describe(block: Block, timeline: Timeline) -> str:
             f"{timeline.end_s - timeline.start_s:.2f} s, {len(block.warnings)} warnings")
 
 
-__all__ = ["BmlError", "check_bml", "describe", "is_bml", "read_bml"]
+__all__ = ["BmlError", "check_bml", "describe", "read_bml"]

@@ -41,9 +41,7 @@ from eca.services.processes.bml.speech import SpeechAudio
 NS = 1_000_000_000
 FOREVER_NS = 2**62  # a faceShift holds until the next one replaces it
 SHIFT_ID = "faceShift"  # one rest expression per agent: each faceShift replaces the one before
-GAZE_HEAD_SHARE = 0.5  # influence HEAD and wider: the head turns this share of the way (the eyes do the rest)
 BLINK_FLEXORS = {"blink_l": 1.0, "blink_r": 1.0}
-TURN_DEG, NOD_DEG = 40.0, 25.0  # configs/flexor_units.toml: head flexor units in degrees
 
 
 @dataclass(frozen=True)
@@ -71,9 +69,24 @@ class Realization:
 Direction = Callable[[str, str], tuple[float, float] | None]  # (agent, target) -> (yaw, pitch) degrees
 
 
+@dataclass(frozen=True)
+class HeadAim:
+    """How a gaze or a head direction turns the head: flexor units in degrees (configs/flexor_units.toml), and
+    the share of a gaze's direction the head takes with influence HEAD or wider (configs/conversation.toml [head]
+    share: the eyes do the rest, as in the gaze model's own turns)."""
+
+    turn_deg: float
+    nod_deg: float
+    gaze_share: float
+
+    def toward(self, yaw_deg: float, pitch_deg: float, share: float = 1.0) -> tuple[float, float]:
+        """(turn, nod) in flexor units, within [-1, 1]."""
+        return _clip(share * yaw_deg / self.turn_deg, 1), _clip(share * pitch_deg / self.nod_deg, 1)
+
+
 def realize(agent: str, block: Block, timeline: Timeline, voices: Mapping[str, SpeechAudio],
             say_id: Callable[[str], str], direction: Direction, gaze_now: GazeTargetState | None,
-            head_now: HeadState | None) -> Realization:
+            head_now: HeadState | None, aim: HeadAim) -> Realization:
     """The messages that realize `block` on `agent` (timeline in master-clock seconds)."""
     out = Realization([], [], {}, [], [])
 
@@ -124,8 +137,8 @@ def realize(agent: str, block: Block, timeline: Timeline, voices: Mapping[str, S
             out.timed.append(Timed(start, block.id, look))
             turns_head = p.influence not in ("EYES", "")
             if turns_head:
-                turn = MoveHead(agent=agent, turn=_clip(GAZE_HEAD_SHARE * yaw / TURN_DEG, 1),
-                                nod=_clip(GAZE_HEAD_SHARE * pitch / NOD_DEG, 1),
+                head_turn, head_nod = aim.toward(yaw, pitch, aim.gaze_share)
+                turn = MoveHead(agent=agent, turn=head_turn, nod=head_nod,
                                 duration_s=min(30.0, max(0.05, (ready - start) / NS)))
                 out.timed.append(Timed(start, block.id, turn))
             if not p.shift:  # a gaze ends: back to where the gaze model looked, and its saccades go on from there
@@ -141,8 +154,8 @@ def realize(agent: str, block: Block, timeline: Timeline, voices: Mapping[str, S
         elif isinstance(p, HeadDirectionParams):
             yaw, pitch = direction(agent, p.target) or (0.0, 0.0)
             start, end = at(beh.id, "start"), at(beh.id, "end")
-            out.timed.append(Timed(start, block.id, MoveHead(agent=agent, turn=_clip(yaw / TURN_DEG, 1),
-                                                             nod=_clip(pitch / NOD_DEG, 1),
+            head_turn, head_nod = aim.toward(yaw, pitch)
+            out.timed.append(Timed(start, block.id, MoveHead(agent=agent, turn=head_turn, nod=head_nod,
                                                              duration_s=min(30.0, max(0.05, (end - start) / NS)))))
         elif isinstance(p, EmotionParams):
             out.timed.append(Timed(at(beh.id, "start"), block.id, SetEmotion(

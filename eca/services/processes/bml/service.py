@@ -31,6 +31,7 @@ from eca.agent.bml import (
     schedule,
 )
 from eca.agent.bml.realizer import NS, AgentRealizer, Feedback
+from eca.agent.face.settings import load_flexor_units
 from eca.agent.gaze.situated import USER, SituatedParams
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import (
@@ -48,7 +49,7 @@ from eca.protocol.messages import (
     SpeechStarted,
 )
 from eca.services.processes.audio.config import AudioConfig
-from eca.services.processes.bml.realize import Realization, Timed, cut_messages, realize
+from eca.services.processes.bml.realize import HeadAim, Realization, Timed, cut_messages, realize
 from eca.services.processes.bml.speech import SpeechAudio, voice
 from eca.services.processes.runtime import Rejected, Service, parse_service_args
 
@@ -81,6 +82,8 @@ class BmlService(Service):
         self.realizers = {a: AgentRealizer(a) for a in self.agents}
         self.tts = AudioConfig.load().tts
         self.seats = SituatedParams.load()
+        units = load_flexor_units()
+        self.aim = HeadAim(units.turn_deg, units.nod_deg, self.seats.head_share)
         self.targets = named_targets(config)
         self.gaze: dict[str, GazeTargetState] = {}
         self.head: dict[str, HeadState] = {}
@@ -243,7 +246,7 @@ class BmlService(Service):
         nonce = secrets.token_hex(3)
         realization = realize(agent, block, timeline, voices,
                               lambda beh: f"bml-{block.id}-{beh}-{nonce}"[:64],
-                              self._direction, self.gaze.get(agent), self.head.get(agent))
+                              self._direction, self.gaze.get(agent), self.head.get(agent), self.aim)
         times_ns = {key: round(t * NS) for key, t in timeline.times.items()}
         try:
             prediction = realizer.begin(block.id, msg.request_id, round(timeline.start_s * NS), times_ns,
@@ -335,14 +338,12 @@ class BmlService(Service):
     def _direction(self, agent: str, target: str) -> tuple[float, float] | None:
         """Where a gaze target is seen from `agent`: the user (or the camera), another agent of the instance
         where it sits ([seats], configs/conversation.toml), or a point named in the config's [bml] targets."""
-        if target in ("", USER, "camera", "CAMERA"):
-            return self.seats.user_direction_deg
+        if target in ("", "camera", "CAMERA"):
+            target = USER
         if target in self.targets:
             return self.targets[target]
-        if target in self.config.agents and agent in self.config.agents:
-            apart = self.config.agents.index(target) - self.config.agents.index(agent)
-            yaw = min(abs(apart) * self.seats.neighbour_yaw_deg, self.seats.max_neighbour_yaw_deg)
-            return (-yaw if apart > 0 else yaw, 0.0)
+        if target == USER or (target in self.config.agents and agent in self.config.agents):
+            return self.seats.direction(self.config.agents, agent, target)
         return None
 
 

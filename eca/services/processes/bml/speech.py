@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import soundfile as sf
@@ -80,21 +81,13 @@ def _from_file(params: SpeechParams) -> SpeechAudio:
 
 
 def _mark_shares(params: SpeechParams) -> dict[str, float]:
-    """Each mark's place in the speech as the share of the text's characters before it."""
-    text = params.ssml
-    plain_before: dict[str, int] = {}
-    count = 0
-    i = 0
-    while i < len(text):
-        if text.startswith("<mark name=\"", i):
-            end = text.index('"', i + 12)
-            plain_before[text[i + 12:end]] = count
-            i = text.index(">", end) + 1
-            continue
-        if text[i] == "<":
-            i = text.index(">", i) + 1
-            continue
-        count += 1
-        i += 1
-    total = max(1, count)
-    return {name: before / total for name, before in plain_before.items()}
+    """Each mark's place in the speech as the share of the text's characters before it (the SSML is ours:
+    agent/bml/speech_text.py writes it, escaped, with a <mark name/> at each sync mark)."""
+    speak = ElementTree.fromstring(params.ssml)
+    before: dict[str, int] = {}
+    count = len(speak.text or "")
+    for element in speak:
+        if element.tag == "mark":
+            before[element.get("name", "")] = count
+        count += len(element.text or "") + len(element.tail or "")
+    return {name: chars / max(1, count) for name, chars in before.items()}
