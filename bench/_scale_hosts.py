@@ -51,10 +51,10 @@ def _progress(line: str) -> None:
 
 def _server_ticks(pids: Sequence[int]) -> int:
     """CPU ticks (user + system) of every process in the trees of `pids` (the hosts' `eca up` supervisors)."""
-    from bench.conversations import proc_table, tree
+    from bench.procs import descendants, proc_table
 
     table = proc_table()
-    return sum(table[p][1] for root in pids for p in tree(root, table))
+    return sum(table[p].own_ticks for root in pids for p in descendants(root, table))
 
 
 def _health(url: str) -> dict[str, Any]:

@@ -33,6 +33,8 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from bench.procs import cpu_seconds, descendants, pss_mib  # noqa: E402
+
 AGENT = "ada"
 WIDTH, HEIGHT, FPS = 320, 240, 15.0  # what the mountpoint carries and what direct viewers ask
 TOKEN = "bench-scale-token"
@@ -110,36 +112,6 @@ async def _worker(mode: str, target: str, mountpoint: int, count: int, thumbs: b
 # --- the instance ---------------------------------------------------------------------------------------------
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
-
-
-def pss_mib(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
-        if line.startswith("Pss:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
-def tree(pid: int) -> list[int]:
-    """`pid` and its descendants (the supervisor and its services)."""
-    children: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            children.setdefault(ppid, []).append(int(entry.name))
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        out.append(p)
-        todo += children.get(p, [])
-    return out
-
-
 class Viewers:
     """Viewer processes on the viewer host: `count` viewers in all, watching one way."""
 
@@ -202,7 +174,7 @@ def measure(net: Any, mode: str, target: str, mountpoint: int, count: int, up_pi
     try:
         ready = viewers.wait_ready()
         time.sleep(SETTLE_S)
-        pids = tree(up_pid)
+        pids = descendants(up_pid)
         before = {p: cpu_seconds(p) for p in pids}
         began = time.monotonic()
         viewers.say("mark")

@@ -89,6 +89,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from bench.procs import MEMORY_KINDS, descendants, eca_label, memory_kib, proc_table  # noqa: E402
 from bench.report import Report, run_guarded  # noqa: E402
 from eca.services.tools.child_processes import LineReader, eca_command, subprocess_env  # noqa: E402
 
@@ -114,62 +115,6 @@ def progress(line: str) -> None:
 
 
 # --- /proc ------------------------------------------------------------------------------------------------
-
-
-def proc_table() -> dict[int, tuple[int, int]]:
-    """Every process: pid -> (parent pid, utime + stime in clock ticks)."""
-    table = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        table[int(entry.name)] = (int(fields[1]), int(fields[11]) + int(fields[12]))
-    return table
-
-
-def tree(root: int, table: dict[int, tuple[int, int]]) -> list[int]:
-    """The root and every descendant."""
-    children: dict[int, list[int]] = {}
-    for pid, (ppid, _) in table.items():
-        children.setdefault(ppid, []).append(pid)
-    out, todo = [], [root]
-    while todo:
-        pid = todo.pop()
-        if pid in table:
-            out.append(pid)
-            todo.extend(children.get(pid, []))
-    return out
-
-
-def label_of(pid: int, root: int) -> str:
-    if pid == root:
-        return "supervisor"
-    try:
-        words = [w.decode("utf-8", "replace") for w in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if w]
-    except OSError:
-        return f"pid {pid}"
-    if "eca.services.processes.run" in words:
-        at = words.index("eca.services.processes.run")
-        if at + 1 < len(words):
-            return words[at + 1]
-    return Path(words[0]).name if words else f"pid {pid}"
-
-
-def memory_kib(pid: int) -> dict[str, int]:
-    """RSS and PSS in KiB from smaps_rollup (zeros when it is gone)."""
-    try:
-        text = Path(f"/proc/{pid}/smaps_rollup").read_text()
-    except OSError:
-        return {"rss": 0, "pss": 0}
-    got = {}
-    for line in text.splitlines():
-        parts = line.split()
-        if len(parts) >= 2 and parts[0] in ("Rss:", "Pss:"):
-            got[parts[0][:-1].lower()] = int(parts[1])
-    return {"rss": got.get("rss", 0), "pss": got.get("pss", 0)}
 
 
 def machine_busy() -> tuple[int, int]:
@@ -365,7 +310,7 @@ class Helper:
 
     def cpu_s(self) -> float:
         table = proc_table()
-        return sum(table[p][1] for p in tree(self.proc.pid, table)) / os.sysconf("SC_CLK_TCK")
+        return sum(table[p].own_ticks for p in descendants(self.proc.pid, table)) / os.sysconf("SC_CLK_TCK")
 
 
 @contextmanager
@@ -513,11 +458,11 @@ def server_sample(inst: Instance) -> tuple[dict[str, float], dict[str, dict[str,
     table = proc_table()
     ticks = os.sysconf("SC_CLK_TCK")
     cpu, mem = {}, {}
-    for pid in tree(inst.proc.pid, table):
-        label = label_of(pid, inst.proc.pid)
+    for pid in descendants(inst.proc.pid, table):
+        label = eca_label(pid, inst.proc.pid)
         key = label if label not in cpu else f"{label}-{pid}"
-        cpu[key] = table[pid][1] / ticks
-        mem[key] = memory_kib(pid)
+        cpu[key] = table[pid].own_ticks / ticks
+        mem[key] = memory_kib(pid) or dict.fromkeys(MEMORY_KINDS, 0)
     return cpu, mem
 
 

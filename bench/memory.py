@@ -49,6 +49,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from bench.procs import descendants, eca_label, memory_kib  # noqa: E402
 from bench.report import Report, run_guarded  # noqa: E402
 from eca.services.tools.child_processes import eca_command, subprocess_env  # noqa: E402 (after the path is set)
 
@@ -78,74 +79,6 @@ def progress(line: str) -> None:
 
 
 # --- /proc ------------------------------------------------------------------------------------------
-
-
-def memory_kib(pid: int) -> dict[str, int] | None:
-    """RSS, PSS and USS of a process in KiB, from smaps_rollup; None when it is gone (or not ours to read)."""
-    try:
-        text = Path(f"/proc/{pid}/smaps_rollup").read_text()
-    except OSError:
-        return None
-    fields: dict[str, int] = {}
-    for line in text.splitlines():
-        parts = line.split()
-        if len(parts) >= 2 and parts[0].endswith(":") and parts[1].isdigit():
-            fields[parts[0][:-1]] = int(parts[1])
-    return {"rss": fields.get("Rss", 0), "pss": fields.get("Pss", 0),
-            "uss": fields.get("Private_Clean", 0) + fields.get("Private_Dirty", 0)}
-
-
-def children_of(pid: int) -> list[int]:
-    """The direct children of a process: psutil where installed, else a scan of /proc."""
-    try:
-        import psutil  # type: ignore[import-untyped]
-    except ImportError:
-        pass
-    else:
-        try:
-            return [c.pid for c in psutil.Process(pid).children()]
-        except psutil.Error:
-            return []
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        # The command name (field 2) may hold spaces and parentheses: the fields after its last ')' are fixed.
-        after = stat.rsplit(")", 1)[1].split()
-        if int(after[1]) == pid:
-            found.append(int(entry.name))
-    return found
-
-
-def process_tree(root: int) -> list[int]:
-    """The root and every descendant, parents first."""
-    tree, todo = [], [root]
-    while todo:
-        pid = todo.pop(0)
-        tree.append(pid)
-        todo.extend(sorted(children_of(pid)))
-    return tree
-
-
-def label_of(pid: int, root: int) -> str:
-    """'supervisor' for eca up itself, the service's name for `python -m eca.services.processes.run NAME`,
-    else the program's name."""
-    if pid == root:
-        return "supervisor"
-    try:
-        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-    except OSError:
-        return f"pid {pid}"
-    words = [w.decode("utf-8", "replace") for w in argv if w]
-    if "eca.services.processes.run" in words:
-        at = words.index("eca.services.processes.run")
-        if at + 1 < len(words):
-            return words[at + 1]
-    return Path(words[0]).name if words else f"pid {pid}"
 
 
 def packages_mapped(pid: int) -> list[str]:
@@ -210,12 +143,12 @@ class Sampled:
     def sample(self) -> None:
         now = time.monotonic()
         alive = set()
-        for pid in process_tree(self.root):
+        for pid in descendants(self.root):
             got = memory_kib(pid)
             if got is None:
                 continue
             alive.add(pid)
-            self.labels.setdefault(pid, label_of(pid, self.root))
+            self.labels.setdefault(pid, eca_label(pid, self.root))
             self.series.setdefault(pid, []).append((now, got))
         for gone in set(self.series) - alive:  # a restarted service is a new process: the old one is forgotten
             del self.series[gone]

@@ -101,6 +101,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(REPO))
 
+from bench.procs import MEMORY_KINDS, descendants, memory_kib, proc_table  # noqa: E402
 from bench.report import Report, percentile, run_guarded  # noqa: E402
 
 AGENT = "ada"
@@ -129,26 +130,8 @@ def process_cpu_s() -> float:
 
 def tree_cpu_s(root_pid: int) -> float:
     """CPU time (utime + stime) of a process and all its descendants, from /proc."""
-    ticks = os.sysconf("SC_CLK_TCK")
-    children: dict[int, list[int]] = {}
-    stats: dict[int, tuple[int, int]] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        pid = int(entry.name)
-        children.setdefault(int(fields[1]), []).append(pid)
-        stats[pid] = (int(fields[11]), int(fields[12]))
-    total, todo = 0, [root_pid]
-    while todo:
-        pid = todo.pop()
-        utime, stime = stats.get(pid, (0, 0))
-        total += utime + stime
-        todo.extend(children.get(pid, []))
-    return total / ticks
+    table = proc_table()
+    return sum(table[pid].own_ticks for pid in descendants(root_pid, table)) / os.sysconf("SC_CLK_TCK")
 
 
 # --- pipelines ----------------------------------------------------------------------------------------
@@ -620,42 +603,6 @@ if __name__ == "__main__":
 '''
 
 
-@dataclass(frozen=True)
-class ProcStat:
-    ppid: int
-    state: str
-    cpu_ticks: int  # utime + stime + cutime + cstime: its own CPU and that of the children it has reaped
-    start: int  # starttime (ticks after boot): with the pid, names the process even if the pid is reused
-
-
-def proc_table() -> dict[int, ProcStat]:
-    table: dict[int, ProcStat] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue  # gone meanwhile
-        table[int(entry.name)] = ProcStat(int(fields[1]), fields[0], sum(int(f) for f in fields[11:15]),
-                                          int(fields[19]))
-    return table
-
-
-def descendants(root: int, table: dict[int, ProcStat]) -> list[int]:
-    """`root` and every process below it (the face's `eca up`, its guard and services, espeak-ng)."""
-    children: dict[int, list[int]] = {}
-    for pid, stat in table.items():
-        children.setdefault(stat.ppid, []).append(pid)
-    tree, todo = [], [root]
-    while todo:
-        pid = todo.pop()
-        if pid in table:
-            tree.append(pid)
-            todo.extend(children.get(pid, []))
-    return tree
-
-
 def process_label(pid: int, root: int) -> str:
     """What a process of a bot's tree is, for the breakdown: the bot, or which of eca's processes."""
     if pid == root:
@@ -671,26 +618,6 @@ def process_label(pid: int, root: int) -> str:
     if "eca.services.tools.cli" in argv and "up" in argv:
         return "eca up"
     return Path(argv[0]).name or "?"
-
-
-MEMORY_KINDS = ("pss", "rss", "uss")
-
-
-def memory_kib(pid: int) -> dict[str, int]:
-    """PSS, RSS and USS of a process in KiB, from smaps_rollup. PSS splits each page among the processes
-    that map it, so the tree's sum counts the libraries its Python processes share once (and less of them
-    when other processes on the machine map the same files); USS is what the process alone holds."""
-    got = dict.fromkeys(MEMORY_KINDS, 0)
-    try:
-        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
-            key, _, rest = line.partition(":")
-            if key in ("Pss", "Rss"):
-                got[key.lower()] = int(rest.split()[0])
-            elif key in ("Private_Clean", "Private_Dirty"):
-                got["uss"] += int(rest.split()[0])
-    except OSError:
-        pass  # gone meanwhile
-    return got
 
 
 @dataclass
@@ -709,7 +636,7 @@ def tree_sample(root: int, memory: bool) -> TreeSample:
         label = process_label(pid, root)
         cpu[label] = cpu.get(label, 0) + table[pid].cpu_ticks
         if memory:
-            for kind, kib in memory_kib(pid).items():
+            for kind, kib in (memory_kib(pid) or dict.fromkeys(MEMORY_KINDS, 0)).items():
                 mem[kind][label] = mem[kind].get(label, 0) + kib
     return TreeSample(cpu, mem, len(tree))
 

@@ -152,6 +152,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from bench.procs import cpu_seconds  # noqa: E402
 from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
 from eca.services.processes.web.calibration import PATCH  # noqa: E402 (after the path is set)
 from eca.services.tools.child_processes import subprocess_env  # noqa: E402
@@ -1450,11 +1451,6 @@ def analyse_trials(commands: list[tuple[int, str]], states: list[tuple[int, str]
 
 
 # --- 3. cost per viewer ----------------------------------------------------------------------------
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
 
 
 def rss_mib(pid: int) -> float:
