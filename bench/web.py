@@ -697,6 +697,29 @@ class ClockTie:
         return page_ms + self.offset_ms
 
 
+
+class EmotionStates:
+    """The agent's emotion states as the bus publishes them, (t_ns, name) each, read while the bench waits."""
+
+    def __init__(self, ctx: Any, config: Any) -> None:
+        from eca.protocol.bus import Subscriber
+
+        self.sub = Subscriber(ctx, config, [f"state.{AGENT}.emotion"])
+        self.sub.wait_ready()
+        self.seen: list[tuple[int, str]] = []
+
+    def listen(self, left_s: float) -> None:
+        from eca.protocol.messages import EmotionState
+
+        got = self.sub.recv(left_s)
+        while got is not None:
+            if isinstance(got.message, EmotionState):
+                self.seen.append((got.message.t_ns, got.message.name))
+            got = self.sub.recv(0.0)
+
+    def close(self) -> None:
+        self.sub.close()
+
 def tie_clocks(driver: Any, server: TimeServer, round_trips: int = 40) -> ClockTie:
     """The browser's time at the middle of the fastest of `round_trips` GETs, against the host's."""
     got = driver.execute_async_script(CLOCK_JS, server.url, round_trips)
@@ -1278,9 +1301,7 @@ def latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, server:
                   rng: random.Random, baselines: dict[str, float] | None, connected_ns: int) -> None:
     import zmq
 
-    from eca.protocol.bus import Subscriber
     from eca.protocol.client import AgentClient
-    from eca.protocol.messages import EmotionState
 
     details: dict[str, Any] = {}
     report.details["latency"] = details
@@ -1294,18 +1315,10 @@ def latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, server:
         progress(f"latency: the page's connection settles for {(settled_ns - time.monotonic_ns()) / 1e9:.0f} s")
         wait_until_ns(settled_ns)
     frames: list[dict[str, Any]] = []
-    states: list[tuple[int, str]] = []
     commands: list[tuple[int, str]] = []
     ctx = zmq.Context()
-    sub = Subscriber(ctx, inst.config, [f"state.{AGENT}.emotion"])
-    sub.wait_ready()
-
-    def listen(left_s: float) -> None:
-        got = sub.recv(left_s)
-        while got is not None:
-            if isinstance(got.message, EmotionState):
-                states.append((got.message.t_ns, got.message.name))
-            got = sub.recv(0.0)
+    emotions = EmotionStates(ctx, inst.config)
+    states, listen = emotions.seen, emotions.listen
 
     try:
         with AgentClient(inst.config, agent=AGENT, source="bench-web-latency", ctx=ctx) as client:
@@ -1327,7 +1340,7 @@ def latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, server:
             ties.append(tie_clocks(driver, server))
             listen(0.0)
     finally:
-        sub.close()
+        emotions.close()
         ctx.term()
     driver.execute_script("window.ecaBench.signature = false")
     tie, drift = combined_tie(ties)
@@ -2048,9 +2061,7 @@ def drawn_latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, s
                         rng: random.Random) -> None:
     import zmq
 
-    from eca.protocol.bus import Subscriber
     from eca.protocol.client import AgentClient
-    from eca.protocol.messages import EmotionState
     from tests.support.browser import wait_for
 
     details: dict[str, Any] = {}
@@ -2061,18 +2072,10 @@ def drawn_latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, s
     driver.execute_script("window.ecaBench.signature = true")
     time.sleep(DRAWN_SETTLE_S)  # the face's frames flow, its first frames drawn
     taken = Taken()
-    states: list[tuple[int, str]] = []
     commands: list[tuple[int, str]] = []
     ctx = zmq.Context()
-    sub = Subscriber(ctx, inst.config, [f"state.{AGENT}.emotion"])
-    sub.wait_ready()
-
-    def listen(left_s: float) -> None:
-        got = sub.recv(left_s)
-        while got is not None:
-            if isinstance(got.message, EmotionState):
-                states.append((got.message.t_ns, got.message.name))
-            got = sub.recv(0.0)
+    emotions = EmotionStates(ctx, inst.config)
+    states, listen = emotions.seen, emotions.listen
 
     try:
         with AgentClient(inst.config, agent=AGENT, source="bench-web-drawn-latency", ctx=ctx) as client:
@@ -2093,7 +2096,7 @@ def drawn_latency_phase(args: argparse.Namespace, inst: Instance, driver: Any, s
             ties.append(tie_clocks(driver, server))
             listen(0.0)
     finally:
-        sub.close()
+        emotions.close()
         ctx.term()
     driver.execute_script(CLOSE_DRAWN_JS)
     tie, drift = combined_tie(ties)
