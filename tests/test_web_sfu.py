@@ -147,7 +147,7 @@ def test_a_viewer_through_janus_sees_and_hears_the_face_and_its_change(network: 
         proc = watch_from(network["viewer"], janus.url, info["mountpoint"], 7.0)
         # Janus asks for a keyframe (PLI) as the viewer starts: that is when it watches
         assert wait_until(lambda: mp.keyframe_requests > requests, 20.0), "Janus never asked for a keyframe"
-        time.sleep(2.0)
+        time.sleep(2.0)  # a baseline: two seconds of the face before the change (the viewer reports at its end)
         speak_tone(audio, 1.0)
         changed_at = time.time()
         dialogue.publish(EmotionState(agent="ada", name="surprised", transition_s=0.0))
@@ -182,7 +182,7 @@ def test_five_viewers_through_janus_cost_eca_one_stream(network: Network, janus:
     assert wait_until(lambda: mp.viewers == 5, 20.0), f"Janus counts {mp.viewers} viewers"
     assert mp.video is not None
     pictures, encoded, packets, began = mp.pictures, stream.encoded, mp.video.packets, time.monotonic()
-    time.sleep(3.0)
+    time.sleep(3.0)  # the window the counters are compared over
     elapsed = time.monotonic() - began
     sent = mp.pictures - pictures
     sent_packets = mp.video.packets - packets
