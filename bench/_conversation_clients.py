@@ -233,57 +233,69 @@ async def arrive(session: aiohttp.ClientSession, args: argparse.Namespace, index
 def voice_stats(received: Received, t0: float, t1: float, gap_s: float, silence_bytes: int,
                 split_packets: int, lags: np.ndarray) -> dict[str, Any]:
     """The voice between t0 and t1: arrival gaps, RTP timestamp jumps, lost packets, and its sounding runs (the
-    agent's turns): each run's packets that sound and the silent ones inside it (holes: samples missing).
+    agent's turns): each run's packets that sound and the frames inside it that are silent or missing (holes).
+
+    A voice may pause in silence (the server skips silent frames for a page that draws the face: its RTP
+    timestamps then jump by whole frames): everything is judged on the RTP clock. A gap is a packet that
+    arrived more than `gap_s - 20 ms` later than its RTP time after the one before it says (for a voice that
+    never pauses: packets over `gap_s` apart); a jump is a timestamp step that is not a whole number of frames,
+    or fewer frames than packets; a run ends at `split_packets` frames of silence, sent or skipped.
 
     A gap during which this process's own loop stalled (a tick of `lags`, (time, lateness) rows, ending within
     it or just after it, late by at least half the gap) is counted apart: the packets may have been on time."""
     rows = [p for p in received.packets if t0 <= p[0] <= t1]
     out: dict[str, Any] = {"packets": len(rows), "gaps": 0, "gaps_client_stalled": 0, "max_gap_ms": 0.0,
-                           "max_gap_client_on_time_ms": 0.0, "ts_jumps": 0, "lost": 0, "runs": []}
+                           "max_gap_client_on_time_ms": 0.0, "ts_jumps": 0, "lost": 0, "runs": [],
+                           "skipped_frames": 0}
     if len(rows) < 2:
         return out
     arrivals = np.array([r[0] for r in rows])
-    steps = np.diff(arrivals)
-    out["gaps"] = int(np.sum(steps > gap_s))
-    out["max_gap_ms"] = round(float(steps.max()) * 1e3, 1)
-    on_time = 0.0
-    for i in np.flatnonzero(steps > gap_s).tolist():
-        a, b = float(arrivals[i]), float(arrivals[i + 1])
-        near = lags[(lags[:, 0] >= a) & (lags[:, 0] <= b + 0.1), 1] if lags.size else np.empty(0)
-        if near.size and near.max() >= 0.5 * (b - a):
-            out["gaps_client_stalled"] += 1
-        else:
-            on_time = max(on_time, b - a)
-    out["max_gap_client_on_time_ms"] = round(on_time * 1e3, 1)
     ts = np.array([r[1] for r in rows], dtype=np.int64)
     seq = np.array([r[2] for r in rows], dtype=np.int64)
     ts_steps = (np.diff(ts) + (1 << 32)) % (1 << 32)
     seq_steps = (np.diff(seq) + (1 << 16)) % (1 << 16)
-    out["ts_jumps"] = int(np.sum(ts_steps != OPUS_FRAME * np.maximum(seq_steps, 1)))
+    frame_steps = ts_steps // OPUS_FRAME
+    late = np.diff(arrivals) - ts_steps / OPUS_RATE  # how much later than its RTP time after the one before
+    is_gap = late > gap_s - OPUS_FRAME / OPUS_RATE
+    out["gaps"] = int(np.sum(is_gap))
+    out["max_gap_ms"] = round(float(late.max() + OPUS_FRAME / OPUS_RATE) * 1e3, 1)
+    on_time = 0.0
+    for i in np.flatnonzero(is_gap).tolist():
+        a, b = float(arrivals[i]), float(arrivals[i + 1])
+        near = lags[(lags[:, 0] >= a) & (lags[:, 0] <= b + 0.1), 1] if lags.size else np.empty(0)
+        if near.size and near.max() >= 0.5 * float(late[i]):
+            out["gaps_client_stalled"] += 1
+        else:
+            on_time = max(on_time, float(late[i]) + OPUS_FRAME / OPUS_RATE)
+    out["max_gap_client_on_time_ms"] = round(on_time * 1e3, 1)
+    out["ts_jumps"] = int(np.sum((ts_steps % OPUS_FRAME != 0) | (frame_steps < np.maximum(seq_steps, 1))))
     out["lost"] = int(np.sum(np.maximum(seq_steps - 1, 0)))
-    sounding = [r[3] > silence_bytes for r in rows]
+    out["skipped_frames"] = int(np.sum(np.maximum(frame_steps - np.maximum(seq_steps, 1), 0)))
+    # each packet's frame number on the RTP clock; a frame with no packet is silence (skipped or lost)
+    frames = np.concatenate(([0], np.cumsum(frame_steps)))
     runs: list[tuple[int, int, int, int]] = []
     start: int | None = None
-    last, holes, count, quiet = 0, 0, 0, 0
-    for i, loud in enumerate(sounding):
-        if loud:
-            if start is None:
-                start, holes, count = i, 0, 0
-            else:
-                holes += quiet
-            count += 1
-            last, quiet = i, 0
-        elif start is not None:
-            quiet += 1
-            if quiet >= split_packets:
-                runs.append((start, last, count, holes))
-                start = None
-    if start is not None:
+    last, holes, count = 0, 0, 0
+    for i, row in enumerate(rows):
+        if row[3] <= silence_bytes:
+            continue
+        if start is not None and frames[i] - frames[last] - 1 >= split_packets:
+            runs.append((start, last, count, holes))
+            start = None
+        if start is None:
+            start, holes, count = i, 0, 0
+        else:
+            holes += int(frames[i] - frames[last] - 1)  # silent frames, sent or not, inside the run
+        count += 1
+        last = i
+    # a run touching the window's edges is cut: only whole runs are judged, those that began and ended (a
+    # silence of `split_packets` frames, sent or not) inside it
+    edge_s = split_packets * OPUS_FRAME / OPUS_RATE + 0.1
+    if start is not None and t1 - float(arrivals[last]) >= edge_s:
         runs.append((start, last, count, holes))
-    # a run touching the window's edges is cut: only whole runs are judged
     out["runs"] = [{"t": round(float(arrivals[a]), 3), "sounding": c, "holes": h,
                     "span_ms": round(float((int(ts[b]) - int(ts[a])) % (1 << 32)) / OPUS_RATE * 1e3 + 20, 1)}
-                   for a, b, c, h in runs if a >= split_packets and b < len(rows) - split_packets]
+                   for a, b, c, h in runs if float(arrivals[a]) - t0 >= edge_s]
     return out
 
 

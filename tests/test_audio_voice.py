@@ -1,7 +1,7 @@
-"""The agent's voice as a stream: every block the output takes, as the player reports it (fake sink,
-virtual clock: exactly the samples played, in order, on the sink's DAC times) and as the audio service
-publishes it on `stream.<agent>.voice` (null sink paced by the monotonic clock, a subscriber that
-reassembles the track)."""
+"""The agent's voice as a stream: every block the output takes that sounds, as the player reports it (fake sink,
+virtual clock: exactly the samples played, in order, on the sink's DAC times, silence the gaps that
+`first_sample` leaves) and as the audio service publishes it on `stream.<agent>.voice` (null sink paced by the
+monotonic clock, a subscriber that reassembles the track)."""
 
 from __future__ import annotations
 
@@ -61,8 +61,13 @@ def noise(seconds: float, sr: int = SR, seed: int = 0) -> np.ndarray:
     return (0.3 * np.random.default_rng(seed).uniform(-1, 1, round(seconds * sr))).astype(np.float32)
 
 
-def silent(block: int) -> bytes:
-    return bytes(2 * block)
+def track_of(blocks: list[PlayerVoiceBlock] | list[VoiceBlock], samples: int) -> bytes:
+    """The track the blocks make: each at its `first_sample`, silence where none is."""
+    out = bytearray(2 * samples)
+    for b in blocks:
+        end = min(samples, b.first_sample + len(b.pcm) // 2)
+        out[2 * b.first_sample : 2 * end] = b.pcm[: 2 * (end - b.first_sample)]
+    return bytes(out)
 
 
 def test_pcm16_bytes_scales_rounds_and_clips() -> None:
@@ -89,21 +94,23 @@ def test_voice_blocks_are_the_sink_output_in_order_on_its_dac_times(sr: int, blo
     spans = {"a": (0, len(a)), "b": (len(a), len(a) + len(b)), "c": (c_start, c_start + len(c))}
 
     voice = rig.voice()
-    assert len(voice) == rig.sink.blocks_played
-    assert b"".join(v.pcm for v in voice) == pcm16_bytes(out)  # what the sink played: no gap, no repeat
-    for k, v in enumerate(voice):
-        assert v.agent == "ada" and v.sample_rate == sr
+    played = rig.sink.blocks_played
+    sounding = [k for k in range(played) if out[k * block : (k + 1) * block].any()]
+    assert 0 < len(sounding) < played  # the layout has silence between b and c, and after c
+    assert [v.first_sample // block for v in voice] == sounding  # every block that sounds, once, in order
+    assert track_of(voice, played * block) == pcm16_bytes(out)  # what the sink played, silence in the gaps
+    for v in voice:
+        k = v.first_sample // block
+        assert v.agent == "ada" and v.sample_rate == sr and len(v.pcm) == 2 * block
         assert v.first_sample == k * block
         assert v.dac_time_ns == rig.sink.block_time_ns(k) + rig.sink.latency_ns
         start = v.first_sample
         expected_uid = next((uid for uid, (lo, hi) in spans.items() if lo <= start < hi), "")
         assert v.request_id == expected_uid, k
-        if expected_uid == "":
-            assert v.pcm == silent(block)
-    steps = np.diff([v.dac_time_ns for v in voice])
+    steps = np.diff([v.dac_time_ns for v in voice if v.request_id == "a"])
     exact = block * 1e9 / sr
     assert np.all(np.abs(steps - exact) < 1.0)  # the block length, to the ns rounding of the stamps
-    assert voice[len(a) // block].request_id == "a"  # the block where b begins, inside it, is a's
+    assert next(v for v in voice if v.first_sample == len(a) // block * block).request_id == "a"  # where b begins
     for uid in ("a", "c"):  # those that start on a block boundary: their first block is their start
         started = next(e for e in rig.events if isinstance(e, PlayerStarted) and e.request_id == uid)
         first = next(v for v in voice if v.request_id == uid)
@@ -121,7 +128,7 @@ def test_int16_pcm_comes_back_bit_exact() -> None:
     assert track[: 2 * len(pcm)] == pcm.astype("<i2").tobytes()
 
 
-def test_after_a_barge_in_the_blocks_are_silence_from_the_block_where_the_voice_stopped() -> None:
+def test_after_a_barge_in_no_block_comes_from_the_block_where_the_voice_stopped() -> None:
     rig = Rig()
     x = noise(2.0)
     rig.player.say_pcm("long", x, SR)
@@ -129,12 +136,16 @@ def test_after_a_barge_in_the_blocks_are_silence_from_the_block_where_the_voice_
     rig.sink.advance(37)
     assert rig.player.interrupt() == ["long", "queued"]
     rig.sink.advance(5)
+    y = noise(0.05, seed=2)
+    rig.player.say_pcm("after", y, SR)
+    rig.run_until_idle()
     voice = rig.voice()
-    assert [v.request_id for v in voice] == ["long"] * 37 + [""] * 5
+    assert [v.request_id for v in voice] == ["long"] * 37 + ["after"] * 5
     assert b"".join(v.pcm for v in voice[:37]) == pcm16_bytes(x[: 37 * BLOCK])
-    assert all(v.pcm == silent(BLOCK) for v in voice[37:])
+    assert voice[37].first_sample == 42 * BLOCK  # the five silent blocks: a gap, no block
+    assert b"".join(v.pcm for v in voice[37:])[: 2 * len(y)] == pcm16_bytes(y)
     (cut,) = [e for e in rig.events if isinstance(e, PlayerInterrupted) and e.request_id == "long"]
-    assert cut.dac_time_ns == voice[37].dac_time_ns  # the voice stops where the silent blocks begin
+    assert cut.dac_time_ns == rig.sink.block_time_ns(37)  # the voice stops where the gap begins
 
 
 def test_interrupting_one_utterance_goes_straight_to_the_next_in_the_blocks() -> None:
@@ -223,22 +234,18 @@ class VoiceListener:
 
 
 def check_one_track(blocks: list[VoiceBlock]) -> None:
-    """Consecutive blocks continue each other: first sample and DAC time advance by the block length."""
+    """Consecutive blocks (the voice of one say) continue each other: first sample and DAC time advance by the
+    block length, and each sounds."""
     for prev, block in zip(blocks, blocks[1:], strict=False):
         n = len(prev.pcm) // 2
         assert block.first_sample == prev.first_sample + n, "a dropped or repeated block"
         assert block.dac_time_ns - prev.dac_time_ns == n * 1_000_000_000 // SR
         assert block.sample_rate == SR and block.agent == "ada" and block.source == "audio"
+    assert all(any(b.pcm) for b in blocks)
 
 
-def said_then_silent(rid: str, silent_after: int) -> Callable[[list[VoiceBlock]], bool]:
-    def done(blocks: list[VoiceBlock]) -> bool:
-        ids = [b.request_id for b in blocks]
-        if rid not in ids:
-            return False
-        last = len(ids) - 1 - ids[::-1].index(rid)
-        return len(ids) - 1 - last >= silent_after
-    return done
+def said(rid: str) -> Callable[[list[VoiceBlock]], bool]:
+    return lambda blocks: any(b.request_id == rid for b in blocks)
 
 
 @pytest.fixture
@@ -259,27 +266,31 @@ def bus(request: pytest.FixtureRequest) -> Iterator[tuple[AgentClient, VoiceList
 
 def test_the_service_publishes_the_voice_at_the_block_rate_and_a_say_sample_exact(bus) -> None:
     client, voice = bus
-    voice.until(lambda blocks: len(blocks) >= 30, 10.0)  # silence before the say
+    # the output has been taking silent blocks since the service started: none of them comes
     pcm = tone(0.6123)
+    expected = at_device_rate(pcm)
+    n_blocks = -(-len(expected) // (2 * BLOCK))
     rid = client.say(pcm=pcm, sample_rate=RATE)
-    blocks = voice.until(said_then_silent(rid, 10), 10.0)
-    check_one_track(blocks)
+    voice.until(lambda blocks: len(blocks) >= n_blocks, 10.0)  # read as they come: their arrival times count
+    done = client.wait_for_speech(rid, 10.0)
+    marker = client.say(pcm=tone(0.05), sample_rate=RATE)  # after the say and the silence that follows it
+    blocks = voice.until(said(marker), 10.0)
     ids = [b.request_id for b in blocks]
     start = ids.index(rid)
-    assert set(ids[:30]) == {""} and all(b.pcm == silent(BLOCK) for b in blocks[:30])
-    expected = at_device_rate(pcm)
+    blocks, after = blocks[:ids.index(marker)], blocks[ids.index(marker)]
+    assert start == 0, "a block came before the say: silence was sent"
+    check_one_track(blocks)
     track = b"".join(b.pcm for b in blocks[start:])
     assert track[: len(expected)] == expected  # every sample of the say, once, in order
-    assert not any(track[len(expected):])  # then silence
-    n_blocks = -(-len(expected) // (2 * BLOCK))
-    assert ids[start:] == [rid] * n_blocks + [""] * (len(ids) - start - n_blocks)
-    done = client.wait_for_speech(rid, 10.0)
+    assert not any(track[len(expected):])  # the rest of its last block is silence
+    assert ids[start:len(blocks)] == [rid] * n_blocks  # then no block until the next say
+    assert after.first_sample >= blocks[-1].first_sample + BLOCK  # any silence between is a gap in the count
     assert isinstance(done, SpeechFinished) and round(done.played_s * SR) == len(expected) // 2
     # The track comes at the block rate (100 per second), live: blocks arrive as fast as their DAC times advance
     # (a Theil-Sen slope, which a stall of a loaded machine does not tilt), shortly after them (a null sink
     # takes each block at its DAC time; the publisher and the service loop pass it on within milliseconds).
-    received_s = np.array(voice.received_ns) / 1e9
-    dac_s = np.array([b.dac_time_ns for b in blocks]) / 1e9
+    received_s = np.array(voice.received_ns[:n_blocks]) / 1e9
+    dac_s = np.array([b.dac_time_ns for b in blocks[:n_blocks]]) / 1e9
     assert stats.theilslopes(received_s, dac_s)[0] == pytest.approx(1.0, abs=0.1)
     assert 0.0 < np.median(received_s - dac_s) < 0.2
     # The clock anchors put the say's samples on the blocks' time line: sample k at the DAC with the block's.
@@ -296,15 +307,14 @@ def test_an_interruption_on_the_bus_leaves_silence_from_where_the_voice_stopped(
     client.interrupt(reason="barge-in")
     done = client.wait_for_speech(rid, 5.0)
     assert isinstance(done, SpeechInterrupted)
-    blocks = voice.until(said_then_silent(rid, 10), 10.0)
+    marker = client.say(pcm=tone(0.05), sample_rate=RATE)
+    blocks = voice.until(said(marker), 10.0)
+    blocks = blocks[:[b.request_id for b in blocks].index(marker)]
     check_one_track(blocks)
-    ids = [b.request_id for b in blocks]
-    start = ids.index(rid)
     played = round(done.played_s * SR)
-    assert ids[start:] == [rid] * (played // BLOCK) + [""] * (len(ids) - start - played // BLOCK)
-    track = b"".join(b.pcm for b in blocks[start:])
+    assert [b.request_id for b in blocks] == [rid] * (played // BLOCK)  # no block from where the voice stopped
+    track = b"".join(b.pcm for b in blocks)
     assert track[: 2 * played] == at_device_rate(pcm)[: 2 * played]
-    assert not any(track[2 * played:])  # silence from the block where the voice stopped
 
 
 @pytest.mark.parametrize("bus", [False], indirect=True)

@@ -250,6 +250,7 @@ def test_a_removed_agent_ends_its_say_once_and_leaves_nothing_behind(config: Bus
         assert page.wait_for_speech(rid, 1.0) == endings[0]  # what the agent's own client got: the same one
         # its streams stop while the others' go on
         stopped(eyes, "page-r", "ada")
+        ada.say(pcm=say_pcm(2.0), sample_rate=16_000)  # the witness's voice: only a voice that sounds is sent
         stopped(voice, "page-r", "ada")
         # the list no longer names it, and the broker holds nothing of it
         assert "page-r" not in agents_state(config).agents

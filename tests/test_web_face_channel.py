@@ -15,7 +15,9 @@ from typing import Any
 import aiohttp
 import numpy as np
 import pytest
+import zmq
 
+from eca.protocol.bus import Publisher
 from eca.protocol.endpoints import BusConfig
 from eca.services.processes.avatar.loader import DEFAULT_HEAD
 from eca.services.processes.runtime import wait_until
@@ -23,7 +25,7 @@ from eca.services.processes.web.browser_face import FrameLayout, unpack
 from eca.services.processes.web.options import WebOptions
 from eca.services.processes.web.service import WebService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
-from tests.support.web_client import FaceClient, post
+from tests.support.web_client import FaceClient, post, speak_tone
 
 pytestmark = pytest.mark.skipif(not DEFAULT_HEAD.exists(), reason="the default head is not baked")
 
@@ -47,20 +49,30 @@ def rss_mb() -> float:
 
 
 def test_frames_come_whole_at_the_rate_asked_with_the_voice_clock(web: tuple[BusConfig, WebService]) -> None:
-    _config, service = web
+    config, service = web
     url = f"http://127.0.0.1:{service.port}/"
+    ctx = zmq.Context()
+    pub = Publisher(ctx, config, "audio")
+    pub.wait_ready()
 
     async def main() -> FaceClient:
         client = FaceClient(url, ["ada"], fps=15.0)
         await client.connect()
         await client.wait_for_frames("ada", 10, 15.0)
+        # the agent is silent: its voice pauses, so no packet has gone out and no clock is reported yet
+        client.clocks_in_silence = len(client.frames_of("ada", kind=2))  # type: ignore[attr-defined]
+        speak_tone(pub, 1.9)  # within what a voice feed holds ahead (2 s)
         start = len(client.frames_of("ada"))
-        await asyncio.sleep(2.0)  # counting frames over a span
+        await asyncio.sleep(2.0)  # counting frames and clock reports over a span while the agent speaks
         client.counted = len(client.frames_of("ada")) - start  # type: ignore[attr-defined]
         await client.pc.close()
         return client
 
-    client = asyncio.run(main())
+    try:
+        client = asyncio.run(main())
+    finally:
+        pub.close()
+        ctx.term()
     description = client.faces["ada"]
     assert description["url"].startswith("avatars/") and description["format"] == "gltf"
     layout = layout_of(description)
@@ -76,8 +88,9 @@ def test_frames_come_whole_at_the_rate_asked_with_the_voice_clock(web: tuple[Bus
     for _slot, _flags, _seq, _t, weights, quats in frames:
         assert weights.min() >= 0.0 and weights.max() <= 1.0
         assert np.allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-3)
+    assert client.clocks_in_silence == 0  # type: ignore[attr-defined]
     clocks = client.frames_of("ada", kind=2)
-    assert len(clocks) >= 4  # a few voice-clock reports a second
+    assert len(clocks) >= 4  # a few voice-clock reports a second once the voice sounds
 
 
 def test_the_avatar_routes_serve_the_avatar_and_nothing_beside_it(web: tuple[BusConfig, WebService]) -> None:

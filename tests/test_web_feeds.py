@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
+import av
 import numpy as np
 import pytest
 
@@ -70,3 +71,27 @@ def test_the_voice_track_sends_each_frame_when_it_is_due_with_the_samples_of_the
     frames = asyncio.run(main())
     assert np.array_equal(np.concatenate(frames[:2]), played[:1920])  # continuous, no gap, no repeat
     assert np.array_equal(frames[2][:480], played[1920:]) and not frames[2][480:].any()  # then silence
+
+
+def test_a_voice_that_pauses_in_silence_sends_only_the_frames_that_sound_stamped_on_the_clock() -> None:
+    clock = VirtualClock(1_000_000_000)
+    feed = VoiceFeed(RATE)
+    blocks(feed, 1_000_000_000, 5)  # 0-50 ms sounds
+    blocks(feed, 1_200_000_000, 4, first_value=100)  # and 200-240 ms
+
+    async def main() -> list[av.Packet]:
+        track = VoiceTrack(feed, clock, pause_in_silence=True)
+        out = [await track.recv()]
+        clock.advance_ns(1_000_000_000)  # every later frame is due: none waits
+        while len(out) < 5:
+            out.append(await track.recv())
+        assert track.skipped == 7  # 60-200 ms: seven silent frames, none sent
+        return out
+
+    packets = asyncio.run(main())
+    assert all(isinstance(p, av.Packet) for p in packets)
+    # RTP time (48 kHz) of each packet: the frame's place on the clock, the silence jumped over
+    assert [p.pts for p in packets] == [0, 960, 1920, 9600, 10560]
+    decoder = av.CodecContext.create("libopus", "r")
+    decoded = [f.to_ndarray() for p in packets for f in decoder.decode(p)]
+    assert len(decoded) == 5 and all(np.abs(d).max() > 0 for d in decoded)

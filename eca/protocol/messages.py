@@ -666,7 +666,8 @@ MAX_AUDIO_BLOCK_BYTES = 65_536  # a voice or microphone block: 10-20 ms of mono 
 class VoiceBlock(Message):
     """A block of the agent's voice as the audio service hands it to its output, published for outputs in
     other processes (the web service's audio track): the samples that reach the output at `dac_time_ns`
-    on the master clock, silence included, so the blocks form one continuous track."""
+    on the master clock. A block of pure silence is not sent: `first_sample` counts it, so the blocks lie on
+    one track with silence in the gaps."""
 
     TYPE = "voice"
     CATEGORY = "stream"

@@ -71,7 +71,7 @@ class PlayerMouthReset:
 
 @dataclass(frozen=True, slots=True)
 class PlayerVoiceBlock:
-    """One block exactly as the output took it, silence included: consecutive blocks form one track."""
+    """One block exactly as the output took it, when it sounds: `first_sample` counts the silent blocks left out."""
 
     agent: str
     request_id: str  # the utterance whose sample starts the block; "" when it starts in silence

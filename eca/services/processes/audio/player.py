@@ -245,9 +245,9 @@ class Player:
     PlayerFinished, PlayerInterrupted, PlayerFailed, in queue order. Utterance ids must be unique among
     the requests still in flight (a repeat raises ValueError).
 
-    With `publish_voice`, every block the sink takes, silence included, is also reported as a PlayerVoiceBlock,
-    in order, after the lifecycle events of that block: one continuous track for outputs in other
-    processes.
+    With `publish_voice`, every block the sink takes that sounds is also reported as a PlayerVoiceBlock, in
+    order, after the lifecycle events of that block: one track for outputs in other processes, on which a
+    block of pure silence is the gap its successor's `first_sample` leaves.
     """
 
     def __init__(self, sink: Sink, on_event: Callable[[AudioEvent], None], *, agent_id: str = "agent",
@@ -292,13 +292,17 @@ class Player:
         self._started = True
         self._stop.clear()
         if self.sink.realtime:
-            self.sink.start(self._render, None)
+            # a sink whose thread is not a sound card's callback (the silent one) runs the publisher step itself,
+            # after each block: no thread of its own per agent
+            drives = getattr(self.sink, "drives_publisher", False)
+            self.sink.start(self._render, self.pump if drives else None)
             self._preparer = threading.Thread(target=self._prepare_loop, name=f"audio-preparer-{self.agent_id}",
                                               daemon=True)
             self._preparer.start()
-            self._publisher = threading.Thread(target=self._publish_loop, name=f"audio-publisher-{self.agent_id}",
-                                               daemon=True)
-            self._publisher.start()
+            if not drives:
+                self._publisher = threading.Thread(target=self._publish_loop,
+                                                   name=f"audio-publisher-{self.agent_id}", daemon=True)
+                self._publisher.start()
         else:
             self.sink.start(self._render_driven, self.pump)
         return self
@@ -607,7 +611,9 @@ class Player:
         if pos < n:
             out[pos:] = 0.0
         if self._publish_voice:
-            records.append((_VOICE, out.copy(), first_uid))  # a copy: the sink fills `out` again next block
+            # a copy (the sink fills `out` again next block), and only of a block that sounds: silence is the gap
+            # between blocks, so a listening agent costs the bus and its outputs nothing
+            records.append((_VOICE, out.copy() if out.any() else None, first_uid, n))
 
     # ------------------------------------------------------------------ the publisher
 
@@ -632,9 +638,10 @@ class Player:
                 continue
             if kind == _VOICE:  # the block's last record: its _BUFFER set the DAC time above
                 block = rec[1]
-                emit(PlayerVoiceBlock(self.agent_id, rec[2], self._voice_sample, sr, self._buffer_dac_ns,
-                                pcm16_bytes(block)))
-                self._voice_sample += len(block)
+                if block is not None:
+                    emit(PlayerVoiceBlock(self.agent_id, rec[2], self._voice_sample, sr, self._buffer_dac_ns,
+                                          pcm16_bytes(block)))
+                self._voice_sample += rec[3]
                 continue
             track: _Track = rec[1]
             dac_ns = self._buffer_dac_ns + (rec[3] * 1_000_000_000) // sr

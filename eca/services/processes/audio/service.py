@@ -7,11 +7,11 @@ them. The player reports from its own publisher thread; zmq sockets must stay on
 events go through a queue that this service's loop (ticking at 250 Hz) drains and publishes, a few
 milliseconds' worth per tick: lifecycle on `audio.` (the dialogue service re-publishes it once per
 request), clock anchors and mouth keys on `stream.`, and, with `[output] publish_voice` in
-configs/audio.toml, the voice itself on `stream.<agent>.voice`: every block the output takes, silence
-included (100 per second per agent by default), for outputs in other processes such as the web
-service's audio track. They come from the player like the other events, so they share the master clock:
-a block's `dac_time_ns` is the time the clock anchors give its first sample, and an interruption shows
-as silence from the block where the voice stopped.
+configs/audio.toml, the voice itself on `stream.<agent>.voice`: every block the output takes that sounds
+(100 per second per speaking agent by default; silence is the gap between blocks), for outputs in other
+processes such as the web service's audio track. They come from the player like the other events, so they
+share the master clock: a block's `dac_time_ns` is the time the clock anchors give its first sample, and
+an interruption shows as silence (no block) from the block where the voice stopped.
 
 Agents created at run time (`state.*.agents`) get a player like the configured ones when the list names them,
 and lose it (their voice stopped, its threads and output closed) when it no longer does. The service hears

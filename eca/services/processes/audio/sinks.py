@@ -10,17 +10,17 @@ first sample reaches the DAC. That conversion happens outside the callback.
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
 
 from eca.agent.clock import Clock, MonotonicClock, VirtualClock
+from eca.services.processes.audio.pacer import BlockPacer, PacedOutput, RenderFn, pacer_for
 
 log = logging.getLogger(__name__)
 
-RenderFn = Callable[[np.ndarray, Any], None]
+__all__ = ["FakeSink", "NullSink", "RenderFn", "Sink"]
 
 
 class Sink(Protocol):
@@ -94,9 +94,12 @@ class FakeSink:
 
 
 class NullSink:
-    """No sound device: a thread pulls blocks paced by the monotonic clock, so timing stays real."""
+    """No sound device: blocks pulled on the clock, so timing stays real. Every NullSink of a process with the
+    same clock and block length shares one pacing thread (pacer.py), which also runs each output's publisher
+    step after its block (`drives_publisher`): an added agent costs its own work, not two threads' wake-ups."""
 
     realtime = True
+    drives_publisher = True
 
     def __init__(self, sample_rate: int = 48_000, block_frames: int = 480, clock: Clock | None = None,
                  latency_s: float = 0.0) -> None:
@@ -104,36 +107,19 @@ class NullSink:
         self.block_frames = int(block_frames)
         self.clock = clock if clock is not None else MonotonicClock()
         self.latency_ns = round(latency_s * 1e9)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._output: PacedOutput | None = None
+        self._pacer: BlockPacer | None = None
 
     def start(self, render: RenderFn, on_block: Callable[[], None] | None = None) -> None:
-        if self._thread is not None:
+        if self._output is not None:
             raise RuntimeError("NullSink already started")
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, args=(render, on_block), name="null-sink",
-                                        daemon=True)
-        self._thread.start()
-
-    def _run(self, render: RenderFn, on_block: Callable[[], None] | None) -> None:
-        out = np.zeros(self.block_frames, dtype=np.float32)
-        t0 = self.clock.now_ns()
-        k = 0
-        while not self._stop.is_set():
-            due = t0 + (k * self.block_frames * 1_000_000_000) // self.sample_rate
-            now = self.clock.now_ns()
-            if due > now and self._stop.wait((due - now) / 1e9):
-                break  # pacing wait: the next block is not due yet; a set stop event ends the loop
-            render(out, due + self.latency_ns)
-            k += 1
-            if on_block is not None:
-                on_block()
+        self._pacer = pacer_for(self.clock, self.sample_rate, self.block_frames)
+        self._output = self._pacer.add(render, on_block, self.latency_ns)
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        if self._output is not None and self._pacer is not None:
+            self._pacer.remove(self._output)
+        self._output = None
 
     def dac_time_ns(self, stamp: Any) -> int:
         return int(stamp)

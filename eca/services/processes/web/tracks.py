@@ -77,34 +77,86 @@ class FaceTrack(MediaStreamTrack):
             on_stop()
 
 
+class OpusFrames:
+    """A mono Opus encoder for 20 ms frames at 48 kHz (what the voice's RTP clock counts): one packet per frame,
+    stamped by the caller, so a track that skips frames keeps its timestamps on the master clock."""
+
+    RATE = 48_000
+
+    def __init__(self) -> None:
+        codec = av.CodecContext.create("libopus", "w")
+        assert isinstance(codec, av.AudioCodecContext)
+        codec.sample_rate = self.RATE
+        codec.layout = "mono"
+        codec.format = "s16"
+        codec.time_base = fractions.Fraction(1, self.RATE)
+        codec.options = {"application": "voip"}
+        self.codec = codec
+        self.time_base = fractions.Fraction(1, self.RATE)
+
+    def encode(self, samples: np.ndarray, pts: int) -> av.Packet | None:
+        """The packet of one frame of int16 samples whose first is sample `pts` of the RTP clock."""
+        frame = AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16", layout="mono")
+        frame.sample_rate = self.RATE
+        frame.pts = pts
+        frame.time_base = self.time_base
+        packets = self.codec.encode(frame)
+        if not packets:
+            return None
+        packet = av.Packet(bytes(packets[-1]))
+        packet.pts = pts
+        packet.time_base = self.time_base
+        return packet
+
+
 class VoiceTrack(MediaStreamTrack):
-    """One agent's voice in 20 ms frames, each sent when its first sample reaches the output."""
+    """One agent's voice in 20 ms frames, each sent when its first sample reaches the output.
+
+    `pause_in_silence`: a frame of pure silence is not sent at all (the voice's RTP timestamps jump over it, as
+    with Opus' discontinuous transmission; a browser's jitter buffer plays the pause as silence), so a
+    listening agent costs its connection no encoding, encryption nor packets. The track then encodes its own
+    packets (mono Opus) and stamps each with its frame's place on the master clock. For a page that draws the
+    face itself: its frames follow the voice's clock, which the jump keeps; a server-drawn face's browser lines
+    video up with a continuous voice."""
 
     kind = "audio"
 
-    def __init__(self, feed: Samples, clock: Clock) -> None:
+    def __init__(self, feed: Samples, clock: Clock, pause_in_silence: bool = False) -> None:
         super().__init__()
         self.feed, self.clock = feed, clock
         self.rate = feed.sample_rate
         self.samples_per_frame = round(self.rate * AUDIO_FRAME_S)
         self._start_ns: int | None = None
         self._frames = 0
+        if pause_in_silence and self.rate != OpusFrames.RATE:
+            raise ValueError(f"a voice that pauses in silence is encoded at {OpusFrames.RATE} Hz, not {self.rate}")
+        self._opus = OpusFrames() if pause_in_silence else None
+        self.skipped = 0  # silent frames not sent
 
     def frame_start_ns(self, k: int) -> int:
         assert self._start_ns is not None
         return self._start_ns + k * self.samples_per_frame * 1_000_000_000 // self.rate
 
-    async def recv(self) -> AudioFrame:
+    async def recv(self) -> AudioFrame | av.Packet:
         if self._start_ns is None:
             self._start_ns = self.clock.now_ns()
-        start_ns = self.frame_start_ns(self._frames)
-        wait_ns = start_ns - self.clock.now_ns()
-        if wait_ns > 0:
-            await asyncio.sleep(wait_ns / 1e9)  # pacing to the master clock, not synchronisation
-        samples = self.feed.take(start_ns, self.samples_per_frame)
-        frame = AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16", layout="mono")
-        frame.sample_rate = self.rate
-        frame.pts = self._frames * self.samples_per_frame
-        frame.time_base = fractions.Fraction(1, self.rate)
-        self._frames += 1
-        return frame
+        while True:
+            k = self._frames
+            start_ns = self.frame_start_ns(k)
+            wait_ns = start_ns - self.clock.now_ns()
+            if wait_ns > 0:
+                await asyncio.sleep(wait_ns / 1e9)  # pacing to the master clock, not synchronisation
+            samples = self.feed.take(start_ns, self.samples_per_frame)
+            self._frames += 1
+            if self._opus is None:
+                frame = AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16", layout="mono")
+                frame.sample_rate = self.rate
+                frame.pts = k * self.samples_per_frame
+                frame.time_base = fractions.Fraction(1, self.rate)
+                return frame
+            if not samples.any():
+                self.skipped += 1
+                continue
+            packet = self._opus.encode(samples, k * self.samples_per_frame)
+            if packet is not None:
+                return packet

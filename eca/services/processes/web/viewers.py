@@ -4,7 +4,7 @@ page sends one, its microphone.
 A viewer's tracks take from the service's shared feeds: the face is drawn once per frame, and encoded
 once for all the viewers who asked the same size and rate (services/processes/web/encoding.py), whatever
 their number; each viewer's own encoder encodes the voice. A viewer that leaves, fails, does not
-connect within `connect_timeout_s`, or stops answering (no receiver report for `silent_timeout_s`:
+connect within `connect_timeout_s`, or stops answering (no receiver report nor anything else for `silent_timeout_s`:
 a browser that vanished mid-call, which ICE itself notices only after about 30 s) is closed and
 forgotten: its peer connection, its encoders, its microphone and its place in what the service draws.
 """
@@ -147,7 +147,10 @@ class Viewers:
                 _forward_keyframe_requests(transceiver.sender, track)
             else:
                 voice = backend.voice(agent)
-                track = click_track(backend.clock, voice) if request.calibration else VoiceTrack(voice, backend.clock)
+                # a page drawing this agent's face follows the voice's clock, not a continuous stream: its voice
+                # pauses in silence
+                track = (click_track(backend.clock, voice) if request.calibration
+                         else VoiceTrack(voice, backend.clock, pause_in_silence=agent in request.drawn_here))
             transceiver.sender.replaceTrack(track)
             if kind == "audio" and agent in request.drawn_here:
                 viewer.voice_senders[agent] = transceiver.sender
@@ -274,9 +277,11 @@ class Viewers:
             viewer.watchdog = asyncio.ensure_future(self._watch_answers(viewer))
 
     async def _watch_answers(self, viewer: Viewer) -> None:
-        """Close the viewer when its receiver reports stop coming. Every stream it receives counts: Chromium
-        reports on video every 0.2-1 s but on audio only every 2.5-7.5 s (libwebrtc's 5 s +- 50 %), so
-        watching one audio stream alone closed healthy pages."""
+        """Close the viewer when it stops answering: no receiver report on any stream it receives and nothing
+        else from it on the connection (its microphone, the acknowledgements of its face frames). Every stream
+        counts: Chromium reports on video every 0.2-1 s but on audio only every 2.5-7.5 s (libwebrtc's 5 s +-
+        50 %), so watching one audio stream alone closed healthy pages; and a voice that pauses in silence (to a
+        page that draws the face) gets no reports while it pauses, but its page acknowledges the frames."""
         loop = asyncio.get_running_loop()
         # A face drawn here starts once drawing is ready, which the first page of an instance at rest waits for
         # (a GL context and the faces' first frames, a second or more): the silence is counted from its first
@@ -289,15 +294,21 @@ class Viewers:
             await asyncio.sleep(0.1)  # a look at the tracks' counters, not synchronisation
         last = loop.time()
         seen: dict[int, datetime] = {}
+        received: dict[str, int] = {}  # per transport, the datagrams it has received
         senders = [t.sender for t in viewer.pc.getTransceivers() if t.sender.track is not None]
         while not viewer.closed:
             await asyncio.sleep(1.0)  # a periodic look, not synchronisation
             answered = False
             for k, sender in enumerate(senders):
-                stamps = [s.timestamp for s in (await sender.getStats()).values() if s.type == "remote-inbound-rtp"]
+                stats = list((await sender.getStats()).values())
+                stamps = [s.timestamp for s in stats if s.type == "remote-inbound-rtp"]
                 if stamps and stamps[0] != seen.get(k):
                     seen[k] = stamps[0]
                     answered = True
+                for s in stats:
+                    if s.type == "transport" and s.packetsReceived != received.get(s.id):
+                        received[s.id] = s.packetsReceived
+                        answered = True
             if answered:
                 last = loop.time()
             elif loop.time() - last > self.silent_timeout_s:
