@@ -107,7 +107,11 @@ def encode_speech(wav: str) -> tuple[list[bytes], bytes]:
 
 
 class MicTrack(MediaStreamTrack):
-    """A visitor's microphone: pre-encoded Opus packets, one per 20 ms, the sentence at its turn of the cycle."""
+    """A visitor's microphone: pre-encoded Opus packets, one per 20 ms, the sentence at its turn of the cycle.
+    With `dtx` (the server's answer asks `usedtx=1`, as a browser honours it), silence is sent as a browser's
+    Opus encoder sends it then: one packet every 400 ms, none between (the RTP timestamps jump)."""
+
+    DTX_EVERY = 20  # frames: libopus' DTX sends a frame every 400 ms of silence
 
     kind = "audio"
 
@@ -118,21 +122,36 @@ class MicTrack(MediaStreamTrack):
         self.epoch_ns, self.phase_ns, self.cycle_ns, self.user_at_ns = epoch_ns, phase_ns, cycle_ns, user_at_ns
         self._start_ns: int | None = None
         self._k = 0
+        self.dtx = False
+        self._quiet = 0  # silent frames in a row
 
     async def recv(self) -> av.Packet:  # type: ignore[type-arg]
         if self._start_ns is None:
             self._start_ns = time.monotonic_ns()
-        due = self._start_ns + self._k * FRAME_NS
-        wait_ns = due - time.monotonic_ns()
-        if wait_ns > 0:
-            await asyncio.sleep(wait_ns / 1e9)  # pacing to real time, as a microphone does
-        at = (due - self.epoch_ns - self.phase_ns - self.user_at_ns) % self.cycle_ns
-        i = at // FRAME_NS
+        while True:
+            due = self._start_ns + self._k * FRAME_NS
+            wait_ns = due - time.monotonic_ns()
+            if wait_ns > 0:
+                await asyncio.sleep(wait_ns / 1e9)  # pacing to real time, as a microphone does
+            at = (due - self.epoch_ns - self.phase_ns - self.user_at_ns) % self.cycle_ns
+            i = at // FRAME_NS
+            k = self._k
+            self._k += 1
+            self._quiet = 0 if i < len(self.speech) else self._quiet + 1
+            if not self.dtx or self._quiet % self.DTX_EVERY == 1:  # the first silent frame, then every 400 ms
+                break
         packet = av.Packet(self.speech[i] if i < len(self.speech) else self.silence)
-        packet.pts = self._k * OPUS_FRAME
+        packet.pts = k * OPUS_FRAME
         packet.time_base = fractions.Fraction(1, OPUS_RATE)
-        self._k += 1
         return packet
+
+
+def asks_dtx(sdp: str, mid: str | None) -> bool:
+    """Whether the answer's section `mid` asks for Opus' discontinuous transmission (`usedtx=1`)."""
+    for section in sdp.split("m=")[1:]:
+        if f"a=mid:{mid}\r\n" in section + "\r\n":
+            return "usedtx=1" in section
+    return False
 
 
 # --- a visitor ----------------------------------------------------------------------------------------------
@@ -213,6 +232,9 @@ async def arrive(session: aiohttp.ClientSession, args: argparse.Namespace, index
         return None, {"index": index, "agent": visitor.agent, "step": "offer", "status": status,
                       "error": str(answer)[:300]}
     await pc.setRemoteDescription(RTCSessionDescription(sdp=answer["sdp"], type="answer"))
+    mic_track = mic.sender.track
+    if isinstance(mic_track, MicTrack):
+        mic_track.dtx = asks_dtx(answer["sdp"], mic.mid)
     for transceiver, kind in sections:
         transceiver.receiver.__dict__["_bench_record"] = (visitor.voice if kind == "audio" else visitor.video).add
     deadline = time.monotonic() + CONNECT_TIMEOUT_S

@@ -14,7 +14,8 @@ asks by default) and the voice clocks.
 
 Every conversation is spoken to and speaks, in turn, on a cycle of `--cycle-s` shifted by a phase of its own
 (seeded): at 0 the visitor's microphone says a sentence (espeak-ng, made once; pre-encoded to Opus and sent in
-real time, digital silence otherwise), which the server's voice-activity detector turns into the user's turn
+real time; digital silence otherwise, sent as a browser's Opus encoder sends it when the server's answer asks
+`usedtx=1`: one packet every 400 ms), which the server's voice-activity detector turns into the user's turn
 (`user_speech` on the bus); `--agent-gap-s` after the sentence this process makes the agent speak (a `Say` with
 `--agent-s` of a synthetic voice, 24 kHz PCM inline, published on the bus as a dialogue manager would), which
 the audio service plays and the web service sends as the visitor's Opus voice track.

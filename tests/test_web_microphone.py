@@ -90,3 +90,91 @@ def test_a_hissing_microphone_starts_no_turn(rms: int) -> None:
     noise = (np.random.default_rng(rms).standard_normal(3 * RATE) * rms).astype(np.int16)
     turns, blocks = run(noise)
     assert turns == [] and not any(b.speaking for b in blocks)
+
+
+def frames_48k(samples_16k: np.ndarray) -> list[av.AudioFrame]:
+    """The samples as a browser's decoded 20 ms frames at 48 kHz, each with its RTP timestamp (pts)."""
+    pcm = (resample(samples_16k.astype(np.float32) / 32767, RATE, 48_000) * 32767).astype(np.int16)
+    out = []
+    for start in range(0, len(pcm) - 960, 960):
+        frame = av.AudioFrame.from_ndarray(pcm[None, start:start + 960], format="s16", layout="mono")
+        frame.sample_rate = 48_000
+        frame.pts = (start + 1_234_567) % 2**32  # an RTP timestamp starts anywhere
+        out.append(frame)
+    return out
+
+
+def dtx(frames: list[av.AudioFrame]) -> list[av.AudioFrame]:
+    """What a sender with Opus' discontinuous transmission sends: silent frames only every 400 ms."""
+    out, quiet = [], 0
+    for frame in frames:
+        quiet = quiet + 1 if not frame.to_ndarray().any() else 0
+        if quiet % 20 in (0, 1):
+            out.append(frame)
+    return out
+
+
+def test_silence_left_out_by_the_sender_is_counted_not_sent(speech: np.ndarray) -> None:
+    every = frames_48k(speech)
+    sent = dtx(every)
+    assert len(sent) < 0.6 * len(every)  # the seconds of silence around the sentence mostly left out
+    def listen(frames: list[av.AudioFrame]) -> tuple[list[tuple[bool, int]], list, Microphone]:
+        turns: list[tuple[bool, int]] = []
+        blocks: list = []
+        mic = Microphone(blocks.append, lambda speaking: turns.append((speaking, mic.samples)))
+        for frame in frames:
+            mic.push(frame, frame.pts * 1_000_000_000 // 48_000)
+        return turns, blocks, mic
+
+    (turns, blocks, mic), (dtx_turns, dtx_blocks, dtx_mic) = listen(every), listen(sent)
+    assert [t for t, _ in dtx_turns] == [t for t, _ in turns] == [True, False]
+    # at about the same samples: what was left out is counted as silence. Not exactly: the detector adapts its
+    # noise model to the frames it judges, and judges fewer of the silent ones (a pause between words too)
+    assert abs(dtx_turns[0][1] - turns[0][1]) <= 2 * FRAME_SAMPLES
+    assert abs(dtx_turns[1][1] - turns[1][1]) <= 0.45 * RATE
+    # the same stream position (but for the silence after the last packet sent), most of the silence left out
+    assert mic.samples - 20 * FRAME_SAMPLES <= dtx_mic.samples <= mic.samples
+    assert dtx_mic.skipped > 2 * RATE and mic.skipped == 0
+    assert len(dtx_blocks) < 0.6 * len(blocks)
+    # every block sent is the block at that place of the whole stream
+    whole = {b.first_sample: b.pcm for b in blocks}
+    assert all(whole[b.first_sample] == b.pcm for b in dtx_blocks)
+
+
+def test_a_turn_ends_on_time_when_the_sender_sends_nothing_at_all(speech: np.ndarray) -> None:
+    turns: list[bool] = []
+    mic = Microphone(lambda b: None, turns.append)
+    stop_s = mic.settings.stop_s
+    last_ns = 0
+    for frame in frames_48k(speech):
+        last_ns = frame.pts * 1_000_000_000 // 48_000
+        mic.push(frame, last_ns)
+        if mic.speaking and mic._quiet_frames == 0 and frame.pts - 1_234_567 > 1.5 * 48_000:
+            break  # mid-sentence, on a voiced frame: then the sender goes quiet (no packet at all)
+    assert turns == [True]
+    mic.idle(last_ns + 50_000_000)
+    assert turns == [True]  # a packet 50 ms late is jitter, not silence
+    mic.idle(last_ns + round(stop_s * 1e9))
+    assert turns == [True]  # not before stop_s and the allowance for a late packet
+    mic.idle(last_ns + round(stop_s * 1e9) + 100_000_000 + 1)
+    assert turns == [True, False]
+    mic.idle(last_ns + 10 * round(stop_s * 1e9))
+    assert turns == [True, False]  # once
+
+
+def test_the_answer_asks_the_microphones_section_alone_for_dtx() -> None:
+    from eca.services.processes.web.viewers import ask_dtx
+
+    sdp = "\r\n".join([
+        "v=0", "o=- 1 1 IN IP4 0.0.0.0", "s=-", "t=0 0",
+        "m=audio 9 UDP/TLS/RTP/SAVPF 111 0", "a=mid:0", "a=rtpmap:111 opus/48000/2",
+        "a=fmtp:111 minptime=10;useinbandfec=1", "a=rtpmap:0 PCMU/8000",
+        "m=audio 9 UDP/TLS/RTP/SAVPF 96", "a=mid:1", "a=rtpmap:96 OPUS/48000/2",
+        "m=audio 9 UDP/TLS/RTP/SAVPF 97", "a=mid:2", "a=rtpmap:97 opus/48000/2", ""])
+    asked = ask_dtx(sdp, "0").split("\r\n")
+    assert "a=fmtp:111 minptime=10;useinbandfec=1;usedtx=1" in asked and asked.count("a=rtpmap:0 PCMU/8000") == 1
+    assert ask_dtx(ask_dtx(sdp, "0"), "0") == ask_dtx(sdp, "0")  # asked once
+    lines = ask_dtx(sdp, "1").split("\r\n")
+    assert lines[lines.index("a=rtpmap:96 OPUS/48000/2") + 1] == "a=fmtp:96 usedtx=1"  # a format line of its own
+    assert "usedtx" not in "".join(ask_dtx(sdp, "1").split("m=")[3]) and "usedtx" not in "".join(lines[:9])
+    assert ask_dtx(sdp, "7") == sdp  # no such section: unchanged

@@ -16,19 +16,25 @@ from pathlib import Path
 from typing import Any
 
 import aiohttp
+import av
 import numpy as np
 import pytest
+import soundfile as sf
 import zmq
+from aiortc import MediaStreamTrack
 from aiortc.contrib.media import MediaPlayer
+from aiortc.mediastreams import MediaStreamError
 
 from eca.agent.clock import VirtualClock
 from eca.protocol.bus import Publisher, Subscriber
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import EmotionState, UserAudio, UserSpeech
+from eca.services.processes.audio.resample import resample
 from eca.services.processes.runtime import wait_until
 from eca.services.processes.web.feeds import Picture
 from eca.services.processes.web.options import WebOptions
 from eca.services.processes.web.service import WebService
+from eca.services.processes.web.tracks import OpusFrames
 from eca.services.processes.web.viewers import ViewRequest
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.web_client import SMALL, Client, post, speak_tone, user_speech_wav
@@ -164,6 +170,89 @@ def test_the_users_speech_becomes_turns_and_audio_on_the_bus(web: tuple[BusConfi
         ctx.term()
     assert turns == {"ada": [True, False], "bob": [True, False]}  # both agents the page watches
     assert audio >= 3.0 * 50  # 20 ms blocks all along
+
+
+class DtxMicrophone(MediaStreamTrack):
+    """A browser's microphone as its Opus encoder sends it when the answer asks `usedtx=1`: every 20 ms frame of
+    the WAV that sounds, and of digital silence one every 400 ms (the RTP timestamps jump over the rest)."""
+
+    kind = "audio"
+
+    def __init__(self, wav: Path) -> None:
+        super().__init__()
+        samples, rate = sf.read(wav, dtype="int16")
+        self.pcm = np.round(resample(samples.astype(np.float32), rate, 48_000)).astype(np.int16)
+        self.opus = OpusFrames()
+        self.k, self.quiet, self.start_ns = 0, 0, time.monotonic_ns()
+        self.sent = self.silent_seen = self.silent_sent = 0
+        self.last_sound_ns = 0  # when the last frame that sounds was sent
+
+    async def recv(self) -> av.Packet:
+        while True:
+            if (self.k + 1) * 960 > len(self.pcm):
+                raise MediaStreamError("the WAV has played")
+            frame = self.pcm[self.k * 960:(self.k + 1) * 960]
+            self.k += 1
+            await asyncio.sleep(max(0.0, (self.start_ns + self.k * 20_000_000 - time.monotonic_ns()) / 1e9))  # pace
+            self.quiet = 0 if frame.any() else self.quiet + 1
+            self.silent_seen += self.quiet > 0
+            if self.quiet % 20 in (0, 1):
+                break
+        if not self.quiet:
+            self.last_sound_ns = time.monotonic_ns()
+        packet = self.opus.encode(frame, (self.k - 1) * 960)
+        assert packet is not None
+        self.sent += 1
+        self.silent_sent += self.quiet > 0
+        return packet
+
+
+def test_a_microphone_with_discontinuous_transmission_gives_the_same_turns_from_a_few_packets(
+        web: tuple[BusConfig, WebService], speech_wav: Path) -> None:
+    """The answer asks the microphone for Opus DTX; one that honours it sends little in silence, and the turn still
+    ends on time: the silence left out is counted, and no packet at all is silence too."""
+    config, service = web
+    ctx = zmq.Context()
+    sub = Subscriber(ctx, config, ["cmd.ada.user_speech", "stream.ada.user_audio"])
+    sub.wait_ready()
+    mic = DtxMicrophone(speech_wav)
+    stopped_at: list[float] = []
+
+    async def main() -> str:
+        client = Client(base(service), ["ada"], mic=mic)
+        answer = await client.connect()
+        try:
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline and not stopped_at:
+                got = sub.recv(0.05)
+                if got is not None and isinstance(got.message, UserSpeech):
+                    turns.append(got.message.speaking)
+                    if not got.message.speaking:
+                        stopped_at.append(time.monotonic_ns())
+                elif got is not None and isinstance(got.message, UserAudio):
+                    blocks.append(got.message)
+                await asyncio.sleep(0)  # the client's loop runs between reads
+        finally:
+            await client.pc.close()
+        return str(answer["sdp"])
+
+    turns: list[bool] = []
+    blocks: list[UserAudio] = []
+    try:
+        sdp = asyncio.run(main())
+    finally:
+        sub.close()
+        ctx.term()
+    mic_section = next(m for m in sdp.split("m=")[1:] if m.startswith("audio") and "a=mid:0\r\n" in m)
+    assert "usedtx=1" in mic_section and sdp.count("usedtx=1") == 1  # asked of the microphone alone
+    assert turns == [True, False]
+    assert mic.silent_seen > 50 and mic.silent_sent <= mic.silent_seen / 4  # the silence mostly not sent
+    # the turn ended after the last sound, within stop_s, the late-packet allowance, the idle check and the bus
+    waited_s = (stopped_at[0] - mic.last_sound_ns) / 1e9
+    assert 0.3 < waited_s < 0.6 + 0.1 + 0.1 + 0.4, waited_s
+    assert blocks and all(len(b.pcm) == 640 for b in blocks)
+    firsts = [b.first_sample for b in blocks]
+    assert firsts == sorted(firsts) and max(np.diff(firsts)) > 10 * 320  # the silence left out: a jump
 
 
 def test_the_token_rule_holds_for_the_page_and_the_offer(token_web: tuple[BusConfig, WebService]) -> None:

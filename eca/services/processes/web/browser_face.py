@@ -55,22 +55,26 @@ _TURN = np.diag([-1.0, 1.0, -1.0])  # a VRM 0.x file's frame from the Avatar's (
 
 
 def _quaternion(m: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation matrix (its scale taken out)."""
-    r = m / np.linalg.norm(m, axis=0)
-    trace = float(r[0, 0] + r[1, 1] + r[2, 2])
+    """(x, y, z, w) of a rotation matrix (its scale taken out). In Python floats: for one 3x3 matrix a frame's
+    numpy calls cost more than the arithmetic."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    n0, n1, n2 = math.sqrt(a * a + d * d + g * g), math.sqrt(b * b + e * e + h * h), math.sqrt(c * c + f * f + i * i)
+    r00, r01, r02 = a / n0, b / n1, c / n2
+    r10, r11, r12 = d / n0, e / n1, f / n2
+    r20, r21, r22 = g / n0, h / n1, i / n2
+    trace = r00 + r11 + r22
     if trace > 0.0:
         s = 2.0 * math.sqrt(trace + 1.0)
-        q = ((r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s)
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = (0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s)
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = ((r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s)
+        x, y, z, w = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
+    elif r00 > r11 and r00 > r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        x, y, z, w = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
+    elif r11 > r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        x, y, z, w = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
     else:
-        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = ((r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s)
-    x, y, z, w = (float(v) for v in q)
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        x, y, z, w = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
     if w < 0.0:  # one sign for one rotation: the page may blend neighbours
         x, y, z, w = -x, -y, -z, -w
     return x, y, z, w

@@ -39,6 +39,7 @@ MAX_REFUSED_CHANNELS = 16  # a page that opens more channels than this, besides 
 MAX_PAGE_MESSAGES = 64  # messages a page sends on its face channel (it has nothing to say) before it is closed
 MAX_BUFFERED_BYTES = 64 * 1024  # a face channel holding more unsent than this skips frames until it drains
 VOICE_CLOCK_EVERY_S = 0.25
+MIC_IDLE_CHECK_S = 0.1  # how often a microphone that sends nothing (discontinuous transmission) is looked at
 FIRST_PICTURE_WAIT_S = 60.0  # the longest a viewer's silence is not counted while its first picture is drawn
 
 
@@ -131,7 +132,8 @@ class Viewers:
         log.info("viewer %d: %s at %dx%d, %g fps%s%s", number, ", ".join(request.agents), request.width,
                  request.height, request.fps, ", with a microphone" if request.mic_mid else "",
                  ", with calibration flashes and clicks" if request.calibration else "")
-        return viewer.pc.localDescription.sdp
+        answer = viewer.pc.localDescription.sdp
+        return ask_dtx(answer, request.mic_mid) if request.mic_mid is not None else answer
 
     def _attach(self, viewer: Viewer) -> None:
         request, backend = viewer.request, self.backend
@@ -188,6 +190,13 @@ class Viewers:
                 submit(UserSpeech(agent=agent, speaking=speaking))
 
         mic = Microphone(on_block, on_turn, self.vad)
+
+        async def idle() -> None:
+            while not viewer.closed:
+                await asyncio.sleep(MIC_IDLE_CHECK_S)  # a periodic look: a silent browser sends nothing
+                mic.idle(clock.now_ns())
+
+        idler = asyncio.ensure_future(idle())
         try:
             while not viewer.closed:
                 frame = await track.recv()
@@ -195,6 +204,7 @@ class Viewers:
         except MediaStreamError:
             pass  # the browser stopped sending
         finally:
+            idler.cancel()
             if mic.speaking:
                 on_turn(False)  # a viewer who leaves mid-sentence has stopped speaking
 
@@ -380,3 +390,28 @@ def _plain(exc: BaseException) -> str:
     text = " ".join(str(exc).split())[:200]
     return text or type(exc).__name__
 
+
+def ask_dtx(sdp: str, mid: str) -> str:
+    """The answer with `usedtx=1` on the Opus format of the microphone's section (`mid`): a browser then uses
+    Opus' discontinuous transmission (no packet, or one every 400 ms, while the user is silent), which the
+    microphone counts as silence (microphone.py). Each section is its own list of lines; other sections and
+    formats are left as they are."""
+    lines = sdp.split("\r\n")
+    sections: list[list[str]] = [[]]
+    for line in lines:
+        if line.startswith("m="):
+            sections.append([])
+        sections[-1].append(line)
+    for section in sections[1:]:
+        if f"a=mid:{mid}" not in section:
+            continue
+        opus = [line.split()[0][len("a=rtpmap:"):] for line in section
+                if line.startswith("a=rtpmap:") and line.lower().split()[-1].startswith("opus/")]
+        for pt in opus:
+            fmtp = next((i for i, line in enumerate(section) if line.startswith(f"a=fmtp:{pt} ")), None)
+            if fmtp is None:
+                rtpmap = next(i for i, line in enumerate(section) if line.startswith(f"a=rtpmap:{pt} "))
+                section.insert(rtpmap + 1, f"a=fmtp:{pt} usedtx=1")
+            elif "usedtx=" not in section[fmtp]:
+                section[fmtp] += ";usedtx=1"
+    return "\r\n".join(line for section in sections for line in section)
