@@ -138,8 +138,8 @@ class MicTrack(MediaStreamTrack):
             k = self._k
             self._k += 1
             self._quiet = 0 if i < len(self.speech) else self._quiet + 1
-            if not self.dtx or self._quiet % self.DTX_EVERY == 1:  # the first silent frame, then every 400 ms
-                break
+            if not self.dtx or not self._quiet or self._quiet % self.DTX_EVERY == 1:
+                break  # every frame of speech; of silence the first, then one every 400 ms
         packet = av.Packet(self.speech[i] if i < len(self.speech) else self.silence)
         packet.pts = k * OPUS_FRAME
         packet.time_base = fractions.Fraction(1, OPUS_RATE)

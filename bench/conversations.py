@@ -29,9 +29,10 @@ Per step, after `--settle-s`, a window of `--hold-s`:
   over the frames not sent, so all of it is judged on the RTP clock): no packet arrives more than `--gap-ms`
   later than its RTP time says, their RTP timestamps run on in whole frames and none is lost; each of the
   agent's turns arrives whole (one sounding run as long as what was said, within 3 packets, with no silent or
-  missing frame inside it) and every turn said early enough in the window arrived; each of the user's turns was heard (a `user_speech` start on the bus for that agent); the face
-  frames arrive at the asked rate within 10 %; the connection stays up. The helper's event-loop lag is shown
-  beside (a late client loop delays what it receives);
+  missing frame inside it) and every turn said early enough in the window arrived; each of the user's turns was
+  heard (a `user_speech` start on the bus for that agent); the face frames arrive at the asked rate within 10 %;
+  the connection stays up. The helper's event-loop lag is shown beside (a late client loop delays what it
+  receives);
 - the supervisor's restarts, the web service's viewers closed, speech interrupted or failed, and every
   service's longest heartbeat silence.
 A step passes when all of it holds for every visitor; the figure is the largest N that passed. The server's

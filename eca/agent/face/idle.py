@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from eca.agent.clock import seconds
-from eca.agent.counter_rng import uniform01
+from eca.agent.counter_rng import stream_key, uniform01, uniform01_keyed
 from eca.agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES, N_FLEXORS
 
 
@@ -45,6 +45,7 @@ class IdleNoise:
         self._active = amplitude > 0
         self._offset = _PHASE[_STREAMS]
         self._lattice: np.ndarray | None = None  # the integer parts the cached gradients belong to
+        self._keys = stream_key(self.seed, _STREAMS)
         self._g0 = self._g1 = np.zeros(N_FLEXORS)
 
     def values_at(self, t_ns: int) -> np.ndarray:
@@ -52,13 +53,30 @@ class IdleNoise:
         noise = self._perlin(phase)
         return np.where(self._active, self.amplitude * noise, np.nan)
 
+    def _gradient(self, flexors: np.ndarray, lattice: np.ndarray) -> np.ndarray:
+        """uniform01(seed, _STREAMS[flexors], lattice) * 2 - 1, from the kept per-stream keys."""
+        return uniform01_keyed(self._keys[flexors], lattice) * 2.0 - 1.0
+
     def _perlin(self, x: np.ndarray) -> np.ndarray:
         """perlin1d(x, self.seed, _STREAMS), the same arithmetic step for step."""
         i0 = np.floor(x)
-        if self._lattice is None or not np.array_equal(i0, self._lattice):
+        if self._lattice is None:
             lattice = i0.astype(np.int64).astype(np.uint64)
             self._g0 = uniform01(self.seed, _STREAMS, lattice) * 2.0 - 1.0
             self._g1 = uniform01(self.seed, _STREAMS, lattice + np.uint64(1)) * 2.0 - 1.0
+            self._lattice = i0
+        elif not np.array_equal(i0, self._lattice):
+            # Each flexor's phase has its own offset, so one or another crosses an integer several times a
+            # second: only those get new gradients, and one that stepped to the next cell keeps its old g1 as
+            # its g0. The hash of (seed, stream) is kept: a gradient is then one splitmix64 of its counter.
+            moved = np.flatnonzero(i0 != self._lattice)
+            lattice = i0[moved].astype(np.int64).astype(np.uint64)
+            stepped = i0[moved] == self._lattice[moved] + 1.0
+            self._g0[moved[stepped]] = self._g1[moved[stepped]]
+            jumped = moved[~stepped]
+            if jumped.size:
+                self._g0[jumped] = self._gradient(jumped, lattice[~stepped])
+            self._g1[moved] = self._gradient(moved, lattice + np.uint64(1))
             self._lattice = i0
         f = x - i0
         n0 = self._g0 * f

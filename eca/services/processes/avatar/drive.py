@@ -89,9 +89,18 @@ def rotation_z(deg: float) -> np.ndarray:
 
 
 def agent_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
-    """The 3x3 rotation in glTF model axes of eca's yaw, pitch and roll (see the module docstring)."""
-    turn: np.ndarray = rotation_y(-yaw_deg) @ rotation_x(-pitch_deg)
-    return turn @ rotation_z(roll_deg) if roll_deg else turn
+    """The 3x3 rotation in glTF model axes of eca's yaw, pitch and roll (see the module docstring):
+    rotation_y(-yaw) @ rotation_x(-pitch) @ rotation_z(roll), multiplied out in Python floats (equal to the
+    matrix products to the last bit or so: a face's few joints a frame cost more in numpy calls than in
+    arithmetic)."""
+    a, b = math.radians(-yaw_deg), math.radians(-pitch_deg)
+    ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
+    rows = ((ca, sa * sb, sa * cb), (0.0, cb, -sb), (-sa, ca * sb, ca * cb))
+    if roll_deg:
+        g = math.radians(roll_deg)
+        cg, sg = math.cos(g), math.sin(g)
+        rows = tuple((m0 * cg + m1 * sg, m0 * -sg + m1 * cg, m2) for m0, m1, m2 in rows)  # type: ignore[assignment]
+    return np.array(rows)
 
 
 def _mapped(angle: float, m: RangeMap) -> float:
