@@ -79,8 +79,10 @@ on port 0 serves on another port, which ends the run; the longest gap between it
    measured beside it ("the first minute", the targets' comparison; the service now draws video too, and
    composes the pages' face frames in the same loop). With `--long-s 600`, one more window of `--measure-s`
    beside the markers after 10 minutes of talking. A face frame whose time is a whole second of the master
-   clock carries the MARK flag (the clicks' instants); a mark counts as drawn at the first drawing whose heard
-   frame reached or passed it (its shownMs in face3d.js `log.heard`, performance.now() in present();
+   clock carries the MARK flag (the clicks' instants); with `--hum-level 0` there is no tone, so the voice to the
+   page pauses in silence (tracks.py) and every click and burst begins a talk spurt; a mark counts as drawn
+   at the first drawing whose heard frame reached or passed it (its shownMs in face3d.js `log.heard`,
+   performance.now() in present();
    `log.marks` has only the marked frames drawn themselves, and animation frames rarer than the face frames
    skip over most). The agent talks throughout: 4 s of a quiet tone alone, whose start at the output tells
    where what follows starts, then says of 60 s queued back to back (the player plays a queue without gaps;
@@ -116,7 +118,7 @@ Figures are printed one per line against their target (met / MISSED / info); the
 With --json the table goes to stderr and one JSON object to stdout. Progress lines go to stderr.
 
     python bench/web.py [--settle-s 40] [--measure-s 30] [--trials 40] [--viewers 1,2,4,8] [--seed 0]
-                        [--draw both|server|browser] [--long-s 0] [--no-webgl-draw] [--skip-av]
+                        [--draw both|server|browser] [--long-s 0] [--hum-level 0.008] [--no-webgl-draw] [--skip-av]
                         [--skip-latency] [--skip-viewers] [--json]
 
 A full run takes about 8-9 minutes on 2 cores (the server-drawn face: start and baselines 10 s, A/V 75 s,
@@ -1653,8 +1655,9 @@ class Talker:
     between the markers' clicks. (A silent probe of a say's latency, as the A/V phase of the 2D face takes, was
     seen 670 ms short for a say of bursts on a loaded machine: the bursts fell on the clicks.)"""
 
-    def __init__(self, client: Any, rng: random.Random, first_sample_ns: int, until_ns: int) -> None:
-        self.client, self.rng, self.until_ns = client, rng, until_ns
+    def __init__(self, client: Any, rng: random.Random, first_sample_ns: int, until_ns: int,
+                 hum: float = HUM_LEVEL) -> None:
+        self.client, self.rng, self.until_ns, self.hum = client, rng, until_ns, hum
         self.talks: list[Talk] = []
         self.next_ns = first_sample_ns  # where the queued talk ends
 
@@ -1666,10 +1669,10 @@ class Talker:
         if lead_in:  # planned: sent now (its start less that is the say's latency)
             self.next_ns = time.monotonic_ns()
             t = np.arange(round(LEAD_IN_S * SAY_RATE_HZ)) / SAY_RATE_HZ
-            pcm = (HUM_LEVEL * 32767 * np.sin(2 * np.pi * HUM_HZ * t)).astype("<i2").tobytes()
+            pcm = (self.hum * 32767 * np.sin(2 * np.pi * HUM_HZ * t)).astype("<i2").tobytes()
         else:
             seconds = min(SAY_PART_S, (self.until_ns - self.next_ns) / 1e9 + 1.0)
-            pcm, onsets = vowel_bursts(self.rng, seconds, self.next_ns, HUM_LEVEL)
+            pcm, onsets = vowel_bursts(self.rng, seconds, self.next_ns, self.hum)
         talk = Talk(f"bench-web-talk-{len(self.talks)}", self.next_ns, len(pcm) // 2, onsets)
         self.client.send(Say(agent=AGENT, request_id=talk.rid, pcm=pcm, sample_rate=SAY_RATE_HZ,
                              text="vowel bursts"))
@@ -1845,7 +1848,7 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
     try:
         events.wait_ready()
         with AgentClient(inst.config, agent=AGENT, source="bench-web-drawn", ctx=ctx) as client:
-            talker = Talker(client, rng, time.monotonic_ns(), end_ns)
+            talker = Talker(client, rng, time.monotonic_ns(), end_ns, args.hum_level)
             progress(f"browser-drawn A/V: the agent talks until {(end_ns - connected_ns) / 1e9:.0f} s after "
                      f"connecting; measuring {', '.join(f'{w.label} ({w.lo_s:g}-{w.hi_s:g} s)' for w in windows)}; "
                      f"the markers' connection from {reference_from_s:g} s")
@@ -2456,6 +2459,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--long-s", type=float, default=0.0,
                         help="browser-drawn A/V: also measure --measure-s from this long after connecting, the agent "
                              "talking throughout (600: after 10 minutes; default 0: only the first minute)")
+    parser.add_argument("--hum-level", type=float, default=HUM_LEVEL,
+                        help="browser-drawn A/V: the quiet tone under the bursts (share of full scale; 0: none, so "
+                             "the voice to the page pauses between the bursts and clicks and each mark is the "
+                             "start of a talk spurt)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print one JSON object (the table goes to stderr)")
     parser.add_argument("--role", choices=["load"], help=argparse.SUPPRESS)
