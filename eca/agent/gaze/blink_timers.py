@@ -26,12 +26,21 @@ from eca.agent.gaze.rows import (
     N_COLUMNS,
     NEXT_BLINK,
     hashes,
+    operand,
     row_uniforms,
 )
 from eca.agent.gaze.state import NEVER_NS, GazeState
 
 _NS = 1_000_000_000
-_MINUS_TWO_POW_MINUS_53 = -1.0 / float(1 << 53)
+# Constant operands (rows.operand).
+_MINUS_TWO_POW_MINUS_53, _ZERO = operand(-1.0 / float(1 << 53)), operand(0.0)
+_MANTISSA_SHIFT = operand(11, np.uint64)
+_ROW, _ONE = operand(N_COLUMNS, np.int64), operand(1, np.int64)
+_WITH_MODEL = operand(SACCADE_BLINK, np.int64)
+# From a row's NEXT_BLINK cell to its other blink cells (fire works on the flat row matrix).
+_NEXT_BLINK, _TO_COUNTER, _TO_KEY, _TO_SPREAD, _COUNTER_TO_ONSET = (operand(v, np.int64) for v in (
+    NEXT_BLINK, COUNTER_BLINK - NEXT_BLINK, KEY_BLINK - NEXT_BLINK, BLINK_SPREAD_NS - NEXT_BLINK,
+    BLINK_ONSET - COUNTER_BLINK))
 
 
 class BlinkTimers:
@@ -41,9 +50,13 @@ class BlinkTimers:
         self._blink = blink
         self._state = state
         self._log = log
-        self._refractory_ns = blink.refractory_s * _NS
-        self._pull_window_ns = int(round(blink.pull_window_s * _NS))
-        self._evoked_slope = blink.evoked_max_probability / max(blink.evoked_full_deg - blink.evoked_min_deg, 1e-9)
+        self._refractory_ns = operand(blink.refractory_s * _NS)
+        self._pull_window_ns = operand(int(round(blink.pull_window_s * _NS)), np.int64)
+        self._evoked_slope = operand(
+            blink.evoked_max_probability / max(blink.evoked_full_deg - blink.evoked_min_deg, 1e-9))
+        self._evoked_min_deg, self._evoked_max_probability = (
+            operand(blink.evoked_min_deg), operand(blink.evoked_max_probability))
+        self._head_turn_probability = operand(blink.head_turn_probability)
         self.live = LiveBlinks(blink.lid_curve_s, blink.lid_curve_closure, 0)
 
     def grow(self, n_agents: int) -> None:
@@ -62,22 +75,22 @@ class BlinkTimers:
         """The blink timers of these agents expired: blink then and draw each one's next spontaneous blink,
         on their columns of the row matrix. Returns the next blink times."""
         flat = self._state.rows.reshape(-1)  # a view: the matrix is C-contiguous (rows.aligned_rows)
-        cells = agents * N_COLUMNS
-        cells += NEXT_BLINK
+        cells = agents * _ROW
+        cells += _NEXT_BLINK
         times = flat.take(cells)
-        z = hashes(flat.take(cells + (COUNTER_BLINK - NEXT_BLINK)), flat.take(cells + (KEY_BLINK - NEXT_BLINK)), 1)[0]
-        z >>= np.uint64(11)
+        z = hashes(flat.take(cells + _TO_COUNTER), flat.take(cells + _TO_KEY), 1)[0]
+        z >>= _MANTISSA_SHIFT
         # blink.blink_interval_ns, in place: the uniform's 53 bits times -2**-53 are -u exactly.
         interval = np.multiply(z.view(np.int64), _MINUS_TWO_POW_MINUS_53)
         np.log1p(interval, out=interval)
-        interval *= flat.take(cells + (BLINK_SPREAD_NS - NEXT_BLINK)).view(np.float64)
+        interval *= flat.take(cells + _TO_SPREAD).view(np.float64)
         np.subtract(self._refractory_ns, interval, out=interval)
         next_blink = np.rint(interval, out=interval).astype(np.int64)
         next_blink += times
         flat[cells] = next_blink
-        cells += COUNTER_BLINK - NEXT_BLINK
-        flat[cells] += 1
-        cells += BLINK_ONSET - COUNTER_BLINK
+        cells += _TO_COUNTER
+        flat[cells] += _ONE
+        cells += _COUNTER_TO_ONSET
         flat[cells] = times
         self._log.add_blinks(agents, times)
         return next_blink
@@ -97,20 +110,20 @@ class BlinkTimers:
         agents only), when that blink is due within the pull window; so do turn boundaries (`least_pull`)."""
         blink = self._blink
         if head:
-            pull = u_pull < blink.head_turn_probability
+            pull = u_pull < self._head_turn_probability
         else:
             # blink.evoked_blink_probability, in place.
-            chance = np.subtract(amplitude, blink.evoked_min_deg)
+            chance = np.subtract(amplitude, self._evoked_min_deg)
             chance *= self._evoked_slope
-            np.maximum(chance, 0.0, out=chance)
-            np.minimum(chance, blink.evoked_max_probability, out=chance)
+            np.maximum(chance, _ZERO, out=chance)
+            np.minimum(chance, self._evoked_max_probability, out=chance)
             if least_pull is not None:
                 np.maximum(chance, least_pull, out=chance)
             pull = u_pull < chance
         next_blink = rows[:, NEXT_BLINK]
         pull &= next_blink - times <= self._pull_window_ns
-        pull &= rows[:, MODE] >= SACCADE_BLINK
-        j = np.flatnonzero(pull)
+        pull &= rows[:, MODE] >= _WITH_MODEL
+        j = pull.nonzero()[0]
         if j.size:  # through 1-D column views: a (rows, column) fancy index takes the slow general path
             spread = rows.view(np.float64)[:, BLINK_SPREAD_NS]
             next_blink[j] += blink_interval_ns(spread[j], u_follow[j], blink)

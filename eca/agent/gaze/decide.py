@@ -40,9 +40,32 @@ from eca.agent.gaze.rows import (
     TARGET_YAW,
     float_bits,
     hold_table,
+    operand,
     row_uniforms,
 )
 from eca.agent.gaze.state import FORCE_AWAY, FORCE_MUTUAL, TURN_BLINK, GazeState
+
+_HOLD_CELLS = operand(float(HOLD_TABLE_INTERVALS))  # a constant operand (rows.operand)
+_AWAY_ROW = operand(HOLD_ROW, np.int64)
+
+
+def _direction_cells(edges: np.ndarray, last_bin: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The table that reads min(searchsorted(edges, u, "right"), last_bin) in two look-ups by u's cell
+    floor(u * cells), for the fewest cells (a power of two) that hold at most one edge each: per cell the
+    bin of its start, and the edge inside it where the bin goes up by one (infinity where none does); and
+    the number of cells (a 0-d float). None when no table of up to 2**16 cells separates the edges (then a
+    binary search it is). A small table stays in the core's cache between a tick's few thousand decisions."""
+    for bits in range(4, 17):
+        count = 1 << bits
+        cells = np.floor(edges * count).astype(np.int64)  # exact: scaling by a power of two
+        inside = cells < count  # edges at or past 1 are past every draw
+        if np.unique(cells[inside]).size == np.count_nonzero(inside):
+            below = np.minimum(np.searchsorted(cells, np.arange(count), side="left"), last_bin)
+            edge = np.full(count, np.inf)
+            edge[cells[inside]] = edges[inside]
+            edge[below == last_bin] = np.inf  # the last bin goes no further
+            return below, edge, operand(float(count))
+    return None
 
 
 class Decision(NamedTuple):
@@ -69,11 +92,13 @@ class Decider:
         self._blink_spread_ns = blink_spread_ns(
             params.blink, np.array([params.roles[r].blink_rate_per_min for r in ROLES]))
         self._hold = hold_table(params)
-        self._log_ceiling = params.p_max / params.p_ref
+        self._log_ceiling = operand(params.p_max / params.p_ref)
         self._direction_edges = np.cumsum(params.direction_probability)  # generator.direction_index_from_uniform's
         self._last_bin = len(params.direction_bins_deg) - 1
+        self._direction_cells = _direction_cells(self._direction_edges, self._last_bin)
         self._steps = np.stack(direction_unit_steps(params))  # (yaw; pitch) of each bin's unit step
         self._limits = np.array([[params.eye_yaw_limit_deg], [params.eye_pitch_limit_deg]])
+        self._lower_limits = -self._limits
         # Agents whose mutual gaze chooses among several points (set_targets): points, cumulative weights,
         # and each one's count of draws from the target-choice stream.
         self._target_choice_seed = target_choice_seed
@@ -125,7 +150,7 @@ class Decider:
         target = np.empty_like(to)  # contiguous: see launch.Launcher.position
         target[0], target[1] = floats[:, TARGET_YAW], floats[:, TARGET_PITCH]
         to += target
-        np.maximum(to, -self._limits, out=to)  # np.clip, without its Python wrapper
+        np.maximum(to, self._lower_limits, out=to)  # np.clip, without its Python wrapper
         np.minimum(to, self._limits, out=to)
         to = np.where(away, to, target)
         hold = self.hold_s(rows, u[3], away)
@@ -136,14 +161,14 @@ class Decider:
         its emotion (generator.hold_from_uniform, on the side-by-side table); `away=None` means away for
         every row. `u` is scratch."""
         x = u
-        x *= HOLD_TABLE_INTERVALS
+        x *= _HOLD_CELLS
         cell = x.astype(np.int64)  # u < 1, so the cell is at most the last one
         x -= cell
         cell += rows[:, HOLD_BASE]
         if away is None:
-            cell += HOLD_ROW
+            cell += _AWAY_ROW
         else:
-            cell += away * HOLD_ROW  # a masked add (where=) is several times slower
+            cell += away * _AWAY_ROW  # a masked add (where=) is several times slower
         pairs = self._hold.take(cell, axis=0)
         hold = pairs[:, 0] * x
         hold += pairs[:, 1]
@@ -157,9 +182,16 @@ class Decider:
             strength = state.bias_strength[agents]
             if strength.any():
                 return direction_index_from_uniform(u, self._params, state.bias_direction[agents], strength)
-        # generator.direction_index_from_uniform without a tilt.
-        index = np.searchsorted(self._direction_edges, u, side="right")
-        return np.minimum(index, self._last_bin, out=index)
+        # generator.direction_index_from_uniform without a tilt: the bin below u's cell of the table, or the next
+        # one where u reaches the edge inside that cell (two look-ups, not a binary search per draw).
+        if self._direction_cells is None:
+            index = np.searchsorted(self._direction_edges, u, side="right")
+            return np.minimum(index, self._last_bin, out=index)
+        below, edge, count = self._direction_cells
+        cell = np.multiply(u, count).astype(np.int64)  # floor(u * 2**k), exactly: u >= 0
+        index = below.take(cell)
+        index += u >= edge.take(cell)
+        return index
 
     def _apply_cues(self, agents: np.ndarray, away: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Forced outcomes (shift_gaze) and turn-boundary blinks for the deciding agents that have cues; the

@@ -467,7 +467,7 @@ class GazeEngine:
             return
         state = self._state
         flat = state.rows.reshape(-1)
-        timed = np.flatnonzero(state.due_mask.take(agents))  # their timers expire too: tick() computed which
+        timed = state.due_mask.take(agents).nonzero()[0]  # their timers expire too: tick() computed which
         decide_at = flat.take(agents.take(timed) * N_COLUMNS + NEXT_SACCADE)
         decides = decide_at <= t
         if not np.count_nonzero(decides):

@@ -33,6 +33,7 @@ from eca.agent.gaze.rows import (
     column_pair,
     grow_rows,
     hashes,
+    operand,
     scatter_rows,
     stream_keys,
     write_eyes,
@@ -68,6 +69,17 @@ _CELL_FRACTION = (1 << _CELL_SHIFT) - 1
 _TWO_POW_MINUS_32 = 1.0 / float(1 << 32)
 _TWO_POW_MINUS_20 = 1.0 / float(1 << _CELL_SHIFT)
 assert 1 << (32 - _ANGLE_SHIFT) == ANGLES and 1 << (32 - _CELL_SHIFT) == AMPLITUDE_TABLE_INTERVALS
+# The constant operands of _step and start (rows.operand).
+_HALF_BITS, _LOW_HALF = operand(32, np.uint64), operand(0xFFFFFFFF, np.uint64)
+_MINUS_TWO_POW_MINUS_32, _FRACTION_SCALE = operand(-_TWO_POW_MINUS_32), operand(_TWO_POW_MINUS_20)
+_ANGLE_SHIFT_BY, _CELL_SHIFT_BY = operand(_ANGLE_SHIFT, np.int64), operand(_CELL_SHIFT, np.int64)
+_CELL_FRACTION_MASK, _STATE_MASK_BITS = operand(_CELL_FRACTION, np.int64), operand(_STATE_MASK, np.int64)
+_STATE_SHIFT_BY, _HASHES_DRAWN = operand(_STATE_BITS, np.int64), operand(_HASHES, np.int64)
+_FEATURE_MASK, _ONE, _TWO = (operand(v, np.int64) for v in (3, 1, 2))
+_ON_POINT = operand(1e-12)
+_ZERO, _FULL_TURN, _DEGREES_PER_RADIAN, _S_PER_NS = (operand(v) for v in (0.0, 360.0, DEGREES_PER_RADIAN, 1e-9))
+_ONE_INT8, _SCAN_MINUS_MICRO, _MICRO = (operand(v, np.int8) for v in (1, SCAN - MICRO, MICRO))
+_NS_PER_S = operand(float(_NS))
 
 
 class Fixations:
@@ -77,12 +89,16 @@ class Fixations:
         fix = params.fixation
         self._stream_seed = stream_seed
         self._refractory_ns = int(round(fix.refractory_s * _NS))
-        self._d0_ns = params.d0_s * _NS
-        self._d_ns_per_deg = params.d_s_per_deg * _NS
+        self._refractory = operand(self._refractory_ns, np.int64)
+        self._refractory_float = operand(float(self._refractory_ns))
+        self._d0_ns = operand(params.d0_s * _NS)
+        self._d_ns_per_deg = operand(params.d_s_per_deg * _NS)
         # Per row of a (from yaw, from pitch, to yaw, to pitch) block: the eye's limits, for np.clip as two
         # calls (np.maximum, np.minimum) without its Python wrapper.
         self._limits = np.array([[params.eye_yaw_limit_deg], [params.eye_pitch_limit_deg]] * 2)
+        self._lower_limits = -self._limits
         self._drift_two_d = 2.0 * fix.drift_diffusion_deg2_per_s  # per-axis variance per second
+        self._drift_scale = operand(-2e-9 * self._drift_two_d)  # times the ns drifted and log1p(-u)
         self._correction = math.radians(fix.correction_spread_deg)
         # The points a fixation holds, indexed like the fixated feature: 0 the gaze target, then FACE_FEATURES.
         self._points_yaw = np.append(0.0, fix.features_deg[:, 0])
@@ -161,30 +177,30 @@ class Fixations:
         if rows is None:
             rows = self._rows.take(agents, axis=0)
         floats = rows.view(np.float64)
-        context = role * 2
+        context = role * _TWO
         context += mutual
-        context *= 2
-        context += rows[:, KEY] & 1  # the preferred eye
+        context *= _TWO
+        context += rows[:, KEY] & _ONE  # the preferred eye
         # The spread negated: -max(x - r, 0) is min(r - x, 0) exactly (a difference changes sign exactly; rint,
         # symmetric, gives the same integer but for the sign of a zero, which the integer drops).
         spread = self._mean_s.take(context)
         spread *= interval_scale
-        spread *= _NS
-        np.subtract(self._refractory_ns, spread, out=spread)
-        np.minimum(spread, 0.0, out=spread)
+        spread *= _NS_PER_S
+        np.subtract(self._refractory_float, spread, out=spread)
+        np.minimum(spread, _ZERO, out=spread)
         np.rint(spread, out=spread)
         state = spread.astype(np.int64)
-        state <<= _STATE_BITS
-        context <<= 2  # the feature fixated: 0, the gaze target
+        state <<= _STATE_SHIFT_BY
+        context <<= _TWO  # the feature fixated: 0, the gaze target
         state |= context
         rows[:, STATE] = state
         rows[:, OFFSET] = 0  # the bits of 0.0
         floats[:, BASE_YAW], floats[:, BASE_PITCH] = base_yaw, base_pitch
         rows[:, LAST] = landing_ns
         z = hashes(rows[:, COUNTER], rows[:, KEY], 1)[0]
-        rows[:, COUNTER] += 1
-        z >>= np.uint64(32)
-        next_ns = self._interval_ns(spread, np.multiply(z.view(np.int64), -_TWO_POW_MINUS_32))
+        rows[:, COUNTER] += _ONE
+        z >>= _HALF_BITS
+        next_ns = self._interval_ns(spread, np.multiply(z.view(np.int64), _MINUS_TWO_POW_MINUS_32))
         next_ns += landing_ns
         self.next_ns[agents] = next_ns
         scatter_rows(self._rows, agents, rows)
@@ -248,18 +264,18 @@ class Fixations:
         floats = rows.view(np.float64)
         onset = self.next_ns.take(agents)
         z = hashes(rows[:, COUNTER], rows[:, KEY], _HASHES)
-        rows[:, COUNTER] += _HASHES
+        rows[:, COUNTER] += _HASHES_DRAWN
         state = rows[:, STATE]  # a view: the fixated feature is updated in place below
-        context = state & _STATE_MASK  # every table's index: see __init__
-        high = z >> np.uint64(32)
-        z &= np.uint64(0xFFFFFFFF)
+        context = state & _STATE_MASK_BITS  # every table's index: see __init__
+        high = z >> _HALF_BITS
+        z &= _LOW_HALF
         high, low = high.view(np.int64), z.view(np.int64)  # the halves: below 2**32, exact as int64 and float
         if self._drift_two_d:  # drift since the eye landed: a Brownian displacement (radius and angle)
-            radius = np.multiply(low[1], -_TWO_POW_MINUS_32)  # -u: log1p(-u) below
+            radius = np.multiply(low[1], _MINUS_TWO_POW_MINUS_32)  # -u: log1p(-u) below
             np.log1p(radius, out=radius)
-            radius *= (onset - rows[:, LAST]) * (-2e-9 * self._drift_two_d)
+            radius *= (onset - rows[:, LAST]) * self._drift_scale
             np.sqrt(radius, out=radius)
-            off = self._cos_sin.take(low[2] >> _ANGLE_SHIFT, axis=1)  # int(u * ANGLES), exactly
+            off = self._cos_sin.take(low[2] >> _ANGLE_SHIFT_BY, axis=1)  # int(u * ANGLES), exactly
             off *= radius
             off[0] += floats[:, OFF_YAW]
             off[1] += floats[:, OFF_PITCH]
@@ -272,22 +288,22 @@ class Fixations:
         # A microsaccade heads back toward the point fixated, within the correction spread. Its amplitude reads
         # the quantile table at u * AMPLITUDE_TABLE_INTERVALS: the cell and the fraction are the integer's
         # top bits and the rest, exactly.
-        cell = high[2] >> _CELL_SHIFT
-        fraction = high[2] & _CELL_FRACTION
+        cell = high[2] >> _CELL_SHIFT_BY
+        fraction = high[2] & _CELL_FRACTION_MASK
         amplitude = self._amplitude_steps.take(cell)
-        amplitude *= np.multiply(fraction, _TWO_POW_MINUS_20)
+        amplitude *= np.multiply(fraction, _FRACTION_SCALE)
         amplitude += self._amplitudes.take(cell)
         toward = self._fixated_point.take(context, axis=1)
         toward -= off
         square = toward * toward
         norm = np.add(square[0], square[1])
         np.sqrt(norm, out=norm)
-        on_point = np.flatnonzero(norm < 1e-12)  # heading along the spread alone
+        on_point = (norm < _ON_POINT).nonzero()[0]  # heading along the spread alone
         if on_point.size:
             toward[0][on_point], norm[on_point] = 1.0, 1.0
         amplitude /= norm
         # (yaw cos - pitch sin, yaw sin + pitch cos): the heading turned by the jitter.
-        turn = self._jitter_cos_sin.take(low[0] >> _ANGLE_SHIFT, axis=1)
+        turn = self._jitter_cos_sin.take(low[0] >> _ANGLE_SHIFT_BY, axis=1)
         np.multiply(toward, turn, out=square)
         toward *= turn[::-1]  # (sin; cos)
         to_off = np.empty_like(toward)
@@ -295,15 +311,15 @@ class Fixations:
         np.add(toward[0], toward[1], out=to_off[1])
         to_off *= amplitude
         to_off += off
-        hit = np.flatnonzero(scan)
+        hit = scan.nonzero()[0]
         if hit.size:  # through 1-D views: a (row, index) fancy index takes numpy's slow general path
             hit_context, u_hit = context.take(hit), u_kind.take(hit)
             landed_on = (u_hit >= self._target_1_from.take(hit_context)).view(np.int8)
             landed_on += (u_hit >= self._target_2_from.take(hit_context)).view(np.int8)
-            landed_on += 1
+            landed_on += _ONE_INT8
             to_off[0][hit] = self._points_yaw.take(landed_on)
             to_off[1][hit] = self._points_pitch.take(landed_on)
-            hit_context &= 3  # the feature fixated
+            hit_context &= _FEATURE_MASK  # the feature fixated
             np.subtract(landed_on, hit_context, out=hit_context)
             state[hit] += hit_context  # the feature fixated now, in the low bits
         # The reported columns (events.ONSET_FLOAT_FIELDS), computed where they are reported. A row's columns
@@ -311,12 +327,11 @@ class Fixations:
         # numpy iterate the axis of two innermost, several times slower.
         out = np.empty((9, agents.size))
         positions = out[:4]  # from yaw, from pitch, to yaw, to pitch
-        base_yaw, base_pitch = floats[:, BASE_YAW], floats[:, BASE_PITCH]
-        np.add(base_yaw, off[0], out=positions[0])
-        np.add(base_pitch, off[1], out=positions[1])
-        np.add(base_yaw, to_off[0], out=positions[2])
-        np.add(base_pitch, to_off[1], out=positions[3])
-        np.maximum(positions, -self._limits, out=positions)  # np.clip, without its Python wrapper
+        base = np.empty_like(off)  # (yaw; pitch) contiguous: read twice
+        base[0], base[1] = floats[:, BASE_YAW], floats[:, BASE_PITCH]
+        np.add(base, off, out=positions[:2])
+        np.add(base, to_off, out=positions[2:])
+        np.maximum(positions, self._lower_limits, out=positions)  # np.clip, without its Python wrapper
         np.minimum(positions, self._limits, out=positions)
         delta = np.subtract(positions[2:], positions[:2], out=off)
         moved = out[5]
@@ -326,10 +341,12 @@ class Fixations:
         out[4] = moved  # the magnitude
         duration = np.multiply(moved, self._d_ns_per_deg, out=norm)
         duration += self._d0_ns
-        end = np.rint(duration, out=duration).astype(np.int64)
+        np.rint(duration, out=duration)
+        end = duration.astype(np.int64)
         end += onset
-        next_onset = self._interval_ns((state >> _STATE_BITS).astype(np.float64),
-                                       np.multiply(high[0], -_TWO_POW_MINUS_32))
+        np.multiply(duration, _S_PER_NS, out=out[7])  # duration_s: the whole nanoseconds, as end - onset
+        next_onset = self._interval_ns((state >> _STATE_SHIFT_BY).astype(np.float64),
+                                       np.multiply(high[0], _MINUS_TWO_POW_MINUS_32))
         next_onset += onset
         floats[:, OFF_YAW], floats[:, OFF_PITCH] = to_off
         rows[:, LAST] = end
@@ -340,12 +357,11 @@ class Fixations:
         else:
             write_eyes(eyes, agents, out[2], out[3])
         direction = np.arctan2(delta[1], delta[0], out=out[6])
-        direction *= DEGREES_PER_RADIAN
-        direction += (direction < 0.0) * 360.0
-        np.multiply(end - onset, 1e-9, out=out[7])  # duration_s
-        np.multiply(next_onset - end, 1e-9, out=out[8])  # hold_s
-        kind = scan.view(np.int8) * np.int8(SCAN - MICRO)
-        kind += np.int8(MICRO)
+        direction *= _DEGREES_PER_RADIAN
+        direction += (direction < _ZERO) * _FULL_TURN
+        np.multiply(next_onset - end, _S_PER_NS, out=out[8])  # hold_s
+        kind = scan.view(np.int8) * _SCAN_MINUS_MICRO
+        kind += _MICRO
         self._chunks.append((agents, onset, kind, out))
         return next_onset
 
@@ -380,7 +396,7 @@ class Fixations:
         -2**-32). Both arguments are scratch (overwritten)."""
         negated_spread_ns *= np.log1p(negated_u, out=negated_u)
         interval = np.rint(negated_spread_ns, out=negated_spread_ns).astype(np.int64)
-        interval += self._refractory_ns
+        interval += self._refractory
         return interval
 
 

@@ -11,45 +11,51 @@ from collections.abc import Callable
 
 import numpy as np
 
-from eca.agent.gaze.rows import write_eyes
+from eca.agent.gaze.rows import operand, write_eyes
 from eca.agent.gaze.synth import saccade_progress
 
-# Columns of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch (float bit
-# patterns), then its agent.
+# Fields of a saccade in flight: onset, end, from yaw, from pitch, to yaw, to pitch (float bit patterns), then
+# its agent.
 FLIGHT_WIDTH = 7
-_AGENT = 6
-_FLIGHT_ROW = np.dtype((np.void, FLIGHT_WIDTH * 8))
-_SACCADE = np.dtype((np.void, _AGENT * 8))  # a flight's saccade columns as one element
+ONSET, END, FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH, AGENT = range(FLIGHT_WIDTH)
+_ONE = operand(1.0)
 
 
 class Flights:
-    """Copies of the saccades of the eyes in flight, in the order they were launched."""
+    """Copies of the saccades of the eyes in flight, in the order they were launched.
+
+    Field by field, each a row of one matrix: a tick reads every field of every copy once (to interpolate)
+    and trims them all, and both run along contiguous rows; as one row per copy, numpy reads the fields
+    with strides and copies the rows one by one."""
 
     def __init__(self) -> None:
-        self._buffer = np.empty((256, FLIGHT_WIDTH), np.int64)
-        self._spare = np.empty_like(self._buffer)  # the buffer's next state, to trim into without a copy
+        self._fields = np.empty((FLIGHT_WIDTH, 256), np.int64)
+        self._spare = np.empty_like(self._fields)  # the fields' next state, to trim into without a copy
         self._count = 0
+        # The copies before this one were still in flight at _flying_at (land left them): write_positions at
+        # that time checks only the saccades launched since.
+        self._flying = 0
+        self._flying_at: int | None = None
 
     def add(self, agents: np.ndarray, saccades: np.ndarray) -> None:
         """Append launched saccades: `saccades` holds onset, end, from and to of each (6 int64 columns)."""
         end = self._count + agents.size
-        if end > self._buffer.shape[0]:
-            capacity = max(2 * self._buffer.shape[0], end)
-            grown = np.empty((capacity, FLIGHT_WIDTH), np.int64)
-            grown[: self._count] = self._buffer[: self._count]
-            self._buffer, self._spare = grown, np.empty_like(grown)
-        # As one 48-byte element per row: numpy copies those by memcpy, six int64 columns one by one.
-        self._buffer[self._count : end, :_AGENT].view(_SACCADE)[:, 0] = saccades.view(_SACCADE)[:, 0]
-        self._buffer[self._count : end, _AGENT] = agents
+        if end > self._fields.shape[1]:
+            grown = np.empty((FLIGHT_WIDTH, max(2 * self._fields.shape[1], end)), np.int64)
+            grown[:, : self._count] = self._fields[:, : self._count]
+            self._fields, self._spare = grown, np.empty_like(grown)
+        added = self._fields[:, self._count : end]
+        added[:AGENT] = saccades.T
+        added[AGENT] = agents
         self._count = end
 
     def keep_current(self, onset_end: Callable[[np.ndarray], np.ndarray]) -> None:
         """Drop the copies of saccades cut short from outside (relaunched or stopped): those whose onset and
         end are no longer their agent's (`onset_end(agents)`), and all but the last of two launches of one
         agent at one instant (the later one, appended last, is the current one)."""
-        live = self._buffer[: self._count]
-        agents = live[:, _AGENT]
-        keep = np.all(live[:, :2] == onset_end(agents), axis=1)
+        live = self._fields[:, : self._count]
+        agents = live[AGENT]
+        keep = np.all(live[:END + 1].T == onset_end(agents), axis=1)
         _, first_in_reverse = np.unique(agents[::-1], return_index=True)
         latest = np.zeros(agents.size, dtype=bool)
         latest[agents.size - 1 - first_in_reverse] = True
@@ -60,30 +66,33 @@ class Flights:
         """Write the eyes that landed by `t` into `eyes` (rows of yaw and pitch) and drop their copies; the
         engine lands them before the small saccades that follow a landing, and interpolates the eyes in
         flight (write_positions) once the tick's decisions have launched theirs."""
-        live = self._buffer[: self._count]
-        flying = live[:, 1] > t
+        live = self._fields[:, : self._count]
+        flying = live[END] > t
         if np.count_nonzero(flying) < flying.size:
-            self._land(live, flying, eyes)
+            live = self._land(live, flying, eyes)
+        self._flying, self._flying_at = live.shape[1], t
 
     def write_positions(self, t: int, eyes: np.ndarray) -> None:
         """Write every eye in flight at `t` into `eyes` (rows of yaw and pitch); eyes that landed since go to
         where their saccade lands and leave (see land)."""
-        live = self._buffer[: self._count]
-        flying = live[:, 1] > t
+        live = self._fields[:, : self._count]
+        checked = self._flying if t == self._flying_at else 0
+        flying = live[END, checked:] > t
         if np.count_nonzero(flying) < flying.size:
+            flying = np.concatenate([np.ones(checked, dtype=bool), flying]) if checked else flying
             live = self._land(live, flying, eyes)
-        if not live.size:
+        if not live.shape[1]:
             return
-        onset = live[:, 0]
+        onset = live[ONSET]
         elapsed = t - onset
-        progress = saccade_progress(elapsed / (live[:, 1] - onset))
-        remaining = 1.0 - progress  # this form is exact at both ends of the saccade
+        progress = saccade_progress(elapsed / (live[END] - onset))
+        remaining = _ONE - progress  # this form is exact at both ends of the saccade
         floats = live.view(np.float64)
-        yaw = floats[:, 2] * remaining
-        yaw += floats[:, 4] * progress
-        pitch = floats[:, 3] * remaining
-        pitch += floats[:, 5] * progress
-        write_eyes(eyes, live[:, _AGENT], yaw, pitch)
+        yaw = floats[FROM_YAW] * remaining
+        yaw += floats[TO_YAW] * progress
+        pitch = floats[FROM_PITCH] * remaining
+        pitch += floats[TO_PITCH] * progress
+        write_eyes(eyes, live[AGENT], yaw, pitch)
 
     def _land(self, live: np.ndarray, flying: np.ndarray, eyes: np.ndarray) -> np.ndarray:
         """Write the landed copies' landing points and keep the others; returns those.
@@ -92,19 +101,18 @@ class Flights:
         agent's resting point, read here from the copy instead of from the agent's row (a random read per
         landing). An agent can have landed twice since the last tick (a saccade, and the one a decision
         launched after it): its copies are in launch order, and the later write is the one that stays."""
-        landed = live.view(_FLIGHT_ROW).reshape(-1)[~flying].view(np.int64).reshape(-1, FLIGHT_WIDTH)
-        to = landed.view(np.float64)
-        write_eyes(eyes, landed[:, _AGENT], to[:, 4], to[:, 5])
+        landed = (~flying).nonzero()[0]
+        to = live.view(np.float64)
+        write_eyes(eyes, live[AGENT].take(landed), to[TO_YAW].take(landed), to[TO_PITCH].take(landed))
         return self._trim(flying)
 
     def _trim(self, keep: np.ndarray) -> np.ndarray:
+        self._flying = 0  # the copies move
         count = int(np.count_nonzero(keep))
-        rows = self._buffer[: self._count].view(_FLIGHT_ROW).reshape(-1)
-        # A boolean index and a copy: np.compress into `out` takes about twice as long.
-        self._spare[:count].view(_FLIGHT_ROW).reshape(-1)[:] = rows[keep]
-        self._buffer, self._spare = self._spare, self._buffer
+        self._spare[:, :count] = np.compress(keep, self._fields[:, : self._count], axis=1)
+        self._fields, self._spare = self._spare, self._fields
         self._count = count
-        return self._buffer[:count]
+        return self._fields[:, :count]
 
 
 class LiveBlinks:
@@ -123,11 +131,12 @@ class LiveBlinks:
         # The curve's pieces as lines closure = slope * elapsed + offset, latest piece first (the window
         # holds onsets in ascending order, so elapsed times descend): (first ns, slope, offset) each.
         knots, values = np.asarray(curve_s, dtype=np.float64) * 1e9, self._closure
-        self._pieces: list[tuple[int, float, float]] = []
+        self._pieces: list[tuple[int, np.ndarray, np.ndarray]] = []  # slope and offset as 0-d arrays (operand)
         for j in range(len(knots) - 2, -1, -1):
             if knots[j + 1] > knots[j]:
                 slope = float((values[j + 1] - values[j]) / (knots[j + 1] - knots[j]))
-                self._pieces.append((int(round(knots[j])), slope, float(values[j] - slope * knots[j])))
+                offset = float(values[j] - slope * knots[j])
+                self._pieces.append((int(round(knots[j])), operand(slope), operand(offset)))
         self._elapsed = np.empty(1024)  # scratch for the window's elapsed times
         self._agents = np.empty(1024, np.int64)
         self._onsets = np.empty(1024, np.int64)

@@ -31,11 +31,16 @@ from eca.agent.gaze.rows import (
     ROLE,
     TO_PITCH,
     TO_YAW,
+    operand,
 )
 from eca.agent.gaze.state import MUTUAL, GazeState
 from eca.agent.gaze.synth import saccade_progress
 
 _NS = 1_000_000_000
+# Constant operands (rows.operand).
+_NS_PER_S, _S_PER_NS, _ZERO, _ONE, _FULL_TURN, _DEGREES_PER_RADIAN = (
+    operand(v) for v in (float(_NS), 1e-9, 0.0, 1.0, 360.0, DEGREES_PER_RADIAN))
+_ONE_NS = operand(1, np.int64)
 
 
 class Launcher:
@@ -55,9 +60,10 @@ class Launcher:
         self._flights = flights
         self._blinks = blinks
         self._log = log
-        self._d_ns_per_deg = params.d_s_per_deg * _NS
-        self._d0_ns = params.d0_s * _NS
+        self._d_ns_per_deg = operand(params.d_s_per_deg * _NS)
+        self._d0_ns = operand(params.d0_s * _NS)
         self._limits = np.array([[params.eye_yaw_limit_deg], [params.eye_pitch_limit_deg]])
+        self._lower_limits = -self._limits
 
     def launch(
         self,
@@ -88,7 +94,7 @@ class Launcher:
         floats = rows.view(np.float64)
         if state.cued and hold_s is not None:
             state.clear_cues(agents)
-        fixating = np.flatnonzero(rows[:, MODE] == FIXATIONAL) if state.fixating else agents[:0]
+        fixating = (rows[:, MODE] == FIXATIONAL).nonzero()[0] if state.fixating else agents[:0]
         whole = fixating.size == agents.size  # the whole batch fixates: no gathers
         if fixating.size:  # the small saccades before the launch run first: the eye starts where they left it
             fixating_agents = agents if whole else agents.take(fixating)
@@ -107,7 +113,7 @@ class Launcher:
                 offsets = fixation_rows.view(np.float64)
                 start[0] += offsets[:, OFF_YAW]
                 start[1] += offsets[:, OFF_PITCH]
-                np.maximum(start, -self._limits, out=start)  # np.clip, without its Python wrapper
+                np.maximum(start, self._lower_limits, out=start)  # np.clip, without its Python wrapper
                 np.minimum(start, self._limits, out=start)
             else:
                 at = fixating[landed]
@@ -124,12 +130,12 @@ class Launcher:
         duration_ns = np.rint(duration, out=duration).astype(np.int64)
         end = times + duration_ns
         if hold_s is not None:
-            next_saccade = np.rint(hold_s * _NS).astype(np.int64)
+            next_saccade = np.rint(hold_s * _NS_PER_S).astype(np.int64)
             next_saccade += end
             out[8] = hold_s
         else:
             next_saccade = np.maximum(rows[:, NEXT_SACCADE], end)
-            np.multiply(next_saccade - end, 1e-9, out=out[8])
+            np.multiply(next_saccade - end, _S_PER_NS, out=out[8])
         rows[:, ONSET], rows[:, END], rows[:, NEXT_SACCADE] = times, end, next_saccade
         floats[:, FROM_YAW], floats[:, FROM_PITCH] = start
         floats[:, TO_YAW], floats[:, TO_PITCH] = to
@@ -152,11 +158,11 @@ class Launcher:
         else:
             out[4] = magnitude
         direction = np.arctan2(delta[1], delta[0], out=out[6])
-        direction *= DEGREES_PER_RADIAN
+        direction *= _DEGREES_PER_RADIAN
         # np.mod(direction, 360) for angles within one turn, without its slow floating remainder: negative
         # angles go up a turn, the others get 0.0 added, which turns -0.0 into 0.0 as np.mod does.
-        direction += (direction < 0.0) * 360.0
-        duration *= 1e-9
+        direction += (direction < _ZERO) * _FULL_TURN
+        duration *= _S_PER_NS
         self._log.add_saccades(agents, times, kind, out)
 
     def position(self, rows: np.ndarray, times: np.ndarray, out: np.ndarray) -> None:
@@ -167,7 +173,7 @@ class Launcher:
         bytes) makes numpy iterate the axis of two innermost, several times slower."""
         floats = rows.view(np.float64)
         out[0], out[1] = floats[:, TO_YAW], floats[:, TO_PITCH]
-        in_flight = np.flatnonzero(times < rows[:, END])
+        in_flight = (times < rows[:, END]).nonzero()[0]
         if in_flight.size:
             self._state.flight_stale = True  # these eyes are relaunched or stopped mid-flight
             flying = rows.take(in_flight, axis=0)
@@ -175,9 +181,9 @@ class Launcher:
             # A mode switch stamped ahead of the last tick leaves a zero-length "saccade" (a fixation)
             # starting in the future: asked before it, the eye is at its start (tau < 0), so dividing by at
             # least 1 ns gives the same position without a division by zero.
-            duration = np.maximum(flying[:, END] - onset, 1)
+            duration = np.maximum(flying[:, END] - onset, _ONE_NS)
             progress = saccade_progress((times.take(in_flight) - onset) / duration)
-            remaining = 1.0 - progress  # this form is exact at both ends of the saccade
+            remaining = _ONE - progress  # this form is exact at both ends of the saccade
             flying_floats = flying.view(np.float64)
             for axis, start, end in ((0, FROM_YAW, TO_YAW), (1, FROM_PITCH, TO_PITCH)):
                 out[axis, in_flight] = flying_floats[:, start] * remaining + flying_floats[:, end] * progress

@@ -15,31 +15,46 @@ from functools import cache
 
 import numpy as np
 
-from eca.agent.counter_rng import splitmix64_inplace, stream_key
+from eca.agent.counter_rng import stream_key
 from eca.agent.gaze.generator import HOLD_TABLE_INTERVALS, hold_quantiles
 from eca.agent.gaze.params import ROLES, GazeParams
 
-_TWO_POW_MINUS_53 = 1.0 / float(1 << 53)
-_TWO_POW_MINUS_32 = 1.0 / float(1 << 32)
+
+def operand(value: float, dtype: type[np.generic] = np.float64) -> np.ndarray:
+    """A constant operand of the batches' arithmetic as a 0-d array: numpy converts a Python or numpy scalar
+    on every call (about half a microsecond, much of a call on a few thousand agents), an array it takes as
+    it is. Of the dtype the scalar would have had, so every result keeps its dtype and value."""
+    return np.array(value, dtype=dtype)
+
+
+_TWO_POW_MINUS_53 = operand(1.0 / float(1 << 53))
+_TWO_POW_MINUS_32 = operand(1.0 / float(1 << 32))
 _COUNTER_STEPS = np.arange(8, dtype=np.uint64)  # a draw of k uniforms reads counters c .. c + k - 1
+_MANTISSA_SHIFT, _HALF_BITS, _LOW_HALF = operand(11, np.uint64), operand(32, np.uint64), operand(0xFFFFFFFF, np.uint64)
+# counter_rng.splitmix64_inplace's constants and shifts (see _splitmix64_inplace).
+_GOLDEN, _MIX1, _MIX2 = (operand(v, np.uint64) for v in (0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB))
+_SHIFT_30, _SHIFT_27, _SHIFT_31 = (operand(v, np.uint64) for v in (30, 27, 31))
 CACHE_LINE = 64
 # np.rad2deg's own factor: multiplying by it gives rad2deg's results bit for bit, many times faster (numpy
 # runs rad2deg through a scalar loop).
 DEGREES_PER_RADIAN = 180.0 / math.pi
 
 # Columns of the engine's per-agent row matrix; float fields hold float64 bit patterns. The current saccade
-# comes first, so its compact copy for the eyes in flight is one slice of the row.
+# comes first, so its compact copy for the eyes in flight is one slice of the row. Each cache line of a row
+# (eight columns) serves one kind of access: the first holds the saccade, the second the timers and
+# everything a blink reads or writes (a blink touches its row nowhere else, and the timers that say which
+# event is due sit in the line it then works on), the third what only a decision reads.
 (
-    ONSET, END, FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH,
-    NEXT_SACCADE, NEXT_BLINK, COUNTER_SACCADE, COUNTER_BLINK, KEY_SACCADE, KEY_BLINK,
-    ROLE, MODE, KIND, HOLD_BASE, TARGET_YAW, TARGET_PITCH,
-    P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE, BLINK_SPREAD_NS, BLINK_ONSET,
+    ONSET, END, FROM_YAW, FROM_PITCH, TO_YAW, TO_PITCH, KIND, MODE,
+    NEXT_SACCADE, NEXT_BLINK, COUNTER_BLINK, KEY_BLINK, BLINK_SPREAD_NS, BLINK_ONSET, COUNTER_SACCADE, KEY_SACCADE,
+    ROLE, HOLD_BASE, TARGET_YAW, TARGET_PITCH, P_MUTUAL, MAG_SPAN, MAG_SCALE, INTERVAL_SCALE,
 ) = range(24)  # fmt: skip
 # 24 columns are 192 bytes, three whole cache lines when the matrix starts on a line (aligned_rows): a
 # 23-column row straddles four lines at most offsets, and the rows an event batch gathers and scatters
 # back are the bulk of a tick's random memory traffic. The latest blink onset rides in the row, written
 # with the rest of it, instead of costing a random write of its own per blink.
 N_COLUMNS = 24
+assert len({c // 8 for c in (NEXT_SACCADE, NEXT_BLINK, COUNTER_BLINK, KEY_BLINK, BLINK_SPREAD_NS, BLINK_ONSET)}) == 1
 # The compact copy of a saccade in flight (inflight.Flights): onset, end, from yaw, from pitch, to yaw, to pitch.
 FLIGHT = slice(ONSET, TO_PITCH + 1)
 # The hold tables (hold_table) have one row per (role, mutual/away); HOLD_BASE is the agent's role's first.
@@ -70,7 +85,7 @@ def hashes(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
     counters and keys, usually columns of a row matrix), as uint64 of shape (count, agents): the bits behind
     counter_rng.uniform01, for callers that read them another way than uniform_draws and uniform_halves."""
     z = _streams(counters.view(np.uint64), keys.view(np.uint64), count)
-    splitmix64_inplace(z, np.empty_like(z))
+    _splitmix64_inplace(z, np.empty_like(z))
     return z
 
 
@@ -78,8 +93,8 @@ def uniform_draws(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndar
     """`count` uniforms in [0, 1) per agent from its stream's counters c .. c + count - 1 (uint64 counters and
     keys): shape (count, agents), so each draw is one contiguous row. Bit for bit counter_rng.uniform01."""
     z = _streams(counters, keys, count)
-    splitmix64_inplace(z, scratch := np.empty_like(z))
-    np.right_shift(z, np.uint64(11), out=scratch)
+    _splitmix64_inplace(z, scratch := np.empty_like(z))
+    np.right_shift(z, _MANTISSA_SHIFT, out=scratch)
     # As int64 (the same values below 2**53), which numpy converts to float faster than uint64: exactly.
     return np.multiply(scratch.view(np.int64), _TWO_POW_MINUS_53)
 
@@ -89,13 +104,27 @@ def uniform_halves(counters: np.ndarray, keys: np.ndarray, hashes: int) -> np.nd
     row j is the high 32 bits of hash j, row hashes + j its low 32 bits. Half the hashing of uniform_draws,
     for draws that need no more than 32 bits (a choice, a table look-up, an interval's exponential)."""
     z = _streams(counters, keys, hashes)
-    splitmix64_inplace(z, scratch := np.empty_like(z))
+    _splitmix64_inplace(z, scratch := np.empty_like(z))
     out = np.empty((2 * hashes, z.shape[1]))
-    np.right_shift(z, np.uint64(32), out=scratch)
+    np.right_shift(z, _HALF_BITS, out=scratch)
     np.multiply(scratch.view(np.int64), _TWO_POW_MINUS_32, out=out[:hashes])  # int64: see uniform_draws
-    z &= np.uint64(0xFFFFFFFF)
+    z &= _LOW_HALF
     np.multiply(z.view(np.int64), _TWO_POW_MINUS_32, out=out[hashes:])
     return out
+
+
+def _splitmix64_inplace(z: np.ndarray, scratch: np.ndarray) -> None:
+    """counter_rng.splitmix64_inplace, step for step (so the same bits), with its constants as 0-d arrays
+    (operand): the engine hashes a few batches a tick, a dozen calls each."""
+    z += _GOLDEN
+    np.right_shift(z, _SHIFT_30, out=scratch)
+    z ^= scratch
+    z *= _MIX1
+    np.right_shift(z, _SHIFT_27, out=scratch)
+    z ^= scratch
+    z *= _MIX2
+    np.right_shift(z, _SHIFT_31, out=scratch)
+    z ^= scratch
 
 
 def _streams(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
@@ -132,9 +161,9 @@ def as_rows(matrix: np.ndarray) -> np.ndarray:
 
 
 def scatter_rows(matrix: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> None:
-    """matrix[indices] = rows for C-contiguous row matrices: np.put of whole rows (void views), about a
+    """matrix[indices] = rows for C-contiguous row matrices: a put of whole rows (void views), about a
     third faster than the same assignment by index."""
-    np.put(as_rows(matrix), indices, as_rows(rows))
+    as_rows(matrix).put(indices, as_rows(rows))
 
 
 def column_pair(matrix: np.ndarray, rows: np.ndarray, first: int, second: int) -> tuple[np.ndarray, np.ndarray]:
