@@ -33,17 +33,21 @@ pitch after roll (Unity's Euler order, as the VMC sender composes them). VRM's l
 left, pitch + = down) are eca's negated. A joint whose rest axes point anywhere turns the same way: its local turn
 is G^-1 R G for its rest orientation G in the model.
 
-Pure numpy and floats; a frame costs some tens of microseconds (tests/test_avatar_drive.py measures it).
+Pure numpy and floats; a frame costs some tens of microseconds (tests/test_avatar_drive.py measures it), and
+`drive_many` poses many agents' frames of one avatar in one batch of array operations (the web service's
+conversations, which share the default head).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from eca.agent.rig.frame import RigFrame
+from eca.agent.rig.frame import RigBatch, RigFrame
 from eca.agent.rig.names import (
     ARKIT_INDEX,
     ARKIT_NAMES,
@@ -126,6 +130,61 @@ def expression_look(yaw_deg: float, pitch_deg: float, look_at: LookAt) -> tuple[
     left = _mapped(yaw_deg, look_at.horizontal_outer) if yaw_deg < 0.0 else 0.0  # the agent's (model's) left
     right = _mapped(yaw_deg, look_at.horizontal_outer) if yaw_deg > 0.0 else 0.0
     return tuple(min(max(w, 0.0), 1.0) for w in (up, down, left, right))  # type: ignore[return-value]
+
+
+def agent_rotations(yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) `agent_rotation` of each (yaw, pitch, roll), the same products in arrays."""
+    a, b, g = np.radians(-yaw_deg), np.radians(-pitch_deg), np.radians(roll_deg)
+    ca, sa, cb, sb, cg, sg = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(g), np.sin(g)
+    zero = np.zeros_like(ca)
+    m = np.stack([np.stack([ca, sa * sb, sa * cb], -1), np.stack([zero, cb, -sb], -1),
+                  np.stack([-sa, ca * sb, ca * cb], -1)], 1)
+    rolled = roll_deg != 0.0
+    if rolled.any():
+        m0, m1 = m[rolled, :, 0].copy(), m[rolled, :, 1].copy()
+        c, s = cg[rolled, None], sg[rolled, None]
+        m[rolled, :, 0] = m0 * c + m1 * s
+        m[rolled, :, 1] = m0 * -s + m1 * c
+    return m
+
+
+def rotations_x(deg: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) `rotation_x` of each angle."""
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    m = np.zeros((len(a), 3, 3))
+    m[:, 0, 0] = 1.0
+    m[:, 1, 1], m[:, 1, 2], m[:, 2, 1], m[:, 2, 2] = c, -s, s, c
+    return m
+
+
+def _mapped_many(angle: np.ndarray, input_max_deg: np.ndarray, output_scale: np.ndarray) -> np.ndarray:
+    mapped: np.ndarray = np.minimum(np.abs(angle), input_max_deg) / input_max_deg * output_scale
+    return mapped
+
+
+def bone_looks(yaw_deg: np.ndarray, pitch_deg: np.ndarray, look_at: LookAt,
+               left_eye: bool) -> tuple[np.ndarray, np.ndarray]:
+    """`bone_look` of many eye directions."""
+    outward = yaw_deg < 0.0 if left_eye else yaw_deg > 0.0
+    outer, inner = look_at.horizontal_outer, look_at.horizontal_inner
+    up, down = look_at.vertical_up, look_at.vertical_down
+    h_max = np.where(outward, outer.input_max_deg, inner.input_max_deg)
+    h_scale = np.where(outward, outer.output_scale, inner.output_scale)
+    v_up = pitch_deg > 0.0
+    v_max = np.where(v_up, up.input_max_deg, down.input_max_deg)
+    v_scale = np.where(v_up, up.output_scale, down.output_scale)
+    return (np.copysign(_mapped_many(yaw_deg, h_max, h_scale), yaw_deg),
+            np.copysign(_mapped_many(pitch_deg, v_max, v_scale), pitch_deg))
+
+
+@dataclass(frozen=True, eq=False)
+class BatchPose:
+    """Many frames' poses (AvatarDriver.drive_many): `flat` (N, targets) float32 morph weights, `local` joint ->
+    (N, 3, 3) the rotation part of its local transform (rest @ turn), for the same joints as AvatarPose's."""
+
+    flat: np.ndarray
+    local: dict[int, np.ndarray]
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,6 +295,9 @@ class AvatarDriver:
         self._cols = np.array([c for _, c in keys], dtype=np.intp)
         self._vals = np.array([entries[k] for k in keys], dtype=np.float64)
         self._sources = np.zeros(_EXPRESSIONS_AT + len(names), dtype=np.float64)
+        # the same table as a (source, target) matrix: many frames' weights in one product (drive_many)
+        self._dense = np.zeros((len(self._sources), self.n_targets))
+        self._dense[self._cols, self._rows] = self._vals  # (target, source) pairs are unique: dict keys
         self._build_overrides(names)
         self._build_joints(bones, caps.eyes)
 
@@ -339,14 +401,7 @@ class AvatarDriver:
         flat = np.clip(flat, 0.0, 1.0).astype(np.float32)
         weights = tuple(flat[a:b] for a, b in self._slices)
 
-        turns: dict[int, np.ndarray] = {}
-        yaw, pitch, roll = frame.head_yaw_deg, frame.head_pitch_deg, frame.head_roll_deg
-        if self.head >= 0:
-            share = self.neck_share if self.neck >= 0 else 0.0
-            if share > 0.0:
-                turns[self.neck] = agent_rotation(share * yaw, share * pitch, share * roll)
-            rest_share = 1.0 - share
-            turns[self.head] = agent_rotation(rest_share * yaw, rest_share * pitch, rest_share * roll)
+        turns = self._head_turns(frame.head_yaw_deg, frame.head_pitch_deg, frame.head_roll_deg, agent_rotation)
         for joint, eye, left in ((self.eyes[0], frame.left_eye, True), (self.eyes[1], frame.right_eye, False)):
             if joint >= 0:
                 e_yaw, e_pitch = eye.yaw_deg, eye.pitch_deg
@@ -362,6 +417,73 @@ class AvatarDriver:
             transform[:3, :3] = transform[:3, :3] @ (g_inv @ turn @ g)
             local[joint] = transform
         return AvatarPose(weights, turns, local, flat)
+
+    def _head_turns(self, yaw: Any, pitch: Any, roll: Any, rotation: Callable[[Any, Any, Any], np.ndarray]
+                    ) -> dict[int, np.ndarray]:
+        """The neck's and head's turns (by `rotation`: of one frame's angles, or of arrays of them)."""
+        turns: dict[int, np.ndarray] = {}
+        if self.head >= 0:
+            share = self.neck_share if self.neck >= 0 else 0.0
+            if share > 0.0:
+                turns[self.neck] = rotation(share * yaw, share * pitch, share * roll)
+            rest_share = 1.0 - share
+            turns[self.head] = rotation(rest_share * yaw, rest_share * pitch, rest_share * roll)
+        return turns
+
+    def drive_many(self, batch: RigBatch, rows: Sequence[int]) -> BatchPose:
+        """The poses of `batch`'s rows `rows` at once: what `drive` gives each of them (the weights summed in
+        another order, so equal to the last bit or so; tests/test_avatar_drive.py), at a fraction of the cost
+        per face when many agents share one avatar (the web service's conversations)."""
+        at = np.asarray(rows, dtype=np.intp)
+        n = len(at)
+        sources = np.empty((n, len(self._sources)))
+        sources[:, :N_ARKIT] = batch.arkit[at]
+        sources[:, _VISEMES_AT:_EXPRESSIONS_AT] = batch.visemes[at]
+        if len(self._expression_names):
+            sources[:, _EXPRESSIONS_AT:] = self._expression_weights_many(batch, at)
+        flat = sources @ self._dense
+        np.clip(flat, 0.0, 1.0, out=flat)
+
+        yaw, pitch, roll = batch.head_deg[at].T
+        eyes = batch.eyes_deg[at]
+        turns = self._head_turns(yaw, pitch, roll, agent_rotations)
+        for joint, column, left in ((self.eyes[0], 0, True), (self.eyes[1], 2, False)):
+            if joint >= 0:
+                e_yaw, e_pitch = eyes[:, column], eyes[:, column + 1]
+                if self.eye_maps is not None:
+                    e_yaw, e_pitch = bone_looks(e_yaw, e_pitch, self.eye_maps, left)
+                turns[joint] = agent_rotations(e_yaw, e_pitch, np.zeros(n))
+        if self.jaw >= 0:
+            turns[self.jaw] = rotations_x(self.jaw_open_deg * batch.arkit[at, ARKIT_INDEX["JawOpen"]])
+        local = {}
+        for joint, turn in turns.items():
+            g, g_inv = self._frames[joint]
+            local[joint] = self._rest[joint, :3, :3] @ (g_inv @ turn @ g)
+        return BatchPose(flat.astype(np.float32), local)
+
+    def _expression_weights_many(self, batch: RigBatch, at: np.ndarray) -> np.ndarray:
+        """`expression_weights` of many frames, row by row the same arithmetic."""
+        e = np.zeros((len(at), len(self._expression_names)))
+        if self._from_vrm_k.size:
+            e[:, self._from_vrm_k] = batch.vrm[at][:, self._from_vrm_src]
+        if self._look_at_rows is not None:
+            assert self.avatar.look_at is not None
+            eyes = batch.eyes_deg[at]
+            for i in range(len(at)):
+                yaw = 0.5 * (float(eyes[i, 0]) + float(eyes[i, 2]))
+                pitch = 0.5 * (float(eyes[i, 1]) + float(eyes[i, 3]))
+                for k, w in zip(self._look_at_rows, expression_look(yaw, pitch, self.avatar.look_at), strict=True):
+                    if k >= 0:
+                        e[i, k] = w
+        if self._any_binary:
+            e[:, self._binary] = (e[:, self._binary] > 0.5).astype(np.float64)
+        for member, block, blend, binary_member in self._categories:
+            amount = np.count_nonzero(e[:, block] > 0.0, axis=1) + e[:, blend].sum(axis=1)
+            factor = np.maximum(0.0, 1.0 - amount)
+            overridden = factor < 1.0
+            e[np.ix_(overridden, member)] *= factor[overridden, None]
+            e[np.ix_(overridden, binary_member)] = 0.0
+        return e
 
     def local_transforms(self, pose: AvatarPose) -> np.ndarray:
         """(J, 4, 4) every joint's local transform under `pose` (the rest pose but for the turned joints)."""

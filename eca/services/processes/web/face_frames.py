@@ -92,13 +92,18 @@ class FaceFrames:
         wall_offset_ns = time.time_ns() - self.clock.now_ns()
         time_ms = (t_ns + wall_offset_ns) / 1e6 + NTP_UNIX_OFFSET_MS
         self.seq += 1
-        out = {}
+        by_face: dict[Path, list[int]] = {}  # the agents of each avatar, packed together
         for i, view in enumerate(views):
-            agent = view.agent
+            by_face.setdefault(self.files[view.agent], []).append(i)
+        out: dict[str, bytes] = {}
+        for rows in by_face.values():
+            agents = [views[i].agent for i in rows]
             # the voice sounds then: an utterance of the lip-sync plays at t (its keys and clock anchors come ahead
             # of the sound), or the voice's own samples there are loud (they come only some 40 ms ahead)
-            voiced = view.scene.mouth_at(t_ns) is not None or sounding(agent, t_ns)
-            out[agent] = self.face(agent).pack(batch.frame(i), self.slots[agent], self.seq, time_ms, voiced,
-                                               mark=t_ns % 1_000_000_000 == 0)
+            voiced = [views[i].scene.mouth_at(t_ns) is not None or sounding(agent, t_ns)
+                      for i, agent in zip(rows, agents, strict=True)]
+            frames = self.face(agents[0]).pack_many(batch, rows, [self.slots[a] for a in agents], self.seq, time_ms,
+                                                    voiced, mark=t_ns % 1_000_000_000 == 0)
+            out.update(zip(agents, frames, strict=True))
         self.sent += len(out)
-        return out
+        return {view.agent: out[view.agent] for view in views}
