@@ -46,6 +46,7 @@ from eca.protocol.curve import CurveKeyError, CurveKeys, link_options, load_allo
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import ALL_AGENTS, AgentsState, Error, Heartbeat, Hello, Message
 from eca.protocol.topics import STATE_PREFIX, topic_for
+from eca.services.processes.heap import freeze_startup_objects
 from eca.services.processes.liveness import LivenessSender
 
 log = logging.getLogger("broker")
@@ -362,6 +363,7 @@ def run_broker(config: BusConfig, parent_pid: int | None = None, liveness: str |
     except (BrokerAlreadyRunning, zmq.ZMQError, CurveKeyError) as exc:
         log.error("cannot start: %s", exc)
         return 2
+    freeze_startup_objects()
     log.info("ready (pid %d): publishers -> %s, subscribers -> %s", os.getpid(), config.frontend,
              config.backend)
     supervisor = LivenessSender(broker.ctx, liveness) if liveness else None

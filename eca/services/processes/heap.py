@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import gc
 from functools import cache
 
 _M_TRIM_THRESHOLD = -1
@@ -43,6 +44,15 @@ def bound_heap() -> bool:
     ok &= libc.mallopt(_M_TRIM_THRESHOLD, LARGE_BYTES) == 1
     ok &= libc.mallopt(_M_ARENA_MAX, 2) == 1
     return bool(ok)
+
+
+def freeze_startup_objects() -> None:
+    """Take what a service holds once started (modules, configs, avatars, compiled code) out of the cyclic
+    collector's view: collect once, then `gc.freeze()`. A full collection otherwise walks all of it whenever the
+    young objects' churn triggers one: in the web service with six conversations those took 27-74 ms, every
+    thread stopped, and a voice packet 60-90 ms late with them. What is made afterwards is collected as before."""
+    gc.collect()
+    gc.freeze()
 
 
 def trim() -> None:

@@ -7,7 +7,7 @@ import importlib
 import sys
 
 from eca.protocol.endpoints import BusConfigError, load_bus_config
-from eca.services.processes.heap import bound_heap
+from eca.services.processes.heap import bound_heap, freeze_startup_objects
 from eca.services.processes.runtime import setup_logging
 
 # name -> "module:class"; a module is imported only when its service is started.
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     else:
         service = service_cls(config, **common)
-    return service.run()
+    return service.run(on_ready=freeze_startup_objects)
 
 
 if __name__ == "__main__":
