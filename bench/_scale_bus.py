@@ -41,17 +41,18 @@ def measure(config_path: str, samples: int) -> int:
 
     from eca.protocol.bus import Publisher, Subscriber
     from eca.protocol.endpoints import load_bus_config
-    from eca.protocol.messages import EyeState
+    from eca.protocol.messages import ALL_AGENTS, EyeStates
 
     config = load_bus_config(config_path)
     ctx = zmq.Context()
     pub = Publisher(ctx, config, "bench")
-    sub = Subscriber(ctx, config, ["stream.ada.eye_state"])
+    sub = Subscriber(ctx, config, ["stream.*.eye_states"])
     pub.wait_ready(20.0)
     sub.wait_ready(20.0)
     latencies: list[int] = []
     for i in range(samples + WARM_UP):
-        pub.publish(EyeState(agent="ada", yaw_deg=3.5 + i % 7, pitch_deg=-1.25, lid=0.1, mode="saccade+blink"))
+        pub.publish(EyeStates(agent=ALL_AGENTS, agents=["ada"], yaw_deg=[3.5 + i % 7], pitch_deg=[-1.25], lid=[0.1],
+                              mode=["saccade+blink"]))
         got = sub.recv(5.0)
         now = time.monotonic_ns()
         if got is None or got.message is None:

@@ -41,7 +41,7 @@ sys.path.insert(0, str(REPO))
 
 from eca.services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
 
-TOPIC = "stream.ada.eye_state"
+TOPIC = "stream.*.eye_states"
 TARGET_MEDIAN_RATIO = 1.2
 TARGET_P99_MS_60HZ = 2.0
 READY_TIMEOUT_S = 30.0
@@ -72,7 +72,7 @@ def run_subscriber(mode: str, config_path: str, instance: str, count: int, idle_
                 break
             now = time.monotonic_ns()
             msg = got.message
-            if msg is None or msg.TYPE != "eye_state":
+            if msg is None or msg.TYPE != "eye_states":
                 continue
             latencies.append(now - msg.t_ns)
             seqs.add(msg.seq)
@@ -97,7 +97,7 @@ def run_subscriber(mode: str, config_path: str, instance: str, count: int, idle_
             frames = sock.recv_multipart()
             msg = msgpack.unpackb(frames[1], raw=False)
             now = time.monotonic_ns()
-            if msg.get("type") != "eye_state":
+            if msg.get("type") != "eye_states":
                 continue
             latencies.append(now - msg["t_ns"])
             seqs.add(msg["seq"])
@@ -114,7 +114,7 @@ def run_publisher(mode: str, config_path: str, instance: str, count: int, rate_h
 
     from eca.protocol.bus import Publisher
     from eca.protocol.endpoints import load_bus_config
-    from eca.protocol.messages import EyeState
+    from eca.protocol.messages import ALL_AGENTS, EyeStates
 
     config = load_bus_config(config_path, instance)
     ctx = zmq.Context()
@@ -124,7 +124,8 @@ def run_publisher(mode: str, config_path: str, instance: str, count: int, rate_h
         pub.wait_ready(10.0)
 
         def send(i: int) -> None:
-            pub.publish(EyeState(agent="ada", yaw_deg=3.5 + i % 7, pitch_deg=-1.25, lid=0.1, mode="saccade+blink"))
+            pub.publish(EyeStates(agent=ALL_AGENTS, agents=["ada"], yaw_deg=[3.5 + i % 7], pitch_deg=[-1.25], lid=[0.1],
+                                  mode=["saccade+blink"]))
 
         sock = pub.socket
     else:
@@ -139,9 +140,9 @@ def run_publisher(mode: str, config_path: str, instance: str, count: int, rate_h
         packb = msgpack.packb
 
         def send(i: int) -> None:
-            body = {"v": 1, "type": "eye_state", "agent": "ada", "seq": i + 1, "t_ns": time.monotonic_ns(),
-                    "source": "bench", "yaw_deg": 3.5 + i % 7, "pitch_deg": -1.25, "lid": 0.1,
-                    "mode": "saccade+blink"}
+            body = {"v": 1, "type": "eye_states", "agent": "*", "seq": i + 1, "t_ns": time.monotonic_ns(),
+                    "source": "bench", "agents": ["ada"], "yaw_deg": [3.5 + i % 7], "pitch_deg": [-1.25],
+                    "lid": [0.1], "mode": ["saccade+blink"]}
             sock.send_multipart([topic, packb(body)])
 
     next_ns = time.monotonic_ns()

@@ -46,7 +46,7 @@ from eca.agent.face.flexors import FLEXOR_NAMES  # noqa: E402
 from eca.protocol.bus import Publisher, Subscriber  # noqa: E402
 from eca.protocol.client import AgentClient  # noqa: E402
 from eca.protocol.endpoints import BusConfig, load_bus_config  # noqa: E402
-from eca.protocol.messages import EmotionState, EyeState, FaceFrame, Saccade  # noqa: E402
+from eca.protocol.messages import ALL_AGENTS, EmotionState, EyeStates, FaceFrame, Saccade  # noqa: E402
 from tests.support.bus import private_bus_config, running  # noqa: E402
 
 EXPRESSION = [n for n in FLEXOR_NAMES if n not in ("look_x", "look_y", "blink_l", "blink_r", "turn", "nod", "tilt")]
@@ -190,7 +190,8 @@ def flood(config_path: str, instance: str, rate: float, seconds: float) -> int:
     while (elapsed := time.monotonic() - t0) < seconds:
         due = int(elapsed * rate)
         while sent < due:
-            pub.publish(EyeState(agent="ada", yaw_deg=1.0, pitch_deg=0.0, lid=0.0, mode="saccade+blink"))
+            pub.publish(EyeStates(agent=ALL_AGENTS, agents=["ada"], yaw_deg=[1.0], pitch_deg=[0.0], lid=[0.0],
+                                  mode=["saccade+blink"]))
             sent += 1
         time.sleep(0.002)  # pacing of the load generator, not synchronisation
     pub.close()

@@ -21,7 +21,7 @@ from eca.protocol.messages import (
     AttentionState,
     EmotionState,
     Error,
-    EyeState,
+    EyeStates,
     Interrupt,
     Message,
     PlaybackState,
@@ -138,8 +138,9 @@ def test_scenes_add_each_created_agent_with_its_cached_state_and_drop_it_again(f
             dialogue.publish(listing(["ada"], ["v1"]))  # the new agent's state came first: the cache has it
             assert wait_until(lambda: emotion_of(service, "v1") == ("happy", 0.5), 5.0)
             assert [v.agent for v in service.scenes.views] == ["ada", "v1"] and service.scenes.live == ("ada", "v1")
-            dialogue.publish(EyeState(agent="v1", yaw_deg=5.0, pitch_deg=0.0, lid=0.0, mode="static"))
-            assert wait_until(lambda: eye_mode_of(service, "v1") == "static", 5.0)  # subscribed on the live socket
+            dialogue.publish(EyeStates(agent=ALL_AGENTS, agents=["v1"], yaw_deg=[5.0], pitch_deg=[0.0], lid=[0.0],
+                                       mode=["static"]))
+            assert wait_until(lambda: eye_mode_of(service, "v1") == "static", 5.0)  # its eyes reach its new scene
             dialogue.publish(listing(["ada"], []))
             assert wait_until(lambda: "v1" not in service.scenes.by_agent, 5.0)
             # what is still on its way for it is dropped without a word (ada's emotion, sent after it, marks the
@@ -158,8 +159,9 @@ def test_scenes_that_neither_follow_nor_listen_subscribe_as_before() -> None:
         service = SceneService(config, ["ada"], follow=False)
     plain = BusScenes(service, ["ada", "bob"])  # a renderer's: no follow, no hook
     assert plain.subscriptions() == [
-        "state.ada.", "event.ada.", "stream.ada.eye_state", "stream.ada.clock_anchor", "stream.ada.mouth",
-        "state.bob.", "event.bob.", "stream.bob.eye_state", "stream.bob.clock_anchor", "stream.bob.mouth"]
+        "stream.*.eye_states",
+        "state.ada.", "event.ada.", "stream.ada.clock_anchor", "stream.ada.mouth",
+        "state.bob.", "event.bob.", "stream.bob.clock_anchor", "stream.bob.mouth"]
 
 
 # --- the gaze service ---------------------------------------------------------------------------------------
@@ -171,23 +173,24 @@ def test_the_gaze_engine_reuses_the_slots_of_removed_agents_and_each_created_one
         with ServiceThread(service):
             eyes = subscriber(["stream.", "state.", "error."])
             dialogue.publish(listing(["ada", "bob"], ["v1", "v2"]))
-            collect(eyes, lambda got: {m.agent for m in got if isinstance(m, EyeState)} >= {"ada", "bob", "v1", "v2"})
+            collect(eyes, lambda got: {a for m in got if isinstance(m, EyeStates) for a in m.agents}
+                    >= {"ada", "bob", "v1", "v2"})
             assert service.engine.n_agents == 4
             for k in range(10):  # visitors come and go: the engine never grows past the most alive at once
                 dialogue.publish(listing(["ada", "bob"], ["v2", f"w{k}"]))
             dialogue.publish(listing(["ada", "bob"], ["v2", "v3"]))
-            got = collect(eyes, lambda got: any(isinstance(m, EyeState) and m.agent == "v3" for m in got))
+            got = collect(eyes, lambda got: any(isinstance(m, EyeStates) and "v3" in m.agents for m in got))
             assert service.engine.n_agents == 4 and sorted(service.index) == ["ada", "bob", "v2", "v3"]
             assert not [m for m in got if isinstance(m, Error)], got
-            # a removed agent's eyes stop: a whole tick of every live agent's, and none of v1's after them
+            # a removed agent's eyes stop: a whole tick of every live agent's, and none of v1's in it
             tick = {"ada", "bob", "v2", "v3"}
-            seen: set[str] = set()
 
             def whole_tick(got: list[Message]) -> bool:
-                if got and isinstance(got[-1], EyeState):
-                    assert got[-1].agent in tick | {"v1"} or got[-1].agent.startswith("w")
-                    seen.add(got[-1].agent) if got[-1].agent in tick else seen.clear()
-                return seen == tick
+                if not got or not isinstance(got[-1], EyeStates):
+                    return False
+                agents = set(got[-1].agents)
+                assert agents <= tick | {"v1"} or any(a.startswith("w") for a in agents), agents
+                return agents == tick
 
             collect(eyes, whole_tick)
             # a created agent talks with its own user only: nobody else turns to it, it turns to nobody

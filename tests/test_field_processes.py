@@ -155,7 +155,7 @@ def hostile_corpus(seed: int) -> list[list[bytes]]:
              "role": RoleState(agent="ada", role="talking", t_ns=1, source="dialogue")}
     out: list[list[bytes]] = []
     types = ["say", "set_emotion", "role", "emotion", "speech", "playback", "heartbeat", "error", "mouth",
-             "clock_anchor", "eye_state", "face_frame", "speech_finished", "x"]
+             "clock_anchor", "eye_states", "face_frame", "speech_finished", "x"]
     for category in CATEGORIES:
         for agent in ("ada", "*", "bob"):
             for type_name in types:
@@ -203,16 +203,16 @@ def test_hostile_bytes_on_every_topic_cost_no_process_and_no_state(instance) -> 
     assert not [line for line in reader.lines if "Traceback" in line or "restarting" in line]
     # and each is still at work: the renderer draws, the gaze service moves the eyes
     ctx = zmq.Context()
-    sub = Subscriber(ctx, config, ["stream.ada.face_frame", "stream.ada.eye_state"])
+    sub = Subscriber(ctx, config, ["stream.ada.face_frame", "stream.*.eye_states"])
     try:
         sub.wait_ready()
         seen: set[str] = set()
         deadline = time.monotonic() + 20.0
-        while seen != {"face_frame", "eye_state"} and time.monotonic() < deadline:
+        while seen != {"face_frame", "eye_states"} and time.monotonic() < deadline:
             got = sub.recv(1.0)
             if got is not None and got.message is not None:
                 seen.add(got.message.TYPE)
-        assert seen == {"face_frame", "eye_state"}
+        assert seen == {"face_frame", "eye_states"}
     finally:
         sub.close()
         ctx.term()

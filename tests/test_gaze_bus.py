@@ -11,7 +11,7 @@ import zmq
 
 from eca.agent.gaze.synth import eye_position_at
 from eca.protocol.bus import Publisher, Subscriber
-from eca.protocol.messages import EyeState, HeadState, RoleState, Saccade
+from eca.protocol.messages import EyeStates, HeadState, RoleState, Saccade
 from eca.services.processes.gaze import GazeService
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
@@ -39,13 +39,13 @@ def gaze_service(topics: list[str], agents: list[str] | None = None) -> Iterator
 
 
 def test_a_role_change_is_published_before_the_next_scheduled_tick() -> None:
-    with gaze_service(["event.ada.saccade", "stream.ada.eye_state"]) as (sub, dialogue):
+    with gaze_service(["event.ada.saccade", "stream.*.eye_states"]) as (sub, dialogue):
         onsets = []
         for role in ("talking", "listening", "talking"):
             role_state = dialogue.publish(RoleState(agent="ada", role=role))
             deadline = time.monotonic() + 5.0
             saccade: Saccade | None = None
-            eye: EyeState | None = None
+            eye: EyeStates | None = None
             while (saccade is None or eye is None) and (left := deadline - time.monotonic()) > 0:
                 received = sub.recv(left)
                 if received is None:
@@ -53,10 +53,11 @@ def test_a_role_change_is_published_before_the_next_scheduled_tick() -> None:
                 m = received.message
                 if isinstance(m, Saccade) and m.onset_ns >= role_state.t_ns:
                     saccade = m
-                if isinstance(m, EyeState) and m.t_ns >= role_state.t_ns:
+                if isinstance(m, EyeStates) and m.t_ns >= role_state.t_ns and "ada" in m.agents:
                     eye = m
             assert saccade is not None, f"no saccade for the change to {role} before the next tick"
             assert eye is not None, f"no eye state after the change to {role}"
+            k = eye.agents.index("ada")
             # the eye state published with the reaction is already on the new saccade
             expected = eye_position_at(
                 eye.t_ns,
@@ -65,7 +66,7 @@ def test_a_role_change_is_published_before_the_next_scheduled_tick() -> None:
                 (saccade.to_yaw_deg, saccade.to_pitch_deg),
                 saccade.duration_s,
             )
-            assert np.allclose((eye.yaw_deg, eye.pitch_deg), expected, atol=1e-9)
+            assert np.allclose((eye.yaw_deg[k], eye.pitch_deg[k]), expected, atol=1e-9)
             onsets.append(saccade.onset_ns)
         assert len(set(onsets)) == 3
 
@@ -73,14 +74,14 @@ def test_a_role_change_is_published_before_the_next_scheduled_tick() -> None:
 def test_a_reaction_sends_the_eye_state_of_the_agent_it_concerns_only() -> None:
     # bob comes first in the agent list, so a reaction tick that sent his eye state would send it before ada's
     # (a head move concerns its agent only; a role change is a turn, which also turns the other's eyes)
-    with gaze_service(["stream.ada.eye_state", "stream.bob.eye_state"], agents=["bob", "ada"]) as (sub, dialogue):
+    with gaze_service(["stream.*.eye_states"], agents=["bob", "ada"]) as (sub, dialogue):
         for turn in (0.3, -0.3, 0.2):
             role_state = dialogue.publish(HeadState(agent="ada", turn=turn))
             deadline = time.monotonic() + 5.0
-            after: list[EyeState] = []
-            while not any(m.agent == "ada" for m in after) and (left := deadline - time.monotonic()) > 0:
+            after: list[EyeStates] = []
+            while not any("ada" in m.agents for m in after) and (left := deadline - time.monotonic()) > 0:
                 received = sub.recv(left)
-                if received is not None and isinstance(received.message, EyeState):
+                if received is not None and isinstance(received.message, EyeStates):
                     if received.message.t_ns >= role_state.t_ns:
                         after.append(received.message)
-            assert [m.agent for m in after] == ["ada"], f"eye states after the head move {turn}: {after}"
+            assert [m.agents for m in after] == [["ada"]], f"eye states after the head move {turn}: {after}"

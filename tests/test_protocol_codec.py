@@ -29,10 +29,11 @@ from eca.protocol.messages import (
     MESSAGE_TYPES,
     PROTOCOL_VERSION,
     AgentsState,
+    ClockAnchor,
     EmotionState,
     Error,
     Expression,
-    EyeState,
+    EyeStates,
     FaceFrame,
     Message,
     MouthKeys,
@@ -129,6 +130,8 @@ def messages(draw: st.DrawFn, cls: type[Message] | None = None) -> Message:
         configured = draw(st.integers(min(1, len(agents)), len(agents)))
         values["agents"], values["created"] = agents, agents[configured:]
         values["like"] = [draw(st.sampled_from(agents[:configured])) for _ in agents[configured:]]
+    if cls is EyeStates:  # distinct agents (the other lists follow them below)
+        values["agents"] = list(dict.fromkeys(draw(st.lists(ONE_AGENT, max_size=8))))
     if cls is Expression:  # its times in order, or the message is inconsistent
         times = sorted(values.get(k, 0) for k in ("onset_ns", "peak_ns", "relax_ns", "end_ns"))
         values.update(zip(("onset_ns", "peak_ns", "relax_ns", "end_ns"), times, strict=True))
@@ -155,6 +158,7 @@ PARALLEL_LISTS: dict[type[Message], tuple[tuple[str, tuple[str, ...]], ...]] = {
     SpeechState: (("request_ids", ("streamed", "next_chunk", "chunks_done", "started", "audio_started_ns")),
                   ENDINGS),
     PlaybackState: (ENDINGS,),
+    EyeStates: (("agents", ("yaw_deg", "pitch_deg", "lid", "mode")),),
 }
 
 
@@ -677,7 +681,8 @@ def test_the_agent_star_is_allowed_where_the_type_says_and_nowhere_else() -> Non
                 assert (err.kind, err.field) == ("out_of_range", "agent"), (cls.TYPE, agent)
                 with pytest.raises(ProtocolError):
                     encode(dataclasses.replace(minimal(cls), agent=agent))
-    assert {c.TYPE for c in ALL_MESSAGES if c.AGENT_SCOPE != "one"} == {"heartbeat", "hello", "error", "agents"}
+    assert {c.TYPE for c in ALL_MESSAGES if c.AGENT_SCOPE != "one"} == {"heartbeat", "hello", "error", "agents",
+                                                                         "eye_states"}
 
 
 @pytest.mark.parametrize(("change", "field"), [
@@ -733,7 +738,8 @@ def test_the_subscriber_skips_only_exact_repeats_of_a_cached_state() -> None:
                 assert [g.message for g in late.wait_ready()] == [sent]
             finally:
                 late.close()
-            marker = pub.publish(EyeState(agent="ada", yaw_deg=0.0, pitch_deg=0.0, lid=0.0, mode="static"))
+            marker = pub.publish(ClockAnchor(agent="ada", request_id="u", sample_index=0, sample_rate=48_000,
+                                             dac_time_ns=1))
             got = first.recv(5.0)
             assert got is not None and got.message == marker  # the repeat in between was skipped
         finally:

@@ -16,10 +16,11 @@ from eca.protocol.bus import Received, parse_frames
 from eca.protocol.codec import encode
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import (
+    ALL_AGENTS,
     ClockAnchor,
     EmotionState,
     EyesState,
-    EyeState,
+    EyeStates,
     FaceFrame,
     HeadState,
     Message,
@@ -161,8 +162,11 @@ def deliver(svc: Service, *messages: Message) -> None:
         svc.dispatch(Received(topic_for(m), m))
 
 
-def eye(t_ns: int, yaw: float, agent: str = "ada") -> EyeState:
-    return EyeState(agent=agent, yaw_deg=yaw, pitch_deg=0.0, lid=0.0, mode="noise", t_ns=t_ns)
+def eyes(t_ns: int, yaws: dict[str, float], mode: str = "noise") -> EyeStates:
+    """A gaze tick's eye states: these agents' eyes at these yaws."""
+    n = len(yaws)
+    return EyeStates(agent=ALL_AGENTS, agents=list(yaws), yaw_deg=list(yaws.values()), pitch_deg=[0.0] * n,
+                     lid=[0.0] * n, mode=[mode] * n, t_ns=t_ns)  # type: ignore[list-item]
 
 
 def test_states_reach_each_agents_scene(config: BusConfig) -> None:
@@ -180,9 +184,21 @@ def test_states_reach_each_agents_scene(config: BusConfig) -> None:
     assert (ada.role, ada.head, bob.role) == ("talking", (0.4, 0.0, 0.1), "listening")
     assert ada.frame_at(3 * S).values.any() and sum(svc.bad_messages.values()) == 0
     assert scenes.subscriptions() == [
-        "state.ada.", "event.ada.", "stream.ada.eye_state", "stream.ada.clock_anchor", "stream.ada.mouth",
-        "state.bob.", "event.bob.", "stream.bob.eye_state", "stream.bob.clock_anchor", "stream.bob.mouth",
+        "stream.*.eye_states",
+        "state.ada.", "event.ada.", "stream.ada.clock_anchor", "stream.ada.mouth",
+        "state.bob.", "event.bob.", "stream.bob.clock_anchor", "stream.bob.mouth",
     ]
+
+
+def test_a_tick_of_eye_states_reaches_each_drawn_agent_and_passes_the_others_by(config: BusConfig) -> None:
+    svc = RecordingService(config)
+    scenes = BusScenes(svc, ["ada", "bob"], idle_noise=False)
+    ada, bob = (v.scene for v in scenes.views)
+    deliver(svc, eyes(S, {"zed": 3.0, "bob": 0.0, "ada": 0.0}, mode="static"))
+    assert (ada.eye_mode, bob.eye_mode) == ("static", "static")
+    assert svc.bad_messages == {}  # zed is drawn elsewhere: its eyes are not news here, nor an error
+    deliver(svc, eyes(2 * S, {"bob": 0.0}, mode="saccade"))  # a reaction's: the agent it concerns only
+    assert (ada.eye_mode, bob.eye_mode) == ("static", "saccade")
 
 
 def test_what_the_scenes_refuse_is_rejected_through_the_service(config: BusConfig) -> None:
@@ -197,20 +213,19 @@ def test_what_the_scenes_refuse_is_rejected_through_the_service(config: BusConfi
     assert svc.bad_messages == {"rejected": 2}  # a value the scene refuses (a changed sample rate)
 
 
-def test_a_drain_decodes_the_newest_state_per_topic_and_eye_samples_per_agent(config: BusConfig) -> None:
+def test_a_drain_decodes_the_newest_state_per_topic_and_eye_state_ticks(config: BusConfig) -> None:
     svc = RecordingService(config)
     scenes = BusScenes(svc, ["ada", "bob"], idle_noise=False)
     emotions = [EmotionState(agent="ada", name=n, intensity=1.0, transition_s=0.0, t_ns=S + i)
                 for i, n in enumerate(("happy", "sad", "angry"))]
-    ada_eyes = [eye(S + k * 1_000_000, float(k)) for k in range(KEEP_EYE_SAMPLES + 3)]
-    bob_eyes = [eye(S + k * 1_000_000, float(k), "bob") for k in range(2)]
+    ticks = [eyes(S + k * 1_000_000, {"ada": float(k), "bob": -float(k)}) for k in range(KEEP_EYE_SAMPLES + 3)]
     head = HeadState(agent="bob", turn=0.2, nod=0.0, tilt=0.0, duration_s=0.0, t_ns=S)
-    batch: list[Message] = [emotions[0], *ada_eyes[:4], head, emotions[1], *bob_eyes, *ada_eyes[4:], emotions[2]]
+    batch: list[Message] = [emotions[0], *ticks[:4], head, emotions[1], *ticks[4:], emotions[2]]
     svc.sub = QueuedFrames(batch)  # type: ignore[assignment]
     assert scenes.drain() == len(batch)
-    # the older emotions and all but the newest eye samples of ada were skipped undecoded, and counted
+    # the older emotions and all but the newest eye-state ticks were skipped undecoded, and counted
     assert svc.coalesced == 2 + 3
-    assert svc.dispatched == [ada_eyes[3], head, *bob_eyes, *ada_eyes[4:], emotions[2]]  # in order
+    assert svc.dispatched == [ticks[3], head, *ticks[4:], emotions[2]]  # in order
     assert scenes.views[0].scene.emotion == ("angry", 1.0) and scenes.views[1].scene.head == (0.2, 0.0, 0.0)
     assert scenes.drain() == 0 and svc.coalesced == 5
 

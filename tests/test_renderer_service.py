@@ -15,7 +15,16 @@ from eca.agent.face.settings import load_flexor_units
 from eca.agent.gaze.synth import eye_position_at
 from eca.protocol.bus import Publisher, Subscriber
 from eca.protocol.endpoints import BusConfig
-from eca.protocol.messages import ClockAnchor, EmotionState, EyeState, FaceFrame, HeadState, MouthKeys, Saccade
+from eca.protocol.messages import (
+    ALL_AGENTS,
+    ClockAnchor,
+    EmotionState,
+    EyeStates,
+    FaceFrame,
+    HeadState,
+    MouthKeys,
+    Saccade,
+)
 from eca.services.processes.renderer.options import RendererOptions, options_from
 from eca.services.processes.renderer.service import RendererService
 from eca.services.processes.renderer.video import read_video_frames
@@ -116,7 +125,8 @@ def test_frames_show_each_state_and_the_saccade_trajectory(bus) -> None:  # noqa
         frames_until(sub, lambda f: f.flexors["smile_l"] == pytest.approx(0.85))
         # a saccade 100 ms ahead, announced now: frames must follow its exact trajectory
         now = time.monotonic_ns()
-        pub.publish(EyeState(agent="ada", yaw_deg=0.0, pitch_deg=0.0, lid=0.0, mode="saccade"))
+        pub.publish(EyeStates(agent=ALL_AGENTS, agents=["ada"], yaw_deg=[0.0], pitch_deg=[0.0], lid=[0.0],
+                              mode=["saccade"]))
         onset = now + 100_000_000
         sac = Saccade(agent="ada", onset_ns=onset, from_yaw_deg=0.0, from_pitch_deg=0.0, to_yaw_deg=20.0,
                       to_pitch_deg=-10.0, amplitude_deg=22.4, direction_deg=333.4, duration_s=0.2, kind="away")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
@@ -610,13 +611,38 @@ class MouthKeys(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
-class EyeState(Message):
-    TYPE = "eye_state"
+class EyeStates(Message):
+    """The eyes of many agents at one tick of the gaze service (`t_ns`), on `stream.*.eye_states`: entry i of
+    each list is agent `agents[i]`'s. One message per tick for all the agents it moves (a reaction's for those
+    it concerns), not one per agent: the eyes are the bus's most frequent stream, and a message costs every
+    hop the same whatever it carries."""
+
+    TYPE = "eye_states"
     CATEGORY = "stream"
-    yaw_deg: float = bounded(lo=-90.0, hi=90.0, doc="eye direction in the head, + = agent's right")
-    pitch_deg: float = bounded(lo=-90.0, hi=90.0, doc="+ = up")
-    lid: float = bounded(lo=0.0, hi=1.0, doc="lid closure, 0 open .. 1 closed")
-    mode: EyeMode = bounded(doc="the eye condition in force")
+    AGENT_SCOPE = "all"
+    agents: list[str] = bounded([], max_len=MAX_LIVE_AGENTS, item_max_len=32, doc="the agents, each once")
+    yaw_deg: list[float] = bounded([], lo=-90.0, hi=90.0, max_len=MAX_LIVE_AGENTS,
+                                   doc="each one's eye direction in the head, + = agent's right")
+    pitch_deg: list[float] = bounded([], lo=-90.0, hi=90.0, max_len=MAX_LIVE_AGENTS, doc="+ = up")
+    lid: list[float] = bounded([], lo=0.0, hi=1.0, max_len=MAX_LIVE_AGENTS,
+                               doc="lid closure, 0 open .. 1 closed")
+    mode: list[EyeMode] = bounded([], max_len=MAX_LIVE_AGENTS, doc="the eye condition in force")
+
+    def consistency_problem(self) -> tuple[str, str] | None:
+        n = len(self.agents)
+        for name in ("yaw_deg", "pitch_deg", "lid", "mode"):
+            if len(getattr(self, name)) != n:
+                return name, f"has {len(getattr(self, name))} entries for {n} agents"
+        bad = next((a for a in self.agents if not _AGENT_ID.fullmatch(a)), None)
+        if bad is not None:
+            return "agents", f"{bad[:40]!r} is not an agent id"
+        if len(set(self.agents)) != n:
+            return "agents", "an agent listed twice"
+        return None
+
+    def rows(self) -> Iterator[tuple[str, float, float, float, EyeMode]]:
+        """(agent, yaw_deg, pitch_deg, lid, mode) of each agent."""
+        return zip(self.agents, self.yaw_deg, self.pitch_deg, self.lid, self.mode, strict=True)
 
 
 @dataclass(frozen=True, kw_only=True)

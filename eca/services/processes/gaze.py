@@ -42,11 +42,12 @@ from eca.agent.vocabulary import BACKCHANNEL_MODES
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import (
     ALL_AGENTS,
+    MAX_LIVE_AGENTS,
     AgentsState,
     AttentionState,
     EmotionState,
     EyesState,
-    EyeState,
+    EyeStates,
     GazeTargetState,
     HeadState,
     Nod,
@@ -292,15 +293,15 @@ class GazeService(Service):
                 amplitude_deg=float(s.amplitude_deg[k]), direction_deg=float(s.direction_deg[k]) % 360.0,
                 duration_s=float(s.duration_s[k]), kind=KINDS[int(s.kind[k])],  # type: ignore[arg-type]
                 hold_s=float(min(s.hold_s[k], 600.0))))
-        yaw = np.clip(tick.yaw_deg, -90.0, 90.0)
-        pitch = np.clip(tick.pitch_deg, -90.0, 90.0)
-        lid = np.clip(tick.lid, 0.0, 1.0)
-        for i in eye_states_for:
-            seated = self.slots[i]
-            if seated is None:
-                continue
-            self.publish(EyeState(agent=seated, t_ns=tick.t_ns, yaw_deg=float(yaw[i]), pitch_deg=float(pitch[i]),
-                                  lid=float(lid[i]), mode=self.modes[i]))  # type: ignore[arg-type]
+        seated = [(i, agent) for i in eye_states_for if (agent := self.slots[i]) is not None]
+        for start in range(0, len(seated), MAX_LIVE_AGENTS):  # one message a tick (the protocol's list bound)
+            part = seated[start:start + MAX_LIVE_AGENTS]
+            at = np.fromiter((i for i, _ in part), dtype=np.intp, count=len(part))
+            self.publish(EyeStates(
+                agent=ALL_AGENTS, t_ns=tick.t_ns, agents=[agent for _, agent in part],
+                yaw_deg=np.clip(tick.yaw_deg[at], -90.0, 90.0).tolist(),
+                pitch_deg=np.clip(tick.pitch_deg[at], -90.0, 90.0).tolist(),
+                lid=np.clip(tick.lid[at], 0.0, 1.0).tolist(), mode=[self.modes[i] for i in at.tolist()]))
 
 
 def _topics(agent: str) -> list[str]:

@@ -33,7 +33,7 @@ from eca.protocol.messages import (
     EmotionState,
     Expression,
     EyesState,
-    EyeState,
+    EyeStates,
     GazeTargetState,
     HeadGesture,
     HeadState,
@@ -53,6 +53,8 @@ KEEP_EYE_SAMPLES = 4
 MAX_READ_PER_FRAME = 5000  # a frame never reads an unbounded backlog: the rest waits for the next frame
 GONE_KEPT = 1024  # lately removed agents whose last messages, still on their way, are dropped without a word
 AGENTS_TOPIC = f"state.{ALL_AGENTS}.{AgentsState.TYPE}"
+EYES_TOPIC = f"stream.{ALL_AGENTS}.{EyeStates.TYPE}"  # every agent's eyes, a message per gaze tick
+_EYES_TOPIC_BYTES = EYES_TOPIC.encode()
 
 
 @dataclass
@@ -101,7 +103,7 @@ class BusScenes:
             (HeadGesture, self.on_head_gesture),
             (Expression, self.on_expression),
             (Saccade, self.on_saccade),
-            (EyeState, self.on_eye_state),
+            (EyeStates, self.on_eye_states),
             (ClockAnchor, self.on_anchor),
             (MouthKeys, self.on_mouth),
             (SpeechStarted, self.on_speech_started),
@@ -115,7 +117,7 @@ class BusScenes:
 
     def subscriptions(self) -> list[str]:
         """The topics of every agent's scene; the list of live agents too when following it or told of it."""
-        subs = [p for v in self.views for p in agent_topics(v.agent)]
+        subs = [EYES_TOPIC, *(p for v in self.views for p in agent_topics(v.agent))]
         if self.follow or self._on_agents is not None:
             self._listening = True
             subs.append(AGENTS_TOPIC)
@@ -189,7 +191,7 @@ class BusScenes:
     def drain(self) -> int:
         """Handle every message waiting on the service's socket; returns how many were read.
 
-        Eye-state samples are only ever interpolated near the newest ones, so of each agent's samples in
+        Eye-state samples are only ever interpolated near the newest ones, so of the eye-state messages in
         one batch only the newest KEEP_EYE_SAMPLES are decoded, and of each state topic only the newest
         message: a flood costs a socket read each, not a decode. Everything else (events, mouth keys,
         clock anchors) is handled in order; a state the last-value cache re-sent unchanged (byte for
@@ -207,7 +209,7 @@ class BusScenes:
         keep = [True] * len(raw)
         for i in range(len(raw) - 1, -1, -1):
             topic = raw[i][0]
-            if topic.endswith(b".eye_state"):
+            if topic == _EYES_TOPIC_BYTES:
                 seen[topic] = seen.get(topic, 0) + 1
                 keep[i] = seen[topic] <= KEEP_EYE_SAMPLES
         for frames, wanted in zip(raw, keep, strict=True):
@@ -275,8 +277,16 @@ class BusScenes:
         self._guard(m, lambda s: s.add_saccade(m.onset_ns, (m.from_yaw_deg, m.from_pitch_deg),
                                                (m.to_yaw_deg, m.to_pitch_deg), m.duration_s))
 
-    def on_eye_state(self, m: EyeState) -> None:
-        self._guard(m, lambda s: s.add_eye_sample(m.t_ns, m.yaw_deg, m.pitch_deg, m.lid, m.mode))
+    def on_eye_states(self, m: EyeStates) -> None:
+        """Each followed agent's eyes to its scene; the other agents' are not this service's."""
+        for agent, yaw, pitch, lid, mode in m.rows():
+            view = self.by_agent.get(agent)
+            if view is None:
+                continue
+            try:
+                view.scene.add_eye_sample(m.t_ns, yaw, pitch, lid, mode)
+            except ValueError as exc:
+                raise Rejected(f"{agent}: {exc}") from None
 
     def on_anchor(self, m: ClockAnchor) -> None:
         self._guard(m, lambda s: s.add_clock_anchor(m.request_id, m.sample_index, m.sample_rate, m.dac_time_ns))
@@ -297,5 +307,5 @@ class BusScenes:
 
 def agent_topics(agent: str) -> list[str]:
     """What the live scene of one agent is fed from."""
-    return [f"state.{agent}.", f"event.{agent}.", f"stream.{agent}.eye_state", f"stream.{agent}.clock_anchor",
+    return [f"state.{agent}.", f"event.{agent}.", f"stream.{agent}.clock_anchor",
             f"stream.{agent}.mouth"]
