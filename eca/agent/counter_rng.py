@@ -12,6 +12,10 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
 _MIX2 = np.uint64(0x94D049BB133111EB)
 _INV_2_53 = 1.0 / float(1 << 53)
+# The same constants and the shifts as 0-d arrays for splitmix64_inplace: numpy converts a scalar operand on
+# every call (about half a microsecond), an array it takes as it is; the engine hashes a few batches a tick.
+_GOLDEN_0D, _MIX1_0D, _MIX2_0D = (np.array(v, dtype=np.uint64) for v in (_GOLDEN, _MIX1, _MIX2))
+_SHIFT_30, _SHIFT_27, _SHIFT_31 = (np.array(v, dtype=np.uint64) for v in (30, 27, 31))
 
 
 def splitmix64(x: np.ndarray | np.uint64) -> np.ndarray:
@@ -27,14 +31,14 @@ def splitmix64(x: np.ndarray | np.uint64) -> np.ndarray:
 def splitmix64_inplace(z: np.ndarray, scratch: np.ndarray) -> None:
     """splitmix64 on a uint64 array in place, with `scratch` (same shape) for the shifts: no temporaries,
     for the engine's batches (array arithmetic wraps without warnings)."""
-    z += _GOLDEN
-    np.right_shift(z, np.uint64(30), out=scratch)
+    z += _GOLDEN_0D
+    np.right_shift(z, _SHIFT_30, out=scratch)
     z ^= scratch
-    z *= _MIX1
-    np.right_shift(z, np.uint64(27), out=scratch)
+    z *= _MIX1_0D
+    np.right_shift(z, _SHIFT_27, out=scratch)
     z ^= scratch
-    z *= _MIX2
-    np.right_shift(z, np.uint64(31), out=scratch)
+    z *= _MIX2_0D
+    np.right_shift(z, _SHIFT_31, out=scratch)
     z ^= scratch
 
 

@@ -15,7 +15,7 @@ from functools import cache
 
 import numpy as np
 
-from eca.agent.counter_rng import stream_key
+from eca.agent.counter_rng import splitmix64_inplace, stream_key
 from eca.agent.gaze.generator import HOLD_TABLE_INTERVALS, hold_quantiles
 from eca.agent.gaze.params import ROLES, GazeParams
 
@@ -31,9 +31,6 @@ _TWO_POW_MINUS_53 = operand(1.0 / float(1 << 53))
 _TWO_POW_MINUS_32 = operand(1.0 / float(1 << 32))
 _COUNTER_STEPS = np.arange(8, dtype=np.uint64)  # a draw of k uniforms reads counters c .. c + k - 1
 _MANTISSA_SHIFT, _HALF_BITS, _LOW_HALF = operand(11, np.uint64), operand(32, np.uint64), operand(0xFFFFFFFF, np.uint64)
-# counter_rng.splitmix64_inplace's constants and shifts (see _splitmix64_inplace).
-_GOLDEN, _MIX1, _MIX2 = (operand(v, np.uint64) for v in (0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB))
-_SHIFT_30, _SHIFT_27, _SHIFT_31 = (operand(v, np.uint64) for v in (30, 27, 31))
 CACHE_LINE = 64
 # np.rad2deg's own factor: multiplying by it gives rad2deg's results bit for bit, many times faster (numpy
 # runs rad2deg through a scalar loop).
@@ -85,7 +82,7 @@ def hashes(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
     counters and keys, usually columns of a row matrix), as uint64 of shape (count, agents): the bits behind
     counter_rng.uniform01, for callers that read them another way than uniform_draws and uniform_halves."""
     z = _streams(counters.view(np.uint64), keys.view(np.uint64), count)
-    _splitmix64_inplace(z, np.empty_like(z))
+    splitmix64_inplace(z, np.empty_like(z))
     return z
 
 
@@ -93,7 +90,7 @@ def uniform_draws(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndar
     """`count` uniforms in [0, 1) per agent from its stream's counters c .. c + count - 1 (uint64 counters and
     keys): shape (count, agents), so each draw is one contiguous row. Bit for bit counter_rng.uniform01."""
     z = _streams(counters, keys, count)
-    _splitmix64_inplace(z, scratch := np.empty_like(z))
+    splitmix64_inplace(z, scratch := np.empty_like(z))
     np.right_shift(z, _MANTISSA_SHIFT, out=scratch)
     # As int64 (the same values below 2**53), which numpy converts to float faster than uint64: exactly.
     return np.multiply(scratch.view(np.int64), _TWO_POW_MINUS_53)
@@ -104,27 +101,13 @@ def uniform_halves(counters: np.ndarray, keys: np.ndarray, hashes: int) -> np.nd
     row j is the high 32 bits of hash j, row hashes + j its low 32 bits. Half the hashing of uniform_draws,
     for draws that need no more than 32 bits (a choice, a table look-up, an interval's exponential)."""
     z = _streams(counters, keys, hashes)
-    _splitmix64_inplace(z, scratch := np.empty_like(z))
+    splitmix64_inplace(z, scratch := np.empty_like(z))
     out = np.empty((2 * hashes, z.shape[1]))
     np.right_shift(z, _HALF_BITS, out=scratch)
     np.multiply(scratch.view(np.int64), _TWO_POW_MINUS_32, out=out[:hashes])  # int64: see uniform_draws
     z &= _LOW_HALF
     np.multiply(z.view(np.int64), _TWO_POW_MINUS_32, out=out[hashes:])
     return out
-
-
-def _splitmix64_inplace(z: np.ndarray, scratch: np.ndarray) -> None:
-    """counter_rng.splitmix64_inplace, step for step (so the same bits), with its constants as 0-d arrays
-    (operand): the engine hashes a few batches a tick, a dozen calls each."""
-    z += _GOLDEN
-    np.right_shift(z, _SHIFT_30, out=scratch)
-    z ^= scratch
-    z *= _MIX1
-    np.right_shift(z, _SHIFT_27, out=scratch)
-    z ^= scratch
-    z *= _MIX2
-    np.right_shift(z, _SHIFT_31, out=scratch)
-    z ^= scratch
 
 
 def _streams(counters: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:

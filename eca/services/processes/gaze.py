@@ -293,15 +293,14 @@ class GazeService(Service):
                 amplitude_deg=float(s.amplitude_deg[k]), direction_deg=float(s.direction_deg[k]) % 360.0,
                 duration_s=float(s.duration_s[k]), kind=KINDS[int(s.kind[k])],  # type: ignore[arg-type]
                 hold_s=float(min(s.hold_s[k], 600.0))))
-        seated = [(i, agent) for i in eye_states_for if (agent := self.slots[i]) is not None]
+        seated = [i for i in eye_states_for if self.slots[i] is not None]
         for start in range(0, len(seated), MAX_LIVE_AGENTS):  # one message a tick (the protocol's list bound)
-            part = seated[start:start + MAX_LIVE_AGENTS]
-            at = np.fromiter((i for i, _ in part), dtype=np.intp, count=len(part))
+            at = seated[start:start + MAX_LIVE_AGENTS]
             self.publish(EyeStates(
-                agent=ALL_AGENTS, t_ns=tick.t_ns, agents=[agent for _, agent in part],
+                agent=ALL_AGENTS, t_ns=tick.t_ns, agents=[self.slots[i] for i in at],  # type: ignore[misc]
                 yaw_deg=np.clip(tick.yaw_deg[at], -90.0, 90.0).tolist(),
                 pitch_deg=np.clip(tick.pitch_deg[at], -90.0, 90.0).tolist(),
-                lid=np.clip(tick.lid[at], 0.0, 1.0).tolist(), mode=[self.modes[i] for i in at.tolist()]))
+                lid=np.clip(tick.lid[at], 0.0, 1.0).tolist(), mode=[self.modes[i] for i in at]))  # type: ignore[misc]
 
 
 def _topics(agent: str) -> list[str]:

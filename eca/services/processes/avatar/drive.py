@@ -33,17 +33,15 @@ pitch after roll (Unity's Euler order, as the VMC sender composes them). VRM's l
 left, pitch + = down) are eca's negated. A joint whose rest axes point anywhere turns the same way: its local turn
 is G^-1 R G for its rest orientation G in the model.
 
-Pure numpy and floats; a frame costs some tens of microseconds (tests/test_avatar_drive.py measures it), and
-`drive_many` poses many agents' frames of one avatar in one batch of array operations (the web service's
-conversations, which share the default head).
+Pure numpy. `drive_many` poses many agents' frames of one avatar in one batch of array operations (the web
+service's conversations, which share the default head); `drive` is a batch of one.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -74,52 +72,39 @@ _GLTF_VISEMES = frozenset(viseme_names("gltf"))
 _EXPRESSIONS_AT = N_ARKIT + N_VISEMES
 
 
-def rotation_x(deg: float) -> np.ndarray:
-    a = math.radians(deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+def rotation_x(deg: np.ndarray | float) -> np.ndarray:
+    """(..., 3, 3) the turn about the model's x axis by each angle (degrees)."""
+    a = np.radians(np.asarray(deg, dtype=np.float64))
+    c, s = np.cos(a), np.sin(a)
+    m = np.zeros(a.shape + (3, 3))
+    m[..., 0, 0] = 1.0
+    m[..., 1, 1], m[..., 1, 2], m[..., 2, 1], m[..., 2, 2] = c, -s, s, c
+    return m
 
 
-def rotation_y(deg: float) -> np.ndarray:
-    a = math.radians(deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rotation_z(deg: float) -> np.ndarray:
-    a = math.radians(deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def agent_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
-    """The 3x3 rotation in glTF model axes of eca's yaw, pitch and roll (see the module docstring):
-    rotation_y(-yaw) @ rotation_x(-pitch) @ rotation_z(roll), multiplied out in Python floats (equal to the
-    matrix products to the last bit or so: a face's few joints a frame cost more in numpy calls than in
+def agent_rotation(yaw_deg: np.ndarray | float, pitch_deg: np.ndarray | float,
+                   roll_deg: np.ndarray | float = 0.0) -> np.ndarray:
+    """(..., 3, 3) the rotation in glTF model axes of eca's yaw, pitch and roll (see the module docstring), for
+    each of (broadcast) arrays of them: Ry(-yaw) @ Rx(-pitch) @ Rz(roll), multiplied out (equal to the matrix
+    products to the last bit or so; entry by entry: a few joints a frame cost more in numpy calls than in
     arithmetic)."""
-    a, b = math.radians(-yaw_deg), math.radians(-pitch_deg)
-    ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
-    rows = ((ca, sa * sb, sa * cb), (0.0, cb, -sb), (-sa, ca * sb, ca * cb))
-    if roll_deg:
-        g = math.radians(roll_deg)
-        cg, sg = math.cos(g), math.sin(g)
-        rows = tuple((m0 * cg + m1 * sg, m0 * -sg + m1 * cg, m2) for m0, m1, m2 in rows)  # type: ignore[assignment]
-    return np.array(rows)
+    a, b, g = np.broadcast_arrays(np.radians(-np.asarray(yaw_deg, dtype=np.float64)),
+                                  np.radians(-np.asarray(pitch_deg, dtype=np.float64)),
+                                  np.radians(np.asarray(roll_deg, dtype=np.float64)))
+    ca, sa, cb, sb, cg, sg = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(g), np.sin(g)
+    # Ry(-yaw) @ Rx(-pitch) has columns (ca, 0, -sa), (sa sb, cb, ca sb), (sa cb, -sb, ca cb); the roll mixes the
+    # first two: c0 cg + c1 sg and c1 cg - c0 sg
+    p, q = sa * sb, ca * sb
+    m = np.empty(a.shape + (3, 3))
+    m[..., 0, 0], m[..., 1, 0], m[..., 2, 0] = ca * cg + p * sg, cb * sg, q * sg - sa * cg
+    m[..., 0, 1], m[..., 1, 1], m[..., 2, 1] = p * cg - ca * sg, cb * cg, q * cg + sa * sg
+    m[..., 0, 2], m[..., 1, 2], m[..., 2, 2] = sa * cb, -sb, ca * cb
+    return m
 
 
 def _mapped(angle: float, m: RangeMap) -> float:
     """A range map of |angle|: min(|a|, inputMaxValue) / inputMaxValue * outputScale (VRM lookAt.md)."""
     return min(abs(angle), m.input_max_deg) / m.input_max_deg * m.output_scale
-
-
-def bone_look(yaw_deg: float, pitch_deg: float, look_at: LookAt, left_eye: bool) -> tuple[float, float]:
-    """A bone-type VRM lookAt's turn of one eye, in eca's signs (degrees), for that eye's angles in eca's signs:
-    the yaw through horizontal outer when the eye turns away from the nose (the left eye toward the agent's left),
-    inner toward it; the pitch through vertical up or down (lookAt.md's table)."""
-    outward = yaw_deg < 0.0 if left_eye else yaw_deg > 0.0
-    horizontal = look_at.horizontal_outer if outward else look_at.horizontal_inner
-    vertical = look_at.vertical_up if pitch_deg > 0.0 else look_at.vertical_down
-    return math.copysign(_mapped(yaw_deg, horizontal), yaw_deg), math.copysign(_mapped(pitch_deg, vertical), pitch_deg)
 
 
 def expression_look(yaw_deg: float, pitch_deg: float, look_at: LookAt) -> tuple[float, float, float, float]:
@@ -132,40 +117,12 @@ def expression_look(yaw_deg: float, pitch_deg: float, look_at: LookAt) -> tuple[
     return tuple(min(max(w, 0.0), 1.0) for w in (up, down, left, right))  # type: ignore[return-value]
 
 
-def agent_rotations(yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) `agent_rotation` of each (yaw, pitch, roll), the same products in arrays."""
-    a, b, g = np.radians(-yaw_deg), np.radians(-pitch_deg), np.radians(roll_deg)
-    ca, sa, cb, sb, cg, sg = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(g), np.sin(g)
-    zero = np.zeros_like(ca)
-    m = np.stack([np.stack([ca, sa * sb, sa * cb], -1), np.stack([zero, cb, -sb], -1),
-                  np.stack([-sa, ca * sb, ca * cb], -1)], 1)
-    rolled = roll_deg != 0.0
-    if rolled.any():
-        m0, m1 = m[rolled, :, 0].copy(), m[rolled, :, 1].copy()
-        c, s = cg[rolled, None], sg[rolled, None]
-        m[rolled, :, 0] = m0 * c + m1 * s
-        m[rolled, :, 1] = m0 * -s + m1 * c
-    return m
-
-
-def rotations_x(deg: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) `rotation_x` of each angle."""
-    a = np.radians(deg)
-    c, s = np.cos(a), np.sin(a)
-    m = np.zeros((len(a), 3, 3))
-    m[:, 0, 0] = 1.0
-    m[:, 1, 1], m[:, 1, 2], m[:, 2, 1], m[:, 2, 2] = c, -s, s, c
-    return m
-
-
-def _mapped_many(angle: np.ndarray, input_max_deg: np.ndarray, output_scale: np.ndarray) -> np.ndarray:
-    mapped: np.ndarray = np.minimum(np.abs(angle), input_max_deg) / input_max_deg * output_scale
-    return mapped
-
-
-def bone_looks(yaw_deg: np.ndarray, pitch_deg: np.ndarray, look_at: LookAt,
-               left_eye: bool) -> tuple[np.ndarray, np.ndarray]:
-    """`bone_look` of many eye directions."""
+def bone_look(yaw_deg: np.ndarray, pitch_deg: np.ndarray, look_at: LookAt,
+              left_eye: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A bone-type VRM lookAt's turn of one eye, in eca's signs (degrees), for arrays of that eye's angles in eca's
+    signs: the yaw through horizontal outer when the eye turns away from the nose (the left eye toward the agent's
+    left), inner toward it; the pitch through vertical up or down (lookAt.md's table; each a range map of |angle|:
+    min(|a|, inputMaxValue) / inputMaxValue * outputScale)."""
     outward = yaw_deg < 0.0 if left_eye else yaw_deg > 0.0
     outer, inner = look_at.horizontal_outer, look_at.horizontal_inner
     up, down = look_at.vertical_up, look_at.vertical_down
@@ -174,16 +131,26 @@ def bone_looks(yaw_deg: np.ndarray, pitch_deg: np.ndarray, look_at: LookAt,
     v_up = pitch_deg > 0.0
     v_max = np.where(v_up, up.input_max_deg, down.input_max_deg)
     v_scale = np.where(v_up, up.output_scale, down.output_scale)
-    return (np.copysign(_mapped_many(yaw_deg, h_max, h_scale), yaw_deg),
-            np.copysign(_mapped_many(pitch_deg, v_max, v_scale), pitch_deg))
+    yaw = np.minimum(np.abs(yaw_deg), h_max) / h_max * h_scale
+    pitch = np.minimum(np.abs(pitch_deg), v_max) / v_max * v_scale
+    return np.copysign(yaw, yaw_deg), np.copysign(pitch, pitch_deg)
+
+
+def _batch_of(frame: RigFrame) -> RigBatch:
+    """One frame as a batch of one."""
+    left, right = frame.left_eye, frame.right_eye
+    return RigBatch(frame.t_ns, frame.arkit[None], np.array([frame.head_deg]),
+                    np.array([[left.yaw_deg, left.pitch_deg, right.yaw_deg, right.pitch_deg]]),
+                    frame.visemes[None], frame.vrm[None])
 
 
 @dataclass(frozen=True, eq=False)
 class BatchPose:
-    """Many frames' poses (AvatarDriver.drive_many): `flat` (N, targets) float32 morph weights, `local` joint ->
-    (N, 3, 3) the rotation part of its local transform (rest @ turn), for the same joints as AvatarPose's."""
+    """Many frames' poses (AvatarDriver.drive_many): `flat` (N, targets) float32 morph weights; `turns` and `local`
+    joint -> (N, 3, 3): its turn, and the rotation part of its local transform (rest @ turn), as AvatarPose's."""
 
     flat: np.ndarray
+    turns: dict[int, np.ndarray]
     local: dict[int, np.ndarray]
 
 
@@ -294,9 +261,8 @@ class AvatarDriver:
         self._rows = np.array([r for r, _ in keys], dtype=np.intp)
         self._cols = np.array([c for _, c in keys], dtype=np.intp)
         self._vals = np.array([entries[k] for k in keys], dtype=np.float64)
-        self._sources = np.zeros(_EXPRESSIONS_AT + len(names), dtype=np.float64)
-        # the same table as a (source, target) matrix: many frames' weights in one product (drive_many)
-        self._dense = np.zeros((len(self._sources), self.n_targets))
+        # the same table as a (source, target) matrix: many frames' weights in one product
+        self._dense = np.zeros((_EXPRESSIONS_AT + len(names), self.n_targets))
         self._dense[self._cols, self._rows] = self._vals  # (target, source) pairs are unique: dict keys
         self._build_overrides(names)
         self._build_joints(bones, caps.eyes)
@@ -369,100 +335,61 @@ class AvatarDriver:
                     g_inv = g.T
                 self._frames[joint] = (g, g_inv)
 
-    def expression_weights(self, frame: RigFrame) -> np.ndarray:
-        """The avatar's expressions' weights this frame (Avatar.expressions order), overrides applied."""
-        e = np.zeros(len(self._expression_names), dtype=np.float64)
-        if self._from_vrm_k.size:
-            e[self._from_vrm_k] = frame.vrm[self._from_vrm_src]
-        if self._look_at_rows is not None:
-            assert self.avatar.look_at is not None
-            yaw = 0.5 * (frame.left_eye.yaw_deg + frame.right_eye.yaw_deg)
-            pitch = 0.5 * (frame.left_eye.pitch_deg + frame.right_eye.pitch_deg)
-            for k, w in zip(self._look_at_rows, expression_look(yaw, pitch, self.avatar.look_at), strict=True):
-                if k >= 0:
-                    e[k] = w
-        if self._any_binary:
-            e[self._binary] = (e[self._binary] > 0.5).astype(np.float64)
-        for member, block, blend, binary_member in self._categories:
-            amount = float(np.count_nonzero(e[block] > 0.0)) + float(e[blend].sum())
-            factor = max(0.0, 1.0 - amount)
-            if factor < 1.0:
-                e[member] *= factor
-                e[binary_member] = 0.0
-        return e
-
     def drive(self, frame: RigFrame) -> AvatarPose:
-        """The avatar's pose for `frame`; see the module docstring."""
-        s = self._sources
-        s[:N_ARKIT] = frame.arkit
-        s[_VISEMES_AT:_EXPRESSIONS_AT] = frame.visemes
-        s[_EXPRESSIONS_AT:] = self.expression_weights(frame)
-        flat = np.bincount(self._rows, weights=s[self._cols] * self._vals, minlength=self.n_targets)
-        flat = np.clip(flat, 0.0, 1.0).astype(np.float32)
-        weights = tuple(flat[a:b] for a, b in self._slices)
-
-        turns = self._head_turns(frame.head_yaw_deg, frame.head_pitch_deg, frame.head_roll_deg, agent_rotation)
-        for joint, eye, left in ((self.eyes[0], frame.left_eye, True), (self.eyes[1], frame.right_eye, False)):
-            if joint >= 0:
-                e_yaw, e_pitch = eye.yaw_deg, eye.pitch_deg
-                if self.eye_maps is not None:
-                    e_yaw, e_pitch = bone_look(e_yaw, e_pitch, self.eye_maps, left)
-                turns[joint] = agent_rotation(e_yaw, e_pitch)
-        if self.jaw >= 0:
-            turns[self.jaw] = rotation_x(self.jaw_open_deg * float(frame.arkit[ARKIT_INDEX["JawOpen"]]))
+        """The avatar's pose for `frame`; see the module docstring. One frame is a batch of one (drive_many)."""
+        many = self.drive_many(_batch_of(frame), [0])
+        flat = many.flat[0]
         local = {}
-        for joint, turn in turns.items():
-            g, g_inv = self._frames[joint]
+        for joint, rotation in many.local.items():
             transform = self._rest[joint].copy()
-            transform[:3, :3] = transform[:3, :3] @ (g_inv @ turn @ g)
+            transform[:3, :3] = rotation[0]
             local[joint] = transform
-        return AvatarPose(weights, turns, local, flat)
+        return AvatarPose(tuple(flat[a:b] for a, b in self._slices), {j: t[0] for j, t in many.turns.items()},
+                          local, flat)
 
-    def _head_turns(self, yaw: Any, pitch: Any, roll: Any, rotation: Callable[[Any, Any, Any], np.ndarray]
-                    ) -> dict[int, np.ndarray]:
-        """The neck's and head's turns (by `rotation`: of one frame's angles, or of arrays of them)."""
-        turns: dict[int, np.ndarray] = {}
-        if self.head >= 0:
-            share = self.neck_share if self.neck >= 0 else 0.0
-            if share > 0.0:
-                turns[self.neck] = rotation(share * yaw, share * pitch, share * roll)
-            rest_share = 1.0 - share
-            turns[self.head] = rotation(rest_share * yaw, rest_share * pitch, rest_share * roll)
-        return turns
+    def expression_weights(self, frame: RigFrame) -> np.ndarray:
+        """The avatar's expressions' weights for `frame` (Avatar.expressions order), overrides applied."""
+        weights: np.ndarray = self._expression_weights(_batch_of(frame), np.zeros(1, dtype=np.intp))[0]
+        return weights
 
     def drive_many(self, batch: RigBatch, rows: Sequence[int]) -> BatchPose:
-        """The poses of `batch`'s rows `rows` at once: what `drive` gives each of them (the weights summed in
-        another order, so equal to the last bit or so; tests/test_avatar_drive.py), at a fraction of the cost
-        per face when many agents share one avatar (the web service's conversations)."""
+        """The poses of `batch`'s rows `rows` at once (see the module docstring): a fraction of the cost per face
+        when many agents share one avatar (the web service's conversations)."""
         at = np.asarray(rows, dtype=np.intp)
         n = len(at)
-        sources = np.empty((n, len(self._sources)))
+        sources = np.empty((n, self._dense.shape[0]))
         sources[:, :N_ARKIT] = batch.arkit[at]
         sources[:, _VISEMES_AT:_EXPRESSIONS_AT] = batch.visemes[at]
         if len(self._expression_names):
-            sources[:, _EXPRESSIONS_AT:] = self._expression_weights_many(batch, at)
+            sources[:, _EXPRESSIONS_AT:] = self._expression_weights(batch, at)
         flat = sources @ self._dense
         np.clip(flat, 0.0, 1.0, out=flat)
 
         yaw, pitch, roll = batch.head_deg[at].T
         eyes = batch.eyes_deg[at]
-        turns = self._head_turns(yaw, pitch, roll, agent_rotations)
+        turns: dict[int, np.ndarray] = {}
+        if self.head >= 0:
+            share = self.neck_share if self.neck >= 0 else 0.0
+            if share > 0.0:
+                turns[self.neck] = agent_rotation(share * yaw, share * pitch, share * roll)
+            rest_share = 1.0 - share
+            turns[self.head] = agent_rotation(rest_share * yaw, rest_share * pitch, rest_share * roll)
         for joint, column, left in ((self.eyes[0], 0, True), (self.eyes[1], 2, False)):
             if joint >= 0:
                 e_yaw, e_pitch = eyes[:, column], eyes[:, column + 1]
                 if self.eye_maps is not None:
-                    e_yaw, e_pitch = bone_looks(e_yaw, e_pitch, self.eye_maps, left)
-                turns[joint] = agent_rotations(e_yaw, e_pitch, np.zeros(n))
+                    e_yaw, e_pitch = bone_look(e_yaw, e_pitch, self.eye_maps, left)
+                turns[joint] = agent_rotation(e_yaw, e_pitch)
         if self.jaw >= 0:
-            turns[self.jaw] = rotations_x(self.jaw_open_deg * batch.arkit[at, ARKIT_INDEX["JawOpen"]])
+            turns[self.jaw] = rotation_x(self.jaw_open_deg * batch.arkit[at, ARKIT_INDEX["JawOpen"]])
         local = {}
         for joint, turn in turns.items():
             g, g_inv = self._frames[joint]
             local[joint] = self._rest[joint, :3, :3] @ (g_inv @ turn @ g)
-        return BatchPose(flat.astype(np.float32), local)
+        return BatchPose(flat.astype(np.float32), turns, local)
 
-    def _expression_weights_many(self, batch: RigBatch, at: np.ndarray) -> np.ndarray:
-        """`expression_weights` of many frames, row by row the same arithmetic."""
+    def _expression_weights(self, batch: RigBatch, at: np.ndarray) -> np.ndarray:
+        """The avatar's expressions' weights (Avatar.expressions order) of `batch`'s rows `at`, overrides applied."""
         e = np.zeros((len(at), len(self._expression_names)))
         if self._from_vrm_k.size:
             e[:, self._from_vrm_k] = batch.vrm[at][:, self._from_vrm_src]

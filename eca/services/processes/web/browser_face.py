@@ -32,7 +32,6 @@ with the RTP timestamps its audio receiver reports, since a browser does not giv
 
 from __future__ import annotations
 
-import math
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -40,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from eca.agent.rig.frame import RigBatch, RigFrame
+from eca.agent.rig.frame import RigBatch
 from eca.agent.rig.names import ARKIT_NAMES, N_ARKIT, N_VISEMES, VRM_VOWELS
 from eca.services.processes.avatar.drive import AvatarDriver
 from eca.services.processes.avatar.model import Avatar
@@ -55,34 +54,10 @@ _SPEECH_PREFIXES = ("Jaw", "Mouth", "Tongue")
 _TURN = np.diag([-1.0, 1.0, -1.0])  # a VRM 0.x file's frame from the Avatar's (avatar/meshes.py TURN)
 
 
-def _quaternion(m: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation matrix (its scale taken out). In Python floats: for one 3x3 matrix a frame's
-    numpy calls cost more than the arithmetic."""
-    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
-    n0, n1, n2 = math.sqrt(a * a + d * d + g * g), math.sqrt(b * b + e * e + h * h), math.sqrt(c * c + f * f + i * i)
-    r00, r01, r02 = a / n0, b / n1, c / n2
-    r10, r11, r12 = d / n0, e / n1, f / n2
-    r20, r21, r22 = g / n0, h / n1, i / n2
-    trace = r00 + r11 + r22
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(trace + 1.0)
-        x, y, z, w = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
-    elif r00 > r11 and r00 > r22:
-        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        x, y, z, w = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
-    elif r11 > r22:
-        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        x, y, z, w = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        x, y, z, w = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
-    if w < 0.0:  # one sign for one rotation: the page may blend neighbours
-        x, y, z, w = -x, -y, -z, -w
-    return x, y, z, w
-
-
 def _quaternions(m: np.ndarray) -> np.ndarray:
-    """(N, 4) `_quaternion` of each of (N, 3, 3) matrices: the same cases and arithmetic, in arrays."""
+    """(N, 4) the unit quaternions (x, y, z, w) of (N, 3, 3) rotation matrices, each column's scale taken out
+    first; w >= 0, one sign for one rotation (the page may blend neighbours). Shepperd's method: from the trace
+    where it is positive, else from the largest diagonal entry."""
     r = m / np.sqrt((m * m).sum(axis=1, keepdims=True))  # each column's scale out
     r00, r01, r02 = r[:, 0, 0], r[:, 0, 1], r[:, 0, 2]
     r10, r11, r12 = r[:, 1, 0], r[:, 1, 1], r[:, 1, 2]
@@ -118,7 +93,7 @@ class FrameLayout:
 
 
 class BrowserFace:
-    """One avatar as the page draws it: `description(slot, url)` once, `pack(frame, ...)` every frame."""
+    """One avatar as the page draws it: `description(slot, url)` once, `pack_many(batch, ...)` every frame."""
 
     def __init__(self, avatar: Avatar, size: tuple[int, int]) -> None:
         for prim in avatar.primitives:
@@ -133,7 +108,6 @@ class BrowserFace:
         self._vrm0 = avatar.format == "vrm0"
         self.layout = FrameLayout(d.n_targets, len(self.joints))
         self.voiced = self._voiced_targets()
-        self._buffer = bytearray(self.layout.size)
         self._described: dict[str, Any] | None = None
 
     def _voiced_targets(self) -> np.ndarray:
@@ -179,31 +153,10 @@ class BrowserFace:
             "frame_bytes": self.layout.size,
         }
 
-    def pack(self, frame: RigFrame, slot: int, seq: int, time_ms: float, voiced: bool, mark: bool = False) -> bytes:
-        """One frame for the page (see the module docstring)."""
-        pose = self.driver.drive(frame)
-        out = self._buffer
-        flags = (VOICED if voiced else 0) | (MARK if mark else 0)
-        HEADER.pack_into(out, 0, slot, FRAME, flags, seq & 0xFFFFFFFF, time_ms)
-        at = HEADER.size
-        n = self.layout.n_weights
-        out[at:at + n] = np.rint(pose.flat * 255.0).astype(np.uint8).tobytes()
-        at += n
-        for joint in self.joints:
-            local = pose.local.get(joint, self._rest[joint])[:3, :3]
-            if self._vrm0:
-                local = _TURN @ local @ _TURN  # the file's own frame: the page turns the whole model instead
-            q = _quaternion(np.asarray(local, dtype=np.float64))
-            struct.pack_into("<4h", out, at, *(round(c * 32767.0) for c in q))
-            at += 8
-        return bytes(out)
-
-
     def pack_many(self, batch: RigBatch, rows: Sequence[int], slots: Sequence[int], seq: int, time_ms: float,
                   voiced: Sequence[bool], mark: bool = False) -> list[bytes]:
-        """`pack` of many agents' frames of this avatar at one instant (`batch`'s rows `rows`), in one batch of
-        array operations: what many conversations with the same face cost (tests/test_web_frame_pack.py holds it
-        to `pack`)."""
+        """The frames (see the module docstring) of many agents of this avatar at one instant, `batch`'s rows
+        `rows`, posed and packed in one batch of array operations: many conversations share a face."""
         pose = self.driver.drive_many(batch, rows)
         n = len(rows)
         out = np.empty((n, self.layout.size), dtype=np.uint8)

@@ -40,6 +40,7 @@ def cross(p: np.ndarray, arm: float, half_width: float, aspect: float, color: tu
 def pupil_paths(centres: np.ndarray, head_rotation: np.ndarray, radius: float, angles_deg: np.ndarray) -> np.ndarray:
     """(2, N, 3) model-frame pupil centres of both eyes for N rows of (yaw, pitch) in degrees, in the head turned
     by `head_rotation` (3x3, from its rest) with the eyes' centres at `centres` (2, 3)."""
-    fronts = np.stack([agent_rotation(float(y), float(p)) @ (0.0, 0.0, radius) for y, p in angles_deg])
+    angles = np.asarray(angles_deg, dtype=np.float64).reshape(-1, 2)
+    fronts: np.ndarray = agent_rotation(angles[:, 0], angles[:, 1]) @ np.array([0.0, 0.0, radius])
     fronts = fronts @ head_rotation.T
     return centres[:, None, :] + fronts[None, :, :]
