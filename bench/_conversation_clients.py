@@ -207,6 +207,13 @@ async def arrive(session: aiohttp.ClientSession, args: argparse.Namespace, index
                  speech: list[bytes], silence: bytes) -> tuple[Visitor | None, dict[str, Any]]:
     """One visitor: its conversation, its offer, connected. (None, why) when any step is refused."""
     t0 = time.monotonic()
+    async with aiohttp.ClientSession(timeout=session.timeout, cookie_jar=aiohttp.CookieJar(unsafe=True)) as page:
+        # cookies of its own, as a browser's page has: behind a load balancer its sticky cookie keeps it on its host
+        return await _arrive(page, args, index, phase_s, speech, silence, t0)
+
+
+async def _arrive(session: aiohttp.ClientSession, args: argparse.Namespace, index: int, phase_s: float,
+                  speech: list[bytes], silence: bytes, t0: float) -> tuple[Visitor | None, dict[str, Any]]:
     status, made = await post(session, args.url + "conversation", {})
     if status != 201:
         return None, {"index": index, "step": "conversation", "status": status, "error": str(made)[:300]}

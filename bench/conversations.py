@@ -60,7 +60,12 @@ last line.
     python bench/conversations.py [--paths browser,server] [--steps 0,1,2,3,5,10,20,30,40,50,60]
                                   [--server-steps 0,1,2,3,4] [--hold-s 20] [--settle-s 5] [--fps 30]
                                   [--client-procs 2] [--cycle-s 8] [--agent-s 2.5] [--gap-ms 60]
-                                  [--max-viewers 64] [--max-conversations N] [--stop-after 2] [--seed 0] [--json]
+                                  [--max-viewers 64] [--max-conversations N] [--stop-after 2] [--web-workers 1]
+                                  [--seed 0] [--json]
+
+With `--web-workers K` (K > 1) the instance runs K web worker processes (`eca up --web-workers K`, docs/web.md) and
+the visitors come to a real HAProxy in front of them (the shipped eca/configs/haproxy.cfg, as tests/support/haproxy.py
+renders it), whose CPU and memory count as the server's.
 
 A run takes up to about 9 minutes on 2 cores when every step passes (each eca start 10-20 s; per step the
 visitors' arrival, the settle and the hold); where steps fail a path stops early (3-4 minutes in all on a
@@ -359,6 +364,7 @@ class Instance:
     web_pid: int
     max_conversations: int
     max_viewers: int
+    balancer_pid: int | None = None  # with several web workers: the HAProxy in front of them (counted as server)
 
 
 @contextmanager
@@ -384,25 +390,43 @@ def eca_up(draw: str, args: argparse.Namespace) -> Iterator[Instance]:
                           flags=re.MULTILINE)
             max_viewers = args.max_viewers
         config.config_path.write_text(text)
+        workers = args.web_workers
+        if workers > 1:
+            from tests.support.haproxy import free_ports
+
+            port = free_ports(workers)
+        else:
+            port = 0
         argv = eca_command("up", "--config", str(config.config_path), "--instance", config.instance, "--quiet",
-                           "--web", "--web-port", "0", "--per-visitor", "--face", "head", "--web-draw", draw,
-                           "--silent-audio")
-        progress(f"starting eca up --web --per-visitor --face head --web-draw {draw} --silent-audio "
+                           "--web", "--web-port", str(port), "--per-visitor", "--face", "head", "--web-draw", draw,
+                           "--silent-audio", *(["--web-workers", str(workers)] if workers > 1 else []))
+        progress(f"starting eca up --web --per-visitor --face head --web-draw {draw} --silent-audio"
+                 f"{f' --web-workers {workers} (behind HAProxy)' if workers > 1 else ''} "
                  f"(instance {config.instance}; [conversations] max {max_conversations}, [web] max_viewers "
                  f"{max_viewers})")
-        with running(argv, stop_timeout_s=15.0) as (proc, reader):
+        with running(argv, stop_timeout_s=15.0) as (proc, reader), ExitStack() as stack:
             try:
                 reader.wait_for("[up] ready in", READY_TIMEOUT_S)
-                line = reader.lines[reader.wait_for("[web] INFO serving http://", 20.0)]
+                lines = [reader.lines[reader.wait_for(f"[{name}] INFO serving http://", 20.0)]
+                         for name in ["web", *(f"web-{i}" for i in range(2, workers + 1))]]
                 ready = reader.lines[reader.wait_for("[web] INFO ready (pid", 20.0)]
             except TimeoutError:
                 said = [x for x in reader.lines if re.search(r"ERROR|Error|not restarted", x)]
                 raise RuntimeError(f"eca up was not ready within {READY_TIMEOUT_S:g} s: "
                                    f"{' | '.join(said[-3:]) or 'no error printed'}") from None
-            url = re.search(r"(http://\S+/)", line)
+            urls = [m.group(1) for line in lines if (m := re.search(r"(http://\S+/)", line))]
             pid = re.search(r"ready \(pid (\d+)\)", ready)
-            assert url is not None and pid is not None
-            yield Instance(config, proc, reader, url.group(1), int(pid.group(1)), max_conversations, max_viewers)
+            assert len(urls) == workers and pid is not None
+            balancer_pid = None
+            url = urls[0]
+            if workers > 1:  # visitors come to HAProxy, which spreads them over the workers (docs/web.md)
+                from tests.support.haproxy import balancer
+
+                servers = [(f"w{i}", u.removeprefix("http://").rstrip("/")) for i, u in enumerate(urls, 1)]
+                lb = stack.enter_context(balancer(servers, check_inter_ms=1000))
+                url, balancer_pid = lb.url, lb.process.pid
+            yield Instance(config, proc, reader, url, int(pid.group(1)), max_conversations, max_viewers,
+                           balancer_pid)
 
 
 def post_conversation(url: str) -> tuple[int, Any]:
@@ -461,8 +485,11 @@ def server_sample(inst: Instance) -> tuple[dict[str, float], dict[str, dict[str,
     table = proc_table()
     ticks = os.sysconf("SC_CLK_TCK")
     cpu, mem = {}, {}
-    for pid in descendants(inst.proc.pid, table):
-        label = eca_label(pid, inst.proc.pid)
+    pids = descendants(inst.proc.pid, table)
+    if inst.balancer_pid is not None and inst.balancer_pid in table:
+        pids = [*pids, *descendants(inst.balancer_pid, table)]
+    for pid in pids:
+        label = "haproxy" if pid == inst.balancer_pid else eca_label(pid, inst.proc.pid)
         key = label if label not in cpu else f"{label}-{pid}"
         cpu[key] = table[pid].own_ticks / ticks
         mem[key] = memory_kib(pid) or dict.fromkeys(MEMORY_KINDS, 0)
@@ -599,7 +626,7 @@ def run_path(draw: str, steps: list[int], args: argparse.Namespace, report: Repo
         driver = stack.enter_context(Driver(inst.config, pcm, epoch, args.cycle_s, agent_at_s))
         hs = stack.enter_context(helpers(args.client_procs, inst.url, draw, wav, epoch, args))
         details.update({"max_conversations": inst.max_conversations, "max_viewers": inst.max_viewers,
-                        "url": inst.url})
+                        "url": inst.url, "web_workers": args.web_workers})
         visitors: dict[int, dict[str, Any]] = {}
         done: list[Step] = []
         failed_in_a_row = 0
@@ -854,6 +881,10 @@ def run(args: argparse.Namespace, report: Report) -> None:
     shipped_note = (f"the shipped {SHIPPED_MAX_VIEWERS} refuses the 17th page (503) whatever [conversations] max "
                     f"says; this run: {args.max_viewers or SHIPPED_MAX_VIEWERS}")
     report.add("[web] max_viewers in this run", args.max_viewers or SHIPPED_MAX_VIEWERS, "-", None, "", shipped_note)
+    report.add("web workers", args.web_workers, "-", None, "",
+               "one web process" if args.web_workers == 1 else
+               f"eca up --web-workers {args.web_workers}, HAProxy in front (its CPU and memory counted as server's); "
+               "[web] max_viewers is per worker")
     report.add("load before", report.details["uptime_before"].split("load average:")[-1].strip(), "-", None, "",
                "uptime: 1, 5, 15 min")
     report.add("load after", report.details["uptime_after"].split("load average:")[-1].strip(), "-", None, "",
@@ -887,6 +918,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--heartbeat-timeout-s", type=float, default=0.0,
                         help="[heartbeat] timeout_s in the private config (0: the shipped 1.5 s)")
     parser.add_argument("--stop-after", type=int, default=2, help="stop a path after this many failed steps in a row")
+    parser.add_argument("--web-workers", type=int, default=1,
+                        help="web worker processes (eca up --web-workers); more than 1 puts HAProxy in front, as "
+                             "docs/web.md says, and counts it as server")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print one JSON object (the table goes to stderr)")
     args = parser.parse_args(argv)

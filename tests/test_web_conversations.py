@@ -22,6 +22,7 @@ from eca.services.processes.avatar.loader import DEFAULT_HEAD
 from eca.services.processes.runtime import wait_until
 from tests.support.browser import band_change, browser_available, canvas_pixels, chromium, head_box, wait_for
 from tests.support.bus import eca_command, private_bus_config, running
+from tests.support.web_client import ConversationPage as Visitor
 from tests.support.web_client import FaceClient, post
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(not DEFAULT_HEAD.exists(), reason="the default head is not baked")]
@@ -45,28 +46,6 @@ def instance() -> Iterator[tuple[BusConfig, str]]:
             match = re.search(r"(http://\S+/)", line)
             assert match
             yield config, match.group(1)
-
-
-class Visitor(FaceClient):
-    """A page of a per-visitor instance: it asks for its conversation, then connects to its agent with its key."""
-
-    key: str = ""
-
-    @classmethod
-    async def arrive(cls, url: str) -> tuple[Visitor | None, int, Any]:
-        status, made = await post(url + "conversation", {})
-        if status != 201:
-            return None, status, made
-        visitor = cls(url, [made["agent"]])
-        visitor.key = made["key"]
-        await visitor.connect()
-        return visitor, status, made
-
-    async def offer_body(self) -> dict[str, Any]:
-        return {**await super().offer_body(), "key": self.key}
-
-    async def command(self, **command: Any) -> tuple[int, Any]:
-        return await post(self.base + "command", {"key": self.key, "command": {"agent": self.agents[0], **command}})
 
 
 @contextmanager

@@ -121,6 +121,24 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(probe.getsockname()[1])
 
 
+def free_ports(count: int, host: str = "127.0.0.1") -> int:
+    """A port P such that P .. P + count - 1 are all free now (web workers listen on consecutive ports)."""
+    for _ in range(100):
+        base = free_port(host)
+        held: list[socket.socket] = []
+        try:
+            for port in range(base, base + count):
+                held.append(socket.socket())
+                held[-1].bind((host, port))
+            return base
+        except OSError:
+            continue  # one of them is taken (or past 65535): another base
+        finally:
+            for sock in held:
+                sock.close()
+    raise RuntimeError(f"no {count} consecutive free ports on {host}")
+
+
 @dataclass
 class Balancer:
     """A running HAProxy: where visitors connect, its config and log, and its runtime API."""

@@ -73,16 +73,20 @@ class Client:
         return out
 
 
-async def post(url: str, body: Any, raw: bytes | None = None) -> tuple[int, Any]:
-    """POST JSON (or raw bytes); the status and the decoded answer (text when it is not JSON)."""
-    async with aiohttp.ClientSession() as session:
-        data = raw if raw is not None else json.dumps(body).encode()
-        async with session.post(url, data=data, headers={"Content-Type": "application/json"}) as response:
-            text = await response.text()
-            try:
-                return response.status, json.loads(text)
-            except json.JSONDecodeError:
-                return response.status, text
+async def post(url: str, body: Any, raw: bytes | None = None,
+               session: aiohttp.ClientSession | None = None) -> tuple[int, Any]:
+    """POST JSON (or raw bytes), in `session` or a new one; the status and the decoded answer (text when it is not
+    JSON)."""
+    if session is None:
+        async with aiohttp.ClientSession() as own:
+            return await post(url, body, raw, own)
+    data = raw if raw is not None else json.dumps(body).encode()
+    async with session.post(url, data=data, headers={"Content-Type": "application/json"}) as response:
+        text = await response.text()
+        try:
+            return response.status, json.loads(text)
+        except json.JSONDecodeError:
+            return response.status, text
 
 
 def user_speech_wav(path: Path, sentence: str, before_s: float, after_s: float) -> Path:
@@ -129,6 +133,33 @@ class FaceClient(Client):
         while len(got := self.frames_of(agent)) < count and time.monotonic() < deadline:
             await asyncio.sleep(0.05)  # polling what has arrived: the channel's events fill the list
         return got
+
+
+class ConversationPage(FaceClient):
+    """A page of a per-visitor instance: it asks for its conversation, then connects to its agent with its key. Its
+    two requests share a cookie jar of their own, as a browser's page does: behind a load balancer its sticky cookie
+    keeps the offer on the host that made the conversation."""
+
+    key: str = ""
+
+    @classmethod
+    async def arrive(cls, url: str) -> tuple[ConversationPage | None, int, Any]:
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as session:
+            status, made = await post(url + "conversation", {}, session=session)
+            if status != 201:
+                return None, status, made
+            page = cls(url, [made["agent"]])
+            page.key = made["key"]
+            offered, answer = await post(url + "offer", await page.offer_body(), session=session)
+            assert offered == 200, answer
+            await page.accept(answer)
+            return page, status, made
+
+    async def offer_body(self) -> dict[str, Any]:
+        return {**await super().offer_body(), "key": self.key}
+
+    async def command(self, **command: Any) -> tuple[int, Any]:
+        return await post(self.base + "command", {"key": self.key, "command": {"agent": self.agents[0], **command}})
 
 
 def speak_tone(pub: Any, seconds: float, agent: str = "ada") -> None:

@@ -1,7 +1,8 @@
 """A conversation per visitor (`--per-visitor`, `[web] per_visitor`): each page that asks gets an agent of its
 own, created over the bus for it and removed when its page leaves, fails or goes silent.
 
-`POST /conversation` asks for one: the web service names a new agent (`v-` and 10 random hex digits), sends
+`POST /conversation` asks for one: the web service names a new agent (`v-` and 10 random hex digits; web worker i
+of several, `v<i>-`), sends
 `create_agent` (docs/protocol.md, "Conversations created at run time") and answers once the dialogue service lists
 the agent in `state.*.agents`: the agent's id and a key. The page then watches that agent as any other, and its
 offer and commands must carry the key: no other page can watch it or speak for it. A conversation whose page does
@@ -15,11 +16,14 @@ page's requests) and the bus loop's (the agents list, viewers leaving).
 from __future__ import annotations
 
 import asyncio
+import re
 import secrets
 import threading
 from dataclasses import dataclass, field
 
 KEY_BYTES = 16
+AGENT_HEX = 10  # random hex digits in a conversation's agent id
+_HEX = re.compile(f"[0-9a-f]{{{AGENT_HEX}}}")
 
 
 class Busy(RuntimeError):
@@ -42,8 +46,9 @@ class Conversation:
 class Conversations:
     """The web service's conversations, by agent id."""
 
-    def __init__(self, connect_timeout_s: float) -> None:
+    def __init__(self, connect_timeout_s: float, prefix: str = "v-") -> None:
         self.connect_timeout_ns = int(connect_timeout_s * 1e9)
+        self.prefix = prefix  # this web worker's conversations' agent ids: the prefix, then AGENT_HEX hex digits
         self._lock = threading.Lock()
         self._by_agent: dict[str, Conversation] = {}
         self.created_count = 0  # in the instance, as the latest agents list says
@@ -58,7 +63,7 @@ class Conversations:
             pending = sum(1 for c in self._by_agent.values() if not c.live)
             if self.created_count + pending >= self.max_created:
                 raise Busy(f"busy: all {self.max_created} conversations are in use; try again later")
-            agent = f"v-{secrets.token_hex(5)}"
+            agent = f"{self.prefix}{secrets.token_hex(AGENT_HEX // 2)}"
             conversation = Conversation(agent, secrets.token_urlsafe(KEY_BYTES), now_ns, created=loop.create_future(),
                                         loop=loop)
             self._by_agent[agent] = conversation
@@ -102,6 +107,13 @@ class Conversations:
         future, loop = conversation.created, conversation.loop
         if future is not None and loop is not None:
             loop.call_soon_threadsafe(_settle, future, None)
+
+    def left_behind(self, created: list[str]) -> list[str]:
+        """Of the instance's created agents, those named as this worker names its conversations but not held here:
+        a previous run of this worker made them (it died or was restarted), and no page can reach them any more."""
+        with self._lock:
+            return [a for a in created if a not in self._by_agent and a.startswith(self.prefix)
+                    and _HEX.fullmatch(a[len(self.prefix):]) is not None]
 
     def check_key(self, agent: str, key: object) -> bool:
         """Whether `key` is the one of `agent`'s conversation (False for an agent that is no conversation)."""

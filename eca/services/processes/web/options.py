@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,9 @@ from eca.protocol.endpoints import is_loopback
 MAX_TOKEN_CHARS = 256
 MAX_SFU_URL_CHARS = 2000
 DRAW_MODES = ("auto", "browser", "server")
+# One web process carries about ten conversations on a loaded 2-core machine before its voices go late (the
+# interpreter's lock, not the cores, gives out first: bench/conversations.py); 16 is a whole small server's worth.
+MAX_WORKERS = 16
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,10 @@ class WebOptions:
     # Janus's HTTP API (e.g. "http://sfu:8088/janus"): each agent's face published once into a Streaming mountpoint
     # there (web/sfu.py), which pages then watch through Janus; None: every page peers with this service
     sfu: str | None = None
+    # web worker processes serving the visitors' conversations (per_visitor only): worker i listens on port + i - 1
+    # and `eca up` starts them all; a load balancer in front spreads the visitors (docs/web.md, "Web workers")
+    workers: int = 1
+    worker: int = 1  # which worker this process is (1: the service "web"; i > 1: "web-i"), set by `eca up`
 
     def check(self) -> WebOptions:
         if not 0 <= self.port < 65536:
@@ -98,12 +106,36 @@ class WebOptions:
             raise WebOptionsError(f"web silent_timeout_s must lie in [2, 120], got {self.silent_timeout_s}")
         if not isinstance(self.per_visitor, bool):
             raise WebOptionsError(f"web per_visitor must be true or false, got {self.per_visitor!r}")
+        self._check_workers()
         if self.draw not in DRAW_MODES:
             raise WebOptionsError(f"web draw must be one of {', '.join(DRAW_MODES)}, got {self.draw!r}")
         if self.sfu is not None:
             self._check_sfu()
         self.vad.check()
         return self
+
+    def _check_workers(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or not 1 <= self.workers <= MAX_WORKERS:
+            raise WebOptionsError(f"web workers must be a whole number in 1..{MAX_WORKERS}, got {self.workers!r}")
+        if isinstance(self.worker, bool) or not isinstance(self.worker, int) or not 1 <= self.worker <= self.workers:
+            raise WebOptionsError(f"web worker must lie in 1..workers ({self.workers}), got {self.worker!r}")
+        if self.workers > 1 and not self.per_visitor:
+            raise WebOptionsError(f"{self.workers} web workers split the visitors' conversations among them: give "
+                                  "--per-visitor (or [web] per_visitor = true), or one worker")
+        if self.port and self.port + self.workers - 1 > 65535:
+            last = self.port + self.workers - 1
+            raise WebOptionsError(f"{self.workers} web workers listen on ports {self.port}..{last}, past 65535: give a "
+                                  "lower --web-port")
+
+    @property
+    def service_name(self) -> str:
+        """This worker's service name: "web" for the first, "web-2", "web-3" ... for the others."""
+        return worker_service_name(self.worker)
+
+    @property
+    def listen_port(self) -> int:
+        """The port this worker listens on: `port` + worker - 1 (0, any free port, for every worker)."""
+        return self.port + self.worker - 1 if self.port else 0
 
     def _check_sfu(self) -> None:
         url = self.sfu
@@ -134,9 +166,21 @@ class WebOptions:
         return f"http://{host}:{port or self.port}/" + (f"?token={self.token}" if self.token else "")
 
 
+def worker_service_name(worker: int) -> str:
+    return "web" if worker == 1 else f"web-{worker}"
+
+
+def worker_of(service_name: str) -> int | None:
+    """The worker number a service name stands for ("web" 1, "web-2" 2 ...), or None when it names no web worker."""
+    if service_name == "web":
+        return 1
+    match = re.fullmatch(r"web-([1-9][0-9]?)", service_name)
+    return int(match.group(1)) if match and 2 <= int(match.group(1)) <= MAX_WORKERS else None
+
+
 def options_from_table(table: dict[str, Any], where: str = "[web]") -> WebOptions:
     """Options from a config's [web] table; unknown keys and wrong types are errors naming them."""
-    known = {f.name: f for f in fields(WebOptions)} | {"token_file": None}
+    known = {f.name: f for f in fields(WebOptions) if f.name != "worker"} | {"token_file": None}
     values: dict[str, Any] = {}
     for key, value in table.items():
         if key not in known:
@@ -192,6 +236,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--web-draw", default=None, choices=DRAW_MODES,
                         help="who draws the faces: auto (a page with WebGL draws 3D faces itself, default), browser "
                              "(pages draw every face; the server needs no GL) or server (video)")
+    parser.add_argument("--web-workers", type=int, default=None, metavar="N",
+                        help=f"web worker processes for the visitors' conversations (with --per-visitor; "
+                             f"1..{MAX_WORKERS}, default 1): worker i listens on --web-port + i - 1; put a load "
+                             "balancer in front (docs/web.md)")
     parser.add_argument("--web-sfu", "--sfu", dest="web_sfu", default=None, metavar="URL",
                         help="publish each face once into Janus (its HTTP API, e.g. http://sfu:8088/janus; the "
                              "Streaming plugin) and let pages watch through it (default: pages peer with this service)")
@@ -213,6 +261,10 @@ def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
         changes["per_visitor"] = True
     if args.web_draw is not None:
         changes["draw"] = args.web_draw
+    if getattr(args, "web_workers", None) is not None:
+        changes["workers"] = args.web_workers
+    if getattr(args, "web_worker", None) is not None:
+        changes["worker"] = args.web_worker
     if getattr(args, "web_sfu", None) is not None:
         changes["sfu"] = args.web_sfu
     if args.web_face is not None:

@@ -79,8 +79,10 @@ class WebService(Service):
     name = "web"
 
     def __init__(self, config: BusConfig, options: WebOptions | None = None, **kwargs: Any) -> None:
+        options = (options or WebOptions()).check()
+        self.name = options.service_name  # "web", or "web-i" for a further worker: its heartbeats and log say which
         super().__init__(config, **kwargs)
-        self.options = (options or WebOptions()).check()
+        self.options = options
         instance_agents = config.agents
         self.agent_ids: list[str] = list(self.options.agents or instance_agents)
         unknown = [a for a in self.agent_ids if a not in instance_agents]
@@ -100,7 +102,9 @@ class WebService(Service):
         self._check_drawing_mode()
         self.conversations: Conversations | None = None
         if self.options.per_visitor:
-            self.conversations = Conversations(self.options.connect_timeout_s)
+            prefix = "v-" if self.options.worker == 1 else f"v{self.options.worker}-"
+            self.conversations = Conversations(self.options.connect_timeout_s, prefix)
+            self._swept = False  # the conversations a previous run of this worker left are removed at the first list
             self.scenes.on_agents = self._on_agents  # before the service connects: the list is subscribed
             self.handle(Error, self._on_error)
         self._creates: queue.SimpleQueue[str] = queue.SimpleQueue()  # conversations' agents to create
@@ -130,7 +134,7 @@ class WebService(Service):
                 check_server(self.options.sfu)
             except JanusError as exc:
                 raise WebOptionsError(f"--sfu: {exc}") from None
-        self.port = self.options.port  # the one bound, once serving (for port 0: whichever was free)
+        self.port = self.options.listen_port  # the one bound, once serving (for port 0: whichever was free)
         self.url = ""
 
     @classmethod
@@ -143,6 +147,7 @@ class WebService(Service):
         parser = argparse.ArgumentParser(prog="python -m eca.services.processes.run web", add_help=False,
                                          exit_on_error=False)
         add_arguments(parser)
+        parser.add_argument("--web-worker", type=int, default=None)  # `eca up` starts worker i as service web-i
         try:
             args, unknown = parser.parse_known_args(argv)
             if unknown:
@@ -221,6 +226,14 @@ class WebService(Service):
         """The dialogue service's list of agents (bus loop): serve our conversations' new agents, drop those it no
         longer lists."""
         assert self.conversations is not None
+        if not self._swept:
+            self._swept = True
+            left = self.conversations.left_behind(list(m.created))
+            if left:
+                self.log.info("removing %d conversation(s) a previous run of this service left: %s", len(left),
+                              ", ".join(left[:8]) + (" ..." if len(left) > 8 else ""))
+            for agent in left:
+                self.publish(RemoveAgent(agent=agent, request_id=f"web-{agent}-left"))
         became, gone = self.conversations.listed(set(m.agents), len(m.created), m.max_created)
         for conversation in became:
             like = m.like[m.created.index(conversation.agent)] if conversation.agent in m.created else ""
@@ -322,7 +335,7 @@ class WebService(Service):
         try:
             self._runner = self._events.call(self._listen(app), timeout_s=20.0)
         except OSError as exc:
-            raise CannotStart(f"cannot listen on {self.options.host}:{self.options.port}: "
+            raise CannotStart(f"cannot listen on {self.options.host}:{self.options.listen_port}: "
                               f"{exc.strerror or exc}") from None
         self.port = int(self._runner.addresses[0][1])
         self.url = self.options.url(self.port)
@@ -332,7 +345,7 @@ class WebService(Service):
         runner = web.AppRunner(app, access_log=None)
         await runner.setup()
         try:
-            await web.TCPSite(runner, self.options.host, self.options.port).start()
+            await web.TCPSite(runner, self.options.host, self.options.listen_port).start()
         except BaseException:
             await runner.cleanup()
             raise

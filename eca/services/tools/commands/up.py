@@ -8,6 +8,7 @@ import sys
 from eca.protocol.endpoints import BusConfig, BusConfigError, load_bus_config
 from eca.services.processes.rig.options import add_arguments as add_rig_arguments
 from eca.services.processes.web.options import add_arguments as add_web_arguments
+from eca.services.processes.web.options import worker_of, worker_service_name
 from eca.services.tools import cli_args
 from eca.services.tools.up import choose_services, run_up
 
@@ -59,7 +60,8 @@ def renderer_args(args: argparse.Namespace) -> list[str]:
 def web_args(args: argparse.Namespace) -> list[str]:
     """The web service's command-line arguments among `eca up`'s."""
     argv = []
-    for name in ("web_host", "web_port", "web_token", "web_token_file", "web_face", "web_draw", "web_sfu"):
+    for name in ("web_host", "web_port", "web_token", "web_token_file", "web_face", "web_draw", "web_sfu",
+                 "web_workers"):
         value = getattr(args, name)
         if value is not None:
             argv += [f"--{name.replace('_', '-')}", str(value)]
@@ -98,9 +100,11 @@ def run(args: argparse.Namespace) -> int:
 
             parser = argparse.ArgumentParser(add_help=False)
             add_web_arguments(parser)
-            web_options_from(dict(config.raw.get("web", {})), parser.parse_args(site_argv))  # bad ones fail here
+            web_options = web_options_from(dict(config.raw.get("web", {})), parser.parse_args(site_argv))  # bad: here
             if "web" not in services:
                 services.append("web")
+            web_workers = [worker_service_name(i) for i in range(2, web_options.workers + 1)]
+            services += [w for w in web_workers if w not in services]
             from eca.services.processes.renderer.display import display_available  # no GL library: the env
 
             if not face_argv and "renderer" in services and not display_available():
@@ -124,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
     except (BusConfigError, ValueError) as exc:  # a WebOptionsError or RigOptionsError too
         print(f"eca up: {exc}", file=sys.stderr)
         return 2
-    return run_up(config, services, view=not args.quiet, duration_s=args.seconds,
-                  extra_args={"renderer": face_argv, "web": site_argv, "rig": rig_argv,
-                              "audio": ["--silent"] if args.silent_audio else []})
+    extra_args = {"renderer": face_argv, "web": site_argv, "rig": rig_argv,
+                  "audio": ["--silent"] if args.silent_audio else []}
+    extra_args |= {name: site_argv for name in services if name != "web" and worker_of(name) is not None}
+    return run_up(config, services, view=not args.quiet, duration_s=args.seconds, extra_args=extra_args)

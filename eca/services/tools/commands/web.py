@@ -32,7 +32,11 @@ def run(args: argparse.Namespace) -> int:
     setup_logging("web")
     try:
         config = load_bus_config(args.config, args.instance)
-        service = WebService(config, options_from(dict(config.raw.get("web", {})), args))
+        options = options_from(dict(config.raw.get("web", {})), args)
+        if options.workers > 1:
+            raise WebOptionsError(f"{options.workers} web workers are started by `eca up --web` (one process each); "
+                                  "`eca web` is one process: give --web-workers 1")
+        service = WebService(config, options)
     except (BusConfigError, WebOptionsError) as exc:
         print(f"eca web: {exc}", file=sys.stderr)
         return 2

@@ -37,8 +37,10 @@ function showStats() {
   const s = eca.stats;
   const part = (v, unit, digits = 0) => (v == null ? "–" : `${v.toFixed(digits)} ${unit}`);
   if (Object.keys(eca.drawn).length && !Object.values(eca.faces).some((e) => e.tagName === "VIDEO")) {
-    return setStatus(`connected · rtt ${part(s.rttMs, "ms")} · drawn here, ${part(s.drawnFps, "fps")}`
-                     + ` · mouth on the voice (${part(s.voiceWaitMs, "ms")} behind its frames)`);
+    // the mouth is shown when its sound plays: held back behind the newest frame by the voice's playout delay
+    const mouth = s.voiceWaitMs == null ? "mouth in step with the voice"
+      : `mouth in step with the voice (held ${s.voiceWaitMs.toFixed(0)} ms for it)`;
+    return setStatus(`connected · rtt ${part(s.rttMs, "ms")} · drawn here, ${part(s.drawnFps, "fps")} · ${mouth}`);
   }
   setStatus(`connected · rtt ${part(s.rttMs, "ms")} · ${part(s.fps, "fps")} · A/V offset ${part(s.avOffsetMs, "ms")}`
             + (s.avOffsetMs == null ? "" : s.avOffsetMs >= 0 ? " (audio late)" : " (audio early)"));
