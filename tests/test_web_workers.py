@@ -13,6 +13,7 @@ import signal
 import subprocess
 import urllib.request
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -28,6 +29,7 @@ from eca.services.processes.web.options import (
     options_from_table,
     worker_of,
 )
+from tests.support.browser import browser_available, canvas_pixels, chromium, head_box, wait_for
 from tests.support.bus import eca_command, private_bus_config, running
 from tests.support.haproxy import balancer, free_ports
 from tests.support.web_client import ConversationPage
@@ -163,6 +165,35 @@ def test_each_worker_serves_its_own_visitors_and_haproxy_spreads_them(
 
         spread = asyncio.run(through())
     assert sorted(a.split("-")[0] for a in spread) == ["v", "v2"], spread  # one on each worker
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not DEFAULT_HEAD.exists(), reason="the default head is not baked")
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_two_browsers_through_haproxy_draw_their_faces_each_from_its_own_worker(
+        workers: tuple[BusConfig, list[str], Any], tmp_path: Path) -> None:
+    config, urls, _reader = workers
+    assert wait_until(lambda: not [a for a in live_agents(config) if a.startswith("v")], 30.0), live_agents(config)
+    servers = [(f"w{i}", u.removeprefix("http://").rstrip("/")) for i, u in enumerate(urls, 1)]
+    with balancer(servers, check_inter_ms=300) as lb, chromium() as first, chromium() as second:
+        agents = []
+        for driver in (first, second):
+            driver.get(lb.url + "?mic=0")  # the page's own fetches carry HAProxy's cookie back
+            driver.find_element("id", "connect").click()
+            wait_for(driver, "return window.eca.state", 30.0, "the page connecting", lambda s: s == "connected")
+            wait_for(driver, "const f = Object.values(window.eca.drawn)[0]; return f ? f.stats.received : 0", 30.0,
+                     "the page drawing its agent", lambda n: n >= 5)
+            agents.append(driver.execute_script("return window.eca.agents[0]"))
+        pictures = [canvas_pixels(d) for d in (first, second)]
+        for name, driver in (("first", first), ("second", second)):
+            driver.save_screenshot(str(tmp_path / f"{name}.png"))  # what a person saw, kept for a failure's reader
+        viewers = [health(u)["viewers"] for u in urls]
+    assert sorted(a.split("-")[0] for a in agents) == ["v", "v2"], agents  # one conversation on each worker
+    assert viewers == [1, 1], viewers
+    for picture in pictures:
+        top, bottom, left, right = head_box(picture)
+        assert bottom - top > 0.5 * picture.shape[0]  # each page drew its head
+    assert wait_until(lambda: not set(agents) & set(live_agents(config)), 20.0)  # the pages left: removed
 
 
 @pytest.mark.slow
