@@ -32,6 +32,9 @@ def test_viewers_coming_and_going_past_the_limit(web: tuple[BusConfig, WebServic
     config, service = web
     url = f"http://127.0.0.1:{service.port}/"
 
+    viewers = service.viewers
+    assert viewers is not None
+
     async def main() -> tuple[list[int], int]:
         steady = Client(url, ["ada"])
         await steady.connect()
@@ -48,7 +51,10 @@ def test_viewers_coming_and_going_past_the_limit(web: tuple[BusConfig, WebServic
             await asyncio.gather(*(c.frames("ada", "video", 1.0) for c in crowd if c.tracks))
             for client in crowd:
                 await client.pc.close()
-            await asyncio.sleep(0.5)  # the closes reach the server (pacing, not synchronisation)
+            deadline = asyncio.get_running_loop().time() + 10.0
+            while len(viewers.open) > 1 and asyncio.get_running_loop().time() < deadline:
+                await asyncio.sleep(0.05)  # polling until the server has seen the closes: the next crowd finds room
+            assert len(viewers.open) == 1, "the closed viewers were not let go within 10 s"
         kept = await steady.frames("ada", "video", 2.0)
         await steady.pc.close()
         return statuses, len(kept)
@@ -56,7 +62,7 @@ def test_viewers_coming_and_going_past_the_limit(web: tuple[BusConfig, WebServic
     statuses, kept = asyncio.run(main())
     assert statuses.count(503) == 5 and statuses.count(200) == 15
     assert kept >= 10  # the viewer that stayed kept its face all along
-    assert wait_until(lambda: not service.viewers.open, 10.0)
+    assert wait_until(lambda: not viewers.open, 10.0)
     assert wait_until(lambda: service._plan is None, 5.0)
 
 
