@@ -20,8 +20,8 @@ from eca.protocol.endpoints import is_loopback
 MAX_TOKEN_CHARS = 256
 MAX_SFU_URL_CHARS = 2000
 DRAW_MODES = ("auto", "browser", "server")
-# One web process carries about ten conversations on a loaded 2-core machine before its voices go late (the
-# interpreter's lock, not the cores, gives out first: bench/conversations.py); 16 is a whole small server's worth.
+# One web process uses at most one core (about 24 % of one plus 4 % per conversation measured on a 2-core machine,
+# bench/conversations.py); 16 workers are a 16-core server's worth.
 MAX_WORKERS = 16
 
 
@@ -131,6 +131,11 @@ class WebOptions:
     def service_name(self) -> str:
         """This worker's service name: "web" for the first, "web-2", "web-3" ... for the others."""
         return worker_service_name(self.worker)
+
+    @property
+    def conversation_prefix(self) -> str:
+        """How this worker's conversations' agent ids begin: "v-" for the first, "v2-", "v3-" ... for the others."""
+        return "v-" if self.worker == 1 else f"v{self.worker}-"
 
     @property
     def listen_port(self) -> int:
@@ -261,9 +266,9 @@ def options_from(table: dict[str, Any], args: argparse.Namespace) -> WebOptions:
         changes["per_visitor"] = True
     if args.web_draw is not None:
         changes["draw"] = args.web_draw
-    if getattr(args, "web_workers", None) is not None:
+    if args.web_workers is not None:
         changes["workers"] = args.web_workers
-    if getattr(args, "web_worker", None) is not None:
+    if getattr(args, "web_worker", None) is not None:  # only the web service's own command line has it
         changes["worker"] = args.web_worker
     if getattr(args, "web_sfu", None) is not None:
         changes["sfu"] = args.web_sfu

@@ -102,14 +102,13 @@ class WebService(Service):
         self._check_drawing_mode()
         self.conversations: Conversations | None = None
         if self.options.per_visitor:
-            prefix = "v-" if self.options.worker == 1 else f"v{self.options.worker}-"
-            self.conversations = Conversations(self.options.connect_timeout_s, prefix)
-            self._swept = False  # the conversations a previous run of this worker left are removed at the first list
+            self.conversations = Conversations(self.options.connect_timeout_s, self.options.conversation_prefix)
             self.scenes.on_agents = self._on_agents  # before the service connects: the list is subscribed
             self.handle(Error, self._on_error)
         self._creates: queue.SimpleQueue[str] = queue.SimpleQueue()  # conversations' agents to create
         self._left: set[int] = set()  # viewers gone since the bus loop last looked (their conversations end)
         self._gone: deque[str] = deque(maxlen=256)  # agents dropped lately: what still comes for them is dropped
+        self._swept = False  # what a previous run of this service left is removed at the first agents list
         self._next_reap_ns = 0
         self.handle(VoiceBlock, self.on_voice)
         self._submitted: queue.SimpleQueue[Message] = queue.SimpleQueue()
@@ -228,7 +227,7 @@ class WebService(Service):
         assert self.conversations is not None
         if not self._swept:
             self._swept = True
-            left = self.conversations.left_behind(list(m.created))
+            left = self.conversations.left_behind(m.created)
             if left:
                 self.log.info("removing %d conversation(s) a previous run of this service left: %s", len(left),
                               ", ".join(left[:8]) + (" ..." if len(left) > 8 else ""))

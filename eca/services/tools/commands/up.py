@@ -100,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
 
             parser = argparse.ArgumentParser(add_help=False)
             add_web_arguments(parser)
-            web_options = web_options_from(dict(config.raw.get("web", {})), parser.parse_args(site_argv))  # bad: here
+            # bad ones fail here, before anything starts
+            web_options = web_options_from(dict(config.raw.get("web", {})), parser.parse_args(site_argv))
             if "web" not in services:
                 services.append("web")
             web_workers = [worker_service_name(i) for i in range(2, web_options.workers + 1)]
