@@ -47,6 +47,7 @@ import soundfile as sf
 from aiortc import MediaStreamTrack, RTCConfiguration, RTCPeerConnection, RTCSessionDescription
 from aiortc.codecs.opus import OpusEncoder
 from aiortc.rtcrtpreceiver import RTCRtpReceiver
+from aiortc.rtcsctptransport import RTCSctpTransport
 
 FRAME_NS = 20_000_000
 OPUS_RATE = 48_000
@@ -78,6 +79,45 @@ async def _recorded_rtp(self: RTCRtpReceiver, packet: Any, arrival_time_ms: int)
 
 
 RTCRtpReceiver._handle_rtp_packet = _recorded_rtp  # type: ignore[method-assign]
+
+
+# --- the face frames' acknowledgements ------------------------------------------------------------------------
+# aiortc acknowledges every SCTP packet with data at once; a browser delays its SACKs as RFC 4960 6.2 says: one
+# for every second packet with data, or 200 ms after one not yet acknowledged, and at once when data came out of
+# order or twice. Chromium's dcSCTP does (measured against the web service: 435 SACKs for 864 packets of face
+# frames). A visitor acknowledges as a browser does, so the server handles the acknowledgements a page sends it.
+SACK_EVERY_PACKETS = 2
+SACK_DELAY_S = 0.2
+_send_sack = RTCSctpTransport._send_sack
+
+
+@dataclass
+class _DelayedSack:
+    unacknowledged: int = 0
+    timer: asyncio.TimerHandle | None = None
+
+
+async def _delayed_sack(self: RTCSctpTransport) -> None:
+    state: _DelayedSack = self.__dict__.setdefault("_bench_sack", _DelayedSack())
+    state.unacknowledged += 1
+    if state.unacknowledged < SACK_EVERY_PACKETS and not (self._sack_misordered or self._sack_duplicates):
+        if state.timer is None:  # _sack_needed stays set: the next packet's handling comes back here
+            state.timer = asyncio.get_running_loop().call_later(
+                SACK_DELAY_S, lambda: asyncio.ensure_future(_sack_now(self, state)))
+        return
+    await _sack_now(self, state)
+
+
+async def _sack_now(self: RTCSctpTransport, state: _DelayedSack) -> None:
+    if state.timer is not None:
+        state.timer.cancel()
+        state.timer = None
+    if state.unacknowledged and self._association_state == RTCSctpTransport.State.ESTABLISHED:
+        state.unacknowledged = 0
+        await _send_sack(self)
+
+
+RTCSctpTransport._send_sack = _delayed_sack  # type: ignore[method-assign]
 
 
 # --- the microphone -------------------------------------------------------------------------------------
