@@ -102,7 +102,10 @@ on port 0 serves on another port, which ends the run; the longest gap between it
    from the master clock to heard and drawn; the voice clock's reports. With `--no-webgl-draw` the page's
    BrowserFace chooses and logs its frames at every animation frame but draws nothing: animation frames then
    come at the display's rate, as on a machine with a GPU, and the figures are those of the face's timing, not
-   of SwiftShader's drawing.
+   of SwiftShader's drawing. With `--browser-gl egl` the page draws through the system's EGL instead of
+   SwiftShader (Mesa's llvmpipe on a machine without a GPU: the head about 19 times a second on 2 cores instead
+   of 4-7), and the page's WebGL renderer is printed; `--size 320x240` makes the server's video (the markers'
+   reference) smaller, which leaves such a machine more room to draw the page's face beside it.
 5. Command -> face drawn in the page, on a fresh page with a fresh drawing connection (no markers), the
    agent silent: `--trials` set_emotion commands as in 2. The bench notes, for each frame first drawn as the
    newest (face3d.js `log.newest`: arrivedMs, shownMs), the weights of the targets the voice does not move
@@ -119,7 +122,7 @@ With --json the table goes to stderr and one JSON object to stdout. Progress lin
 
     python bench/web.py [--settle-s 40] [--measure-s 30] [--trials 40] [--viewers 1,2,4,8] [--seed 0]
                         [--draw both|server|browser] [--long-s 0] [--hum-level 0.008] [--no-webgl-draw] [--skip-av]
-                        [--skip-latency] [--skip-viewers] [--json]
+                        [--browser-gl swiftshader|egl] [--size 640x480] [--skip-latency] [--skip-viewers] [--json]
 
 A full run takes about 8-9 minutes on 2 cores (the server-drawn face: start and baselines 10 s, A/V 75 s,
 latency 75 s, viewers 60 s; the browser-drawn face: start 10 s, A/V 110 s, latency 40 s, viewers 60 s);
@@ -1977,8 +1980,8 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
         if ref.get("n"):
             server_ref = report.details.get("av", {}).get("reference", {}).get("offsets", {}).get("median")
             report.add(f"A/V reference (server-drawn markers), {label}", ref["median"], "-", None, "ms",
-                       f"this page, the head drawn by the server with the flashing patch, 640x480; p10 {ref['p10']}, "
-                       f"p90 {ref['p90']}, n {ref['n']}"
+                       f"this page, the head drawn by the server with the flashing patch, {WIDTH}x{HEIGHT}; "
+                       f"p10 {ref['p10']}, p90 {ref['p90']}, n {ref['n']}"
                        + ("" if server_ref is None else f"; the 2D face's run above: {server_ref}"))
         for name, note in (("browser-drawn, voiced marks", "the marks flagged voiced only: drawn when the page's "
                              "voice clock reached them (the others as they arrived)"),
@@ -2408,6 +2411,14 @@ def run_server_drawn(args: argparse.Namespace, report: Report) -> None:
         notable(inst, report)
 
 
+WEBGL_RENDERER_JS = """
+const gl = document.createElement("canvas").getContext("webgl2");
+if (!gl) return "no WebGL 2";
+const info = gl.getExtension("WEBGL_debug_renderer_info");
+return gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER);
+"""
+
+
 def run_browser_drawn(args: argparse.Namespace, report: Report) -> None:
     """Phases 4-6: the 3D head, drawn by the page from face frames, on an instance of its own."""
     from eca.services.processes.avatar.loader import DEFAULT_HEAD
@@ -2417,9 +2428,12 @@ def run_browser_drawn(args: argparse.Namespace, report: Report) -> None:
         report.add("browser-drawn face", "missing", "present", False, "", f"{DEFAULT_HEAD} is not baked")
         return
     rng = random.Random(f"{args.seed}-browser-drawn")  # its own: the same draws whether the server's phases run
-    with instance(DRAWN_FACE) as inst, TimeServer() as server, chromium() as driver:
+    with instance(DRAWN_FACE) as inst, TimeServer() as server, chromium(gl=args.browser_gl) as driver:
         report.details["drawn_web_pid"] = inst.web_pid
         open_drawn_page(driver, inst.url)
+        renderer = driver.execute_script(WEBGL_RENDERER_JS)
+        report.add("browser-drawn: the page's WebGL", str(renderer)[:60], "-", None, "",
+                   f"--browser-gl {args.browser_gl}; the renderer the page draws the head with")
         if not args.skip_av:
             guarded("browser-drawn A/V offset", report, lambda: drawn_av_phase(args, inst, driver, server, report, rng))
         if not args.skip_latency:
@@ -2428,6 +2442,13 @@ def run_browser_drawn(args: argparse.Namespace, report: Report) -> None:
         if not args.skip_viewers:
             guarded("cost per browser-drawn viewer", report, lambda: drawn_viewers_phase(args, inst, driver, report))
         notable(inst, report, f"({DRAWN_FACE}) ")
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    match = re.fullmatch(r"(\d{2,4})x(\d{2,4})", text.strip())
+    if not match or not (64 <= int(match.group(1)) <= 1920 and 48 <= int(match.group(2)) <= 1080):
+        raise argparse.ArgumentTypeError(f"--size must look like 320x240 (64x48 to 1920x1080), got {text!r}")
+    return int(match.group(1)), int(match.group(2))
 
 
 def parse_viewers(text: str) -> list[int]:
@@ -2441,6 +2462,7 @@ def parse_viewers(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    global WIDTH, HEIGHT  # --size: the phases read the picture's size from here, as they do the rate
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--settle-s", type=float, default=40.0, help="A/V: time the browser gets to settle (s)")
     parser.add_argument("--measure-s", type=float, default=30.0, help="A/V: measuring time after it (s)")
@@ -2456,6 +2478,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="browser-drawn: the page chooses and logs its frames at every animation frame but does "
                              "not draw them (SwiftShader draws the head a few times a second on 2 cores; without "
                              "drawing, animation frames come at the display's rate, as with a GPU)")
+    parser.add_argument("--browser-gl", choices=("swiftshader", "egl"), default="swiftshader",
+                        help="browser-drawn: the page's WebGL: Chromium's SwiftShader (default) or the system's EGL "
+                             "(Mesa's llvmpipe on a machine without a GPU: it draws the head 3-4 times as often)")
+    parser.add_argument("--size", type=parse_size, default=(WIDTH, HEIGHT),
+                        help=f"the server-drawn video every phase asks for, WxH (default {WIDTH}x{HEIGHT}): the "
+                             f"markers' reference too; a smaller one leaves a machine without a GPU more room to "
+                             f"draw the page's face beside it (whose canvas is the service's configured size)")
     parser.add_argument("--long-s", type=float, default=0.0,
                         help="browser-drawn A/V: also measure --measure-s from this long after connecting, the agent "
                              "talking throughout (600: after 10 minutes; default 0: only the first minute)")
@@ -2469,6 +2498,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--url", help=argparse.SUPPRESS)
     parser.add_argument("--drawn", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    WIDTH, HEIGHT = args.size
     if args.role == "load":
         return run_load(args.url, args.drawn)
     if args.settle_s < 0 or not 5 <= args.measure_s <= MAX_SAY_S:

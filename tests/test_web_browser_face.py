@@ -1,7 +1,8 @@
 """The face drawn by the page itself, in a real headless Chromium with WebGL (SwiftShader): `eca up --web --face
 head` sends the voice as audio and the face frames on a data channel; the page draws the default head with
 three.js. The head appears, an emotion changes its brows and mouth, the mouth opens with the voice and closes in
-silence, the frames come at the asked rate, and a browser without WebGL gets the server-drawn video instead.
+silence, the frames come at the asked rate, a browser without WebGL gets the server-drawn video instead, and a page
+that draws through the system's EGL (Mesa's llvmpipe here; the benchmark's faster software WebGL) draws the head too.
 """
 
 from __future__ import annotations
@@ -197,3 +198,25 @@ def test_a_browser_without_webgl_gets_the_server_drawn_video(instance: tuple[Bus
     assert (stats.get("framesDecoded") or 0) >= 10, f"{stats}\n{said(url)}"
     assert (stats["frameWidth"], stats["frameHeight"]) == (320, 240)
     assert drawn == 0
+
+
+def test_the_page_draws_the_head_through_the_systems_egl_too(instance: tuple[BusConfig, str]) -> None:
+    """The benchmark's faster software WebGL (bench/web.py --browser-gl egl): ANGLE on the system's EGL, Mesa's
+    llvmpipe here, draws the same head (not SwiftShader's renderer, and pixels where the head is)."""
+    _config, url = instance
+    with chromium(gl="egl") as driver:
+        connect_drawing(driver, url + "?mic=0")
+        renderer = driver.execute_script("""
+            const gl = document.createElement("canvas").getContext("webgl2");
+            const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+            return gl ? gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER) : null;""")
+        pixels = canvas_pixels(driver)
+    assert renderer and "SwiftShader" not in renderer, renderer
+    top, bottom, left, right = head_box(pixels)
+    assert bottom - top > 0.5 * pixels.shape[0], f"the head is {bottom - top} of {pixels.shape[0]} pixels high"
+    assert (pixels[top:bottom, left:right].astype(int).sum(axis=2) > 0).mean() > 0.9  # drawn, not black
+
+
+def test_an_unknown_software_gl_is_refused() -> None:
+    with pytest.raises(ValueError, match="gl must be one of"), chromium(gl="vulkan"):
+        pass

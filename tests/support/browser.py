@@ -19,6 +19,14 @@ CHROMIUM = "/usr/bin/chromium"
 CHROMEDRIVER = "/usr/bin/chromedriver"
 
 
+# The flags that give headless Chromium WebGL without a GPU: ANGLE on SwiftShader's Vulkan, or ANGLE on the
+# system's EGL (Mesa's llvmpipe on a machine without a GPU; the page's renderer string says which it got).
+SOFTWARE_GL: dict[str, tuple[str, ...]] = {
+    "swiftshader": ("--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--ignore-gpu-blocklist"),
+    "egl": ("--use-gl=angle", "--use-angle=gl-egl", "--ignore-gpu-blocklist"),
+}
+
+
 class BrowserMissing(RuntimeError):
     """Chromium or its driver is not installed (`.ci/setup` installs Debian's)."""
 
@@ -37,9 +45,14 @@ def browser_available() -> str | None:
 
 @contextmanager
 def chromium(microphone_wav: Path | None = None, window: tuple[int, int] = (1280, 800),
-             webgl: bool = True) -> Iterator[Any]:
+             webgl: bool = True, gl: str = "swiftshader") -> Iterator[Any]:
     """A selenium driver of a fresh headless Chromium (its own empty profile), quit afterwards. With `webgl`, WebGL
-    through SwiftShader (software; Chromium offers it only when asked); without, a browser with no WebGL."""
+    in software: `gl` "swiftshader" (Chromium's own; it offers it only when asked) or "egl" (the system's EGL through
+    ANGLE: Mesa's llvmpipe on a machine without a GPU, several times faster than SwiftShader at drawing the head, for
+    figures that need the page to draw near its display's rate; a GPU's driver where there is one); without
+    `webgl`, a browser with no WebGL."""
+    if gl not in SOFTWARE_GL:
+        raise ValueError(f"gl must be one of {', '.join(SOFTWARE_GL)}, not {gl!r}")
     problem = browser_available()
     if problem:
         raise BrowserMissing(problem)
@@ -49,14 +62,16 @@ def chromium(microphone_wav: Path | None = None, window: tuple[int, int] = (1280
     profile = Path(tempfile.mkdtemp(prefix="eca-chromium-"))
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
+    # the GPU process stays for "egl": it is where ANGLE runs the system's EGL (SwiftShader runs without one)
+    gpu = () if webgl and gl == "egl" else ("--disable-gpu",)
+    for flag in ("--headless=new", "--no-sandbox", *gpu, "--disable-dev-shm-usage", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
                  "--disable-quic", "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
                  "--autoplay-policy=no-user-gesture-required", f"--window-size={window[0]},{window[1]}",
                  f"--user-data-dir={profile}"):
         options.add_argument(flag)
     if webgl:
-        for flag in ("--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--ignore-gpu-blocklist"):
+        for flag in SOFTWARE_GL[gl]:
             options.add_argument(flag)
     else:
         options.add_argument("--disable-webgl")
