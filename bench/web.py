@@ -2411,18 +2411,10 @@ def run_server_drawn(args: argparse.Namespace, report: Report) -> None:
         notable(inst, report)
 
 
-WEBGL_RENDERER_JS = """
-const gl = document.createElement("canvas").getContext("webgl2");
-if (!gl) return "no WebGL 2";
-const info = gl.getExtension("WEBGL_debug_renderer_info");
-return gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER);
-"""
-
-
 def run_browser_drawn(args: argparse.Namespace, report: Report) -> None:
     """Phases 4-6: the 3D head, drawn by the page from face frames, on an instance of its own."""
     from eca.services.processes.avatar.loader import DEFAULT_HEAD
-    from tests.support.browser import chromium
+    from tests.support.browser import chromium, webgl_renderer
 
     if not DEFAULT_HEAD.exists():
         report.add("browser-drawn face", "missing", "present", False, "", f"{DEFAULT_HEAD} is not baked")
@@ -2431,8 +2423,8 @@ def run_browser_drawn(args: argparse.Namespace, report: Report) -> None:
     with instance(DRAWN_FACE) as inst, TimeServer() as server, chromium(gl=args.browser_gl) as driver:
         report.details["drawn_web_pid"] = inst.web_pid
         open_drawn_page(driver, inst.url)
-        renderer = driver.execute_script(WEBGL_RENDERER_JS)
-        report.add("browser-drawn: the page's WebGL", str(renderer)[:60], "-", None, "",
+        renderer = webgl_renderer(driver) or "no WebGL 2"
+        report.add("browser-drawn: the page's WebGL", renderer[:60], "-", None, "",
                    f"--browser-gl {args.browser_gl}; the renderer the page draws the head with")
         if not args.skip_av:
             guarded("browser-drawn A/V offset", report, lambda: drawn_av_phase(args, inst, driver, server, report, rng))

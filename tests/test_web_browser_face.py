@@ -27,6 +27,7 @@ from tests.support.browser import (
     head_box,
     video_stats,
     wait_for,
+    webgl_renderer,
 )
 from tests.support.bus import eca_command, private_bus_config, running
 
@@ -206,10 +207,7 @@ def test_the_page_draws_the_head_through_the_systems_egl_too(instance: tuple[Bus
     _config, url = instance
     with chromium(gl="egl") as driver:
         connect_drawing(driver, url + "?mic=0")
-        renderer = driver.execute_script("""
-            const gl = document.createElement("canvas").getContext("webgl2");
-            const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
-            return gl ? gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER) : null;""")
+        renderer = webgl_renderer(driver)
         pixels = canvas_pixels(driver)
     assert renderer and "SwiftShader" not in renderer, renderer
     top, bottom, left, right = head_box(pixels)

@@ -120,7 +120,7 @@ def test_each_visitor_gets_an_agent_of_its_own_and_frees_it_on_leaving(instance:
                 await visitor.pc.close()
             if status != 503 or not answer.get("retry") or time.monotonic() > deadline:
                 return status, answer
-            await asyncio.sleep(0.1)  # the page's retry interval, not synchronisation
+            await asyncio.sleep(0.1)  # polling, as a visitor told to retry would: not synchronisation
 
     status, answer = asyncio.run(again())
     assert status == 201, (status, answer)

@@ -85,6 +85,19 @@ def chromium(microphone_wav: Path | None = None, window: tuple[int, int] = (1280
         shutil.rmtree(profile, ignore_errors=True)
 
 
+WEBGL_RENDERER_JS = """
+const gl = document.createElement("canvas").getContext("webgl2");
+const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+return gl ? gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER) : null;
+"""
+
+
+def webgl_renderer(driver: Any) -> str | None:
+    """The renderer a page's WebGL 2 draws with (e.g. "ANGLE (Mesa/X.org, llvmpipe ...)"), None without WebGL 2."""
+    renderer = driver.execute_script(WEBGL_RENDERER_JS)
+    return None if renderer is None else str(renderer)
+
+
 def wait_for(driver: Any, script: str, timeout_s: float, what: str,
              check: Callable[[Any], bool] = bool) -> Any:
     """Poll a JavaScript expression (`return ...`) until `check` holds for its value; its value."""
