@@ -112,18 +112,18 @@ async def _worker(mode: str, target: str, mountpoint: int, count: int, thumbs: b
 # --- the instance ---------------------------------------------------------------------------------------------
 
 
-class Viewers:
-    """Viewer processes on the viewer host: `count` viewers in all, watching one way."""
+class WorkerProcesses:
+    """Worker processes on a host, driven by lines on their stdin: each prints "ready N" once its N viewers receive,
+    snapshots its counts on "mark", and prints its report (one JSON line) on "stop"."""
 
-    def __init__(self, host: Any, mode: str, target: str, mountpoint: int, count: int, thumbs: bool = False) -> None:
-        self.procs: list[subprocess.Popen[str]] = []
-        for first in range(0, count, VIEWERS_PER_PROCESS):
-            n = min(VIEWERS_PER_PROCESS, count - first)
-            argv = [sys.executable, str(Path(__file__).resolve()), "--worker", mode, target, str(mountpoint), str(n)]
-            if thumbs:
-                argv.append("--thumbs")
-            self.procs.append(host.popen(argv, cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                         stderr=subprocess.DEVNULL, text=True))
+    def __init__(self, host: Any, argvs: list[list[str]]) -> None:
+        self.procs: list[subprocess.Popen[str]] = [
+            host.popen(argv, cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                       text=True) for argv in argvs]
+
+    @property
+    def pids(self) -> list[int]:
+        return [pid for proc in self.procs for pid in [proc.pid, *descendants(proc.pid)]]
 
     def wait_ready(self) -> int:
         ready = 0
@@ -157,6 +157,18 @@ class Viewers:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+class Viewers(WorkerProcesses):
+    """Viewer processes on the viewer host: `count` viewers in all, watching one way."""
+
+    def __init__(self, host: Any, mode: str, target: str, mountpoint: int, count: int, thumbs: bool = False) -> None:
+        argvs = []
+        for first in range(0, count, VIEWERS_PER_PROCESS):
+            n = min(VIEWERS_PER_PROCESS, count - first)
+            argv = [sys.executable, str(Path(__file__).resolve()), "--worker", mode, target, str(mountpoint), str(n)]
+            argvs.append([*argv, "--thumbs"] if thumbs else argv)
+        super().__init__(host, argvs)
 
 
 def received_fps(reports: list[dict[str, Any]]) -> list[float]:

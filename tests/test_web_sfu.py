@@ -9,11 +9,14 @@ Janus over the bridge, as a web host would. WebRTC through Janus needs those add
 
 from __future__ import annotations
 
+import base64
 import json
 import subprocess
 import sys
 import time
+import urllib.request
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, cast
 
@@ -25,10 +28,19 @@ from eca.protocol.bus import Publisher
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import EmotionState
 from eca.services.processes.runtime import wait_until
+from eca.services.processes.web.browser_face import FRAME, HEADER, VOICE_CLOCK, VOICED, unpack
 from eca.services.processes.web.options import WebOptions, WebOptionsError
 from eca.services.processes.web.service import WebService
 from eca.services.processes.web.sfu import RtpStream
-from tests.support.browser import browser_available, chromium, page_stats, wait_for, wait_for_frames
+from tests.support.browser import (
+    browser_available,
+    canvas_pixels,
+    chromium,
+    head_box,
+    page_stats,
+    wait_for,
+    wait_for_frames,
+)
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.janus import Janus, janus_available, janus_server
 from tests.support.netns import Host, Network, hosts, netns_available
@@ -56,12 +68,11 @@ def test_a_bad_sfu_url_is_refused_with_a_sentence(url: str) -> None:
         WebOptions(sfu=url).check()
 
 
-def test_an_sfu_excludes_conversations_per_visitor_and_pages_drawing_every_face() -> None:
+def test_an_sfu_excludes_conversations_per_visitor_but_not_pages_drawing_every_face() -> None:
     assert WebOptions(sfu="https://sfu.example/janus").check().sfu == "https://sfu.example/janus"
     with pytest.raises(WebOptionsError, match="per_visitor"):
         WebOptions(sfu="http://sfu:8088/janus", per_visitor=True).check()
-    with pytest.raises(WebOptionsError, match="browser"):
-        WebOptions(sfu="http://sfu:8088/janus", draw="browser").check()
+    assert WebOptions(sfu="http://sfu:8088/janus", draw="browser").check().draw == "browser"
 
 
 def test_rtp_timestamps_follow_the_master_clock_stamps() -> None:
@@ -110,6 +121,44 @@ def web(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
             yield config, service
 
 
+@pytest.fixture(scope="module")
+def web_drawn(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
+    """An instance whose pages draw every face (the default head, draw = "browser"), published into Janus: voice and
+    face frames, no video."""
+    with private_bus_config(agents=["ada"]) as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, sfu=janus.url, width=WIDTH, height=HEIGHT, fps=FPS,
+                                                face="head", draw="browser"))
+        with ServiceThread(service):
+            yield config, service
+
+
+@contextmanager
+def audio_and_dialogue(config: BusConfig) -> Iterator[tuple[Publisher, Publisher]]:
+    """Publishers as the audio and dialogue services (voice blocks, the emotion's state), ready, the agent calm."""
+    ctx = zmq.Context()
+    audio, dialogue = Publisher(ctx, config, "audio"), Publisher(ctx, config, "dialogue")
+    try:
+        audio.wait_ready()
+        dialogue.wait_ready()
+        dialogue.publish(EmotionState(agent="ada", name="natural", transition_s=0.0))
+        yield audio, dialogue
+    finally:
+        audio.close()
+        dialogue.close()
+        ctx.term()
+
+
+@pytest.fixture(scope="module")
+def web_auto_head(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
+    """An instance with the default head and draw = "auto" published into Janus: video for pages without WebGL, face
+    frames for those that draw."""
+    with private_bus_config(agents=["ada"]) as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, sfu=janus.url, width=WIDTH, height=HEIGHT, fps=FPS,
+                                                face="head"))
+        with ServiceThread(service):
+            yield config, service
+
+
 def watch_from(host: Host, url: str, mountpoint: int, seconds: float, viewers: int = 1) -> subprocess.Popen[str]:
     """Viewers of a mountpoint in a process on `host` (tests/support/janus.py's `watch`)."""
     argv = [sys.executable, "-m", "tests.support.janus", "watch", url, str(mountpoint), str(seconds),
@@ -138,12 +187,7 @@ def test_a_viewer_through_janus_sees_and_hears_the_face_and_its_change(network: 
     assert info is not None and info["url"] == janus.url and info["mountpoints"]["ada"] == info["mountpoint"]
     mp = service.sfu.mountpoints["ada"]
     requests = mp.keyframe_requests
-    ctx = zmq.Context()
-    audio, dialogue = Publisher(ctx, config, "audio"), Publisher(ctx, config, "dialogue")
-    try:
-        audio.wait_ready()
-        dialogue.wait_ready()
-        dialogue.publish(EmotionState(agent="ada", name="natural", transition_s=0.0))
+    with audio_and_dialogue(config) as (audio, dialogue):
         proc = watch_from(network["viewer"], janus.url, info["mountpoint"], 7.0)
         # Janus asks for a keyframe (PLI) as the viewer starts: that is when it watches
         assert wait_until(lambda: mp.keyframe_requests > requests, 20.0), "Janus never asked for a keyframe"
@@ -152,10 +196,6 @@ def test_a_viewer_through_janus_sees_and_hears_the_face_and_its_change(network: 
         changed_at = time.time()
         dialogue.publish(EmotionState(agent="ada", name="surprised", transition_s=0.0))
         got = result_of(proc)
-    finally:
-        audio.close()
-        dialogue.close()
-        ctx.term()
     viewer = got["viewers"][0]
     assert viewer["pictures"] >= 0.6 * SMALL["fps"] * 5, viewer["pictures"]
     assert {(s["w"], s["h"]) for s in viewer["stats"]} == {(SMALL["width"], SMALL["height"])}
@@ -195,6 +235,61 @@ def test_five_viewers_through_janus_cost_eca_one_stream(network: Network, janus:
     assert sent_packets <= 3 * sent + 3, (sent_packets, sent)
     counts = [v["pictures"] for v in got["viewers"]]
     assert all(n >= 0.5 * SMALL["fps"] * 4 for n in counts), counts
+
+
+@needs_janus
+def test_a_face_the_pages_draw_reaches_viewers_through_janus_as_face_frames(network: Network, janus: Janus,
+                                                                          web_drawn: tuple[BusConfig, WebService]
+                                                                          ) -> None:
+    """draw = "browser" through Janus: the mountpoint has the voice and a data section and no video; each face frame
+    eca sends reaches the viewer's data channel as one binary message, whole (the page's layout), at the configured
+    rate, in order; they change with an emotion command and say when the voice sounds; the voice's clock comes with
+    them. eca draws and encodes nothing."""
+    config, service = web_drawn
+    assert service.sfu is not None and service.sfu.faces == ("ada",) and not service.sfu.video
+    info = service.sfu_info()
+    assert info is not None and info["faces"] == ["ada"] and info["video"] is False
+    with urllib.request.urlopen(service.url.split("?")[0] + "config", timeout=10) as response:
+        described = json.loads(response.read())["sfu"]["faces"]["ada"]
+    layout = service.face_frames.face("ada").layout
+    assert described["frame_bytes"] == layout.size and described["url"].startswith("avatars/")
+    mp = service.sfu.mountpoints["ada"]
+    assert mp.data_port and not mp.video_port
+    with audio_and_dialogue(config) as (audio, dialogue):
+        proc = watch_from(network["viewer"], janus.url, mp.id, 7.0)
+        assert wait_until(lambda: mp.viewers == 1, 20.0), f"Janus counts {mp.viewers} viewers"
+        sent = mp.face_frames
+        assert wait_until(lambda: mp.face_frames >= sent + 2 * FPS, 10.0)  # a baseline: two seconds of the face
+        changed_at = time.time()
+        dialogue.publish(EmotionState(agent="ada", name="surprised", transition_s=0.0))
+        speak_tone(audio, 1.0)
+        got = result_of(proc)
+    viewer = got["viewers"][0]
+    assert viewer["pictures"] == 0 and not service.encoded.streams, "video: eca encoded or Janus sent pictures"
+    assert viewer["audio_frames"] >= 150, viewer["audio_frames"]
+    messages = viewer["messages"]
+    assert messages and all(m["binary"] for m in messages), "no face frames, or as text"
+    received = [(m["t"], base64.b64decode(m["data"])) for m in messages]
+    frames = [(t, unpack(data, layout)) for t, data in received if data[2] == FRAME]
+    clocks = [HEADER.unpack(data) for t, data in received if data[2] == VOICE_CLOCK]
+    assert len(frames) + len(clocks) == len(received), "a message neither a frame nor the voice's clock"
+    # the voice's clock every 240 ms (12 voice packets): the RTP timestamp eca gave a packet and when it left
+    assert len(clocks) >= 0.25 * 4 * (received[-1][0] - received[0][0]), len(clocks)
+    assert all(slot == described["slot"] for slot, *_ in clocks)
+    gaps = np.diff([c[3] for c in clocks]) % 2**32
+    assert set(gaps) <= {12 * 960 * k for k in range(1, 4)}, gaps  # every 12 packets (one may be lost)
+    span = frames[-1][0] - frames[0][0]
+    assert len(frames) >= 0.8 * FPS * span, f"{len(frames)} frames in {span:.1f} s at {FPS:g} fps"
+    seqs = [f[2] for _, f in frames]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), "out of order or repeated"
+    before = np.array([f[4] for t, f in frames if t < changed_at])
+    after = np.array([f[4] for t, f in frames if t > changed_at + 1.0])
+    assert len(before) >= 10 and len(after) >= 10, (len(before), len(after))
+    still = np.abs(before[-10:-5].mean(axis=0) - before[-5:].mean(axis=0)).sum()
+    change = np.abs(before[-5:].mean(axis=0) - after[-5:].mean(axis=0)).sum()
+    assert change > 0.5 and change > 3 * still, f"the expression's change: {change:.2f} (still: {still:.2f})"
+    voiced = [f for t, f in frames if f[1] & VOICED]
+    assert len(voiced) >= 0.5 * FPS, f"{len(voiced)} frames said the voice sounds"
 
 
 @needs_janus
@@ -270,3 +365,101 @@ def test_the_page_in_a_real_browser_watches_the_face_through_janus(web: tuple[Bu
     assert audio is not None and audio["audio"] and audio["audio"][0]["packetsReceived"] > 0
     rgb = pixels.reshape(HEIGHT, WIDTH, 4)[:, :, :3].astype(int)
     assert rgb.std() > 20, "a blank picture"  # the face on its background: many colours
+
+
+# What the page knows of the packet its voice played last: its RTP timestamp as Janus renumbered it and when it
+# played (the synchronization source), the page's estimate of Janus's first packet, and the jitter buffer's own
+# delay over the last second (getStats, twice), in ms.
+PLAYED = """
+    const done = arguments[0]; const f = window.eca.drawn.ada; const receiver = f.clock.receiver;
+    const inbound = async () => { for (const r of (await receiver.getStats()).values()) {
+      if (r.type === "inbound-rtp") return r; } return null; };
+    (async () => {
+      const a = await inbound(); await new Promise((r) => setTimeout(r, 1000)); const b = await inbound();
+      const src = receiver.getSynchronizationSources()[0];
+      done([src.rtpTimestamp, src.timestamp, f.clock.base, 1000 * (b.jitterBufferDelay - a.jitterBufferDelay)
+            / (b.jitterBufferEmittedCount - a.jitterBufferEmittedCount)]);
+    })();"""
+
+
+@needs_janus
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_the_page_in_a_real_browser_draws_the_face_from_frames_through_janus(
+        web_drawn: tuple[BusConfig, WebService], tmp_path: Path) -> None:
+    """draw = "browser" through Janus, in a real headless Chromium: the page watches the agent through Janus, opens
+    the mountpoint's data channel, draws the head from the face frames (no video anywhere), and knows what its voice
+    plays although Janus renumbers the voice's RTP timestamps (the page works out from what: exactly the first
+    packet Janus relayed to it): what it hears is a little behind the newest frame (the voice's jitter buffer), not
+    seconds away, and it hears the voice's frames while a tone plays."""
+    config, service = web_drawn
+    with audio_and_dialogue(config) as (audio, _), chromium() as driver:
+        driver.get(service.url + "?mic=0")
+        driver.find_element("id", "connect").click()
+        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
+                 lambda state: state == "connected")
+        wait_for(driver, "return window.eca.drawn.ada ? window.eca.drawn.ada.stats.received : 0", 30.0,
+                 "the page drawing ada from face frames through Janus", lambda n: n >= 10)
+        assert driver.execute_script("return (window.eca.janus || []).length") == 1
+        assert driver.execute_script("return document.querySelector('#faces video')") is None
+        wait_for(driver, "return window.eca.drawn.ada.clock.rebasings || 0", 20.0,
+                 "the page working out Janus's numbering of the voice", lambda n: n >= 3)
+        speak_tone(audio, 3.0)
+        wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the voice")
+        played_rtp, played_ms, base, buffered_ms = driver.execute_async_script(PLAYED)
+        heard_ms, newest_ms, bases = driver.execute_script("""
+            const f = window.eca.drawn.ada; f.present();
+            return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs, f.clock.bases];""")
+        pixels = canvas_pixels(driver)
+        driver.save_screenshot(str(tmp_path / "drawn_through_janus.png"))
+    assert len(set(bases[-5:])) == 1, f"the latest estimates of Janus's first packet disagree: {bases}"
+    # the packet played last, in eca's numbering by the page's estimate, and so when eca sent it: played that long
+    # after, as long as the jitter buffer held it (a packet off, 20 ms, on Janus's numbering shows here)
+    assert service.sfu is not None and base is not None
+    stream = service.sfu.mountpoints["ada"].audio
+    assert stream is not None
+    stamp_ns = stream.origin_ns + ((played_rtp + base - stream.ts_offset) % 2**32) * 1_000_000_000 // stream.rate
+    sent_ms = (stamp_ns + time.time_ns() - service.clock.now_ns()) / 1e6
+    assert abs(played_ms - sent_ms - buffered_ms) < 12.0, (played_ms - sent_ms, buffered_ms)
+    behind = heard_ms - newest_ms
+    assert -1500.0 < behind < 100.0, f"the voice heard {behind:.0f} ms from the newest frame"
+    top, bottom, left, right = head_box(pixels)
+    assert bottom - top > 0.5 * pixels.shape[0], f"the head is {bottom - top} of {pixels.shape[0]} pixels high"
+    assert service.sfu is not None and service.sfu.mountpoints["ada"].face_frames > 0
+    assert not service.encoded.streams  # nothing drawn nor encoded on the server
+
+
+INBOUND_KINDS = """
+    const done = arguments[0];
+    window.eca.pc.getStats().then((stats) => { const kinds = [];
+      stats.forEach((r) => { if (r.type === "inbound-rtp" && r.packetsReceived > 0) kinds.push(r.kind); });
+      done(kinds.sort()); });"""
+
+
+@needs_janus
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_with_draw_auto_through_janus_each_page_takes_only_what_it_shows(
+        web_auto_head: tuple[BusConfig, WebService]) -> None:
+    """draw = "auto", a 3D head, through Janus: the mountpoint has the voice, the video and the face frames. A page
+    with WebGL watches the voice and the face frames and draws the head (Janus sends it no video); a page opened
+    with ?draw=server watches the voice and the video."""
+    _, service = web_auto_head
+    assert service.sfu is not None and service.sfu.faces == ("ada",) and service.sfu.video
+    with chromium() as driver:
+        driver.get(service.url + "?mic=0")
+        driver.find_element("id", "connect").click()
+        wait_for(driver, "return window.eca.drawn.ada ? window.eca.drawn.ada.stats.received : 0", 30.0,
+                 "the page drawing ada from face frames through Janus", lambda n: n >= 10)
+        drawn_kinds = driver.execute_async_script(INBOUND_KINDS)
+        pixels = canvas_pixels(driver)
+    with chromium() as driver:
+        driver.get(service.url + "?mic=0&draw=server")
+        driver.find_element("id", "connect").click()
+        stats = wait_for_frames(driver, 10, 30.0)
+        shown_kinds = driver.execute_async_script(INBOUND_KINDS)
+        drawn_here = driver.execute_script("return Object.keys(window.eca.drawn).length")
+    assert drawn_kinds == ["audio"], drawn_kinds  # the voice; the face frames come on the data channel
+    top, bottom, _, _ = head_box(pixels)
+    assert bottom - top > 0.5 * pixels.shape[0]
+    assert shown_kinds == ["audio", "video"] and drawn_here == 0, (shown_kinds, drawn_here)
+    assert (stats["frameWidth"], stats["frameHeight"]) == (WIDTH, HEIGHT)
+

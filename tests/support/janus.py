@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import base64
 import json
 import os
 import secrets
@@ -226,10 +227,16 @@ class JanusViewer:
         self.url, self.mountpoint = url.rstrip("/"), mountpoint
         self.pc = RTCPeerConnection()
         self.tracks: dict[str, Any] = {}
+        self.offer_sdp = ""
+        self.messages: list[tuple[float, bytes | str]] = []  # what came on Janus's data channel, with arrival times
+        self.pc.on("datachannel", self._on_channel)
         self._http: aiohttp.ClientSession | None = None
         self._session = self._handle = 0
         self._poll: asyncio.Task[None] | None = None
         self._events: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+
+    def _on_channel(self, channel: Any) -> None:
+        channel.on("message", lambda message: self.messages.append((time.time(), message)))
 
     async def _post(self, path: str, body: dict[str, Any]) -> dict[str, Any]:
         assert self._http is not None
@@ -273,8 +280,13 @@ class JanusViewer:
         await self._post(f"/{self._session}/{self._handle}",
                          {"janus": "message", "body": {"request": "watch", "id": self.mountpoint}})
         offer = (await self._event_with("jsep", timeout_s))["jsep"]
+        self.offer_sdp = str(offer["sdp"])
         self.pc.on("track", lambda track: self.tracks.__setitem__(track.kind, track))
         await self.pc.setRemoteDescription(RTCSessionDescription(sdp=offer["sdp"], type=offer["type"]))
+        if "m=application" in self.offer_sdp:
+            # Janus relays a mountpoint's data once the viewer's data channel is open: the viewer opens it (as
+            # janus.js does), under the label Janus sends on when a plugin names none
+            self._on_channel(self.pc.createDataChannel("JanusDataChannel"))
         await self.pc.setLocalDescription(await self.pc.createAnswer())
         await self._post(f"/{self._session}/{self._handle}",
                          {"janus": "message", "body": {"request": "start"},
@@ -324,8 +336,8 @@ def picture_stats(arrived: float, frame: Any, thumbnail: bool = True) -> dict[st
 
 async def watch(url: str, mountpoint: int, seconds: float, viewers: int = 1, decode_every: int = 1,
                 thumbnails: bool = True) -> dict[str, Any]:
-    """`viewers` viewers of one mountpoint for `seconds`: per viewer, the pictures (their arrival time and stats)
-    and the audio frames received."""
+    """`viewers` viewers of one mountpoint for `seconds`: per viewer, the pictures (their arrival time and stats),
+    the audio frames received and the data channel's messages (arrival time, base64 of a binary message)."""
     import numpy as np
 
     clients = [JanusViewer(url, mountpoint) for _ in range(viewers)]
@@ -339,7 +351,10 @@ async def watch(url: str, mountpoint: int, seconds: float, viewers: int = 1, dec
             level = float(np.sqrt(np.mean(np.concatenate([f.to_ndarray().astype(np.float64).reshape(-1)
                                                           for _, f in audio]) ** 2)))
         return {"pictures": len(video), "audio_frames": len(audio), "audio_rms": level,
-                "stats": [picture_stats(t, f, thumbnails) for t, f in video[::decode_every]]}
+                "stats": [picture_stats(t, f, thumbnails) for t, f in video[::decode_every]],
+                "messages": [{"t": t, "binary": isinstance(m, bytes),
+                              "data": base64.b64encode(m).decode() if isinstance(m, bytes) else m[:100]}
+                             for t, m in client.messages]}
 
     try:
         results = await asyncio.gather(*(one(c) for c in clients))

@@ -162,9 +162,9 @@ class ConversationPage(FaceClient):
         return await post(self.base + "command", {"key": self.key, "command": {"agent": self.agents[0], **command}})
 
 
-def speak_tone(pub: Any, seconds: float, agent: str = "ada") -> None:
+def speak_tone(pub: Any, seconds: float, agent: str = "ada") -> int:
     """Voice blocks of a loud tone on `pub` (a bus Publisher), stamped ahead of time as the audio service stamps
-    them: what a web service plays to its viewers."""
+    them: what a web service plays to its viewers. Returns when the tone starts (time.monotonic_ns)."""
     from eca.protocol.messages import VoiceBlock
 
     start = time.monotonic_ns() + 60_000_000
@@ -173,3 +173,4 @@ def speak_tone(pub: Any, seconds: float, agent: str = "ada") -> None:
         tone = (0.5 * np.sin(2 * np.pi * 440 * (t + k * 0.01)) * 32767).astype("<i2")
         pub.publish(VoiceBlock(agent=agent, sample_rate=48_000, first_sample=k * 480,
                                dac_time_ns=start + k * 10_000_000, pcm=tone.tobytes(), request_id="r"))
+    return start

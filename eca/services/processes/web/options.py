@@ -161,9 +161,6 @@ class WebOptions:
         if self.per_visitor:
             raise WebOptionsError("web sfu publishes the instance's agents once for every viewer; a conversation per "
                                   "visitor (per_visitor) has one viewer each: use one or the other")
-        if self.draw == "browser":
-            raise WebOptionsError("web sfu sends the server-drawn video through Janus; draw = \"browser\" draws no "
-                                  "video: use draw = \"auto\" or \"server\" with an SFU")
 
     def url(self, port: int | None = None) -> str:
         """The page's address (with the token): on `port` when given (the one bound for port 0)."""

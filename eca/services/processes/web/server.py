@@ -160,6 +160,14 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
         return web.FileResponse(path, headers={"Content-Type": "application/octet-stream",
                                                "Cache-Control": "no-store"})
 
+    def sfu_info() -> dict[str, Any] | None:
+        """Where pages watch through Janus, with what they need to draw each face whose frames go there."""
+        sfu: dict[str, Any] | None = getattr(backend, "sfu_info", lambda: None)()
+        if sfu is not None:
+            sfu = {**sfu, "faces": {a: face_frames.description(a, avatar_url(a)) for a in sfu.get("faces", ())
+                                    if face_frames is not None}}
+        return sfu
+
     async def config(request: web.Request) -> web.Response:
         _check_token(options, request.query.get("token"))
         return web.json_response({"agents": list(agents), "eye_modes": list(EYE_MODES),
@@ -168,8 +176,8 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
                                   "max_height": options.max_height, "max_fps": options.max_fps,
                                   "draw": options.draw, "drawable": drawable(),
                                   "per_visitor": conversations is not None,
-                                  # with an SFU: where pages watch each agent's video through Janus (web/sfu.py)
-                                  "sfu": getattr(backend, "sfu_info", lambda: None)()})
+                                  # with an SFU: where pages watch each agent through Janus (web/sfu.py)
+                                  "sfu": sfu_info()})
 
     async def offer(request: web.Request) -> web.Response:
         body = await _json_body(request)

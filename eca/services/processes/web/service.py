@@ -50,7 +50,7 @@ from eca.services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
 from eca.services.processes.web.janus import JanusError, check_server
 from eca.services.processes.web.options import WebOptions, WebOptionsError, add_arguments, options_from
 from eca.services.processes.web.server import make_app
-from eca.services.processes.web.sfu import SfuError, SfuPublisher
+from eca.services.processes.web.sfu import MAX_DATA_BYTES, SfuError, SfuPublisher
 from eca.services.processes.web.viewers import Viewers, ViewRequest
 
 MAX_SUBMITTED = 10_000  # messages from the pages waiting for the bus loop; past that they are dropped
@@ -174,7 +174,8 @@ class WebService(Service):
         = "server"). Otherwise it is made ready when a page is first asked for and may want video (a 2D face, a
         browser without WebGL), while that page loads: an instance at rest holds no GL context nor the 2D
         face's compiled code (some 200 MB), and pages that draw the faces themselves never make it load."""
-        return self.options.draw == "server" or self.options.sfu is not None  # an SFU watches from the start
+        # an SFU watches from the start, and wants video unless pages draw every face
+        return self.options.draw == "server" or (self.options.sfu is not None and self.options.draw != "browser")
 
     def expect_viewer(self) -> None:
         """A page was asked for (called on the event loop's thread): get drawing ready, if any page may want
@@ -321,8 +322,16 @@ class WebService(Service):
                 raise CannotStart(str(exc)) from None
         self._events = EventLoopThread().start()
         if self.options.sfu is not None:
+            drawable = [a for a in self.agent_ids if self.options.draw != "server" and self.face_frames.drawable(a)]
+            faces = tuple(a for a in drawable if self.face_frames.face(a).layout.size <= MAX_DATA_BYTES)
+            if self.options.draw == "browser" and len(faces) != len(self.agent_ids):
+                big = ", ".join(a for a in drawable if a not in faces)
+                raise CannotStart(f"Janus relays data messages of at most {MAX_DATA_BYTES} bytes; the face frames of "
+                                  f"{big} are larger (an avatar with many morph targets): use draw = \"auto\" (they "
+                                  "go as video) or a smaller avatar")
             publisher = SfuPublisher(self, self.options.sfu, tuple(self.agent_ids), self.options.width,
-                                     self.options.height, self.options.fps)
+                                     self.options.height, self.options.fps, faces=faces,
+                                     video=self.options.draw != "browser")
             try:
                 self._events.call(publisher.start(), timeout_s=30.0)
             except (SfuError, TimeoutError) as exc:
@@ -538,6 +547,8 @@ class WebService(Service):
         frames = self.face_frames.make(views, frame_ns, self._sounding)
         if frames and self._events is not None and self.viewers is not None:
             self._events.loop.call_soon_threadsafe(self.viewers.send_face_frames, frames, frame_ns, early)
+            if self.sfu is not None and self.sfu.faces:
+                self._events.loop.call_soon_threadsafe(self.sfu.send_face_frames, frames, frame_ns, early)
 
     def _sounding(self, agent: str, t_ns: int) -> bool:
         feed = self.voices.get(agent)

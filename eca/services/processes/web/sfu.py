@@ -1,6 +1,11 @@
 """Faces fanned out by Janus (`eca web --sfu URL`): each agent's face and voice published ONCE, as RTP, into a Janus
 Streaming mountpoint, which every viewer watches through Janus instead of peering with eca.
 
+A face that pages draw themselves (a 3D head, `draw` "auto" or "browser") also goes in as its face frames
+(web/face_frames.py, the same bytes a direct page gets on its data channel): the mountpoint has a data section, eca
+sends each frame to its port as one UDP datagram, and Janus relays each to every viewer's data channel. With `draw`
+"browser" the mountpoint has no video at all: eca then neither draws nor encodes, whatever the number of viewers.
+
 Per agent, the publisher creates a mountpoint through Janus's HTTP API (web/janus.py) with an Opus and a VP8 section
 on ports Janus picks, and sends it RTP over UDP: the VP8 pictures of the same shared encoder the direct viewers'
 tracks send (web/encoding.py: one encode per picture at the configured size and rate, also shared with direct
@@ -43,6 +48,7 @@ from aiortc.codecs.vpx import Vp8Encoder as Vp8Packetizer
 from aiortc.rtp import RtcpPacket, RtcpPsfbPacket, RtcpSenderInfo, RtcpSrPacket, RtpPacket
 
 from eca.agent.clock import Clock
+from eca.services.processes.web.browser_face import NTP_UNIX_OFFSET_MS, pack_voice_clock
 from eca.services.processes.web.encoding import VIDEO_RATE, EncodedStream, EncodedStreams
 from eca.services.processes.web.feeds import VoiceFeed
 from eca.services.processes.web.janus import MOUNTPOINT_EXISTS, NO_SUCH_MOUNTPOINT, JanusClient, JanusError
@@ -52,12 +58,19 @@ from eca.services.processes.web.viewers import ViewRequest
 log = logging.getLogger("web")
 
 AUDIO_PT, VIDEO_PT = 111, 96  # the payload types the mountpoints are made with (Janus offers them to viewers)
+# the mountpoints' media sections (a viewer may watch only some: the voice and face frames of a face it draws)
+MIDS = {"audio": "a", "video": "v", "data": "d"}
 AUDIO_RATE = 48_000  # Opus' RTP clock
 SR_EVERY_S = 1.0
 CHECK_EVERY_S = 2.0  # how often each mountpoint is looked at (also the session's keepalive: Janus waits 60 s)
 RETRY_MAX_S = 10.0
 PSFB_PLI, PSFB_FIR = 1, 4  # RTCP payload-specific feedback formats (RFC 4585, RFC 5104): keyframe requests
-PUBLISHER_VIEWER = 0  # the number the publisher watches under (the viewers' own numbers start at 1)
+PUBLISHER_VIEWER = 0  # the numbers the publisher watches under: the video (the viewers' own numbers start at 1)
+PUBLISHER_FACES = -1  # and the face frames
+# Janus's Streaming plugin reads a data port's datagrams into a 1500-byte buffer (janus_streaming.c): a face frame
+# larger than that (an avatar with many morph targets) cannot go through it, and is sent as video instead
+MAX_DATA_BYTES = 1500
+VOICE_CLOCK_EVERY = 12  # voice frames (240 ms) between the voice's clock reports on a face's data section
 NTP_EPOCH_S = 2_208_988_800
 
 
@@ -72,6 +85,8 @@ class PublisherBackend(Protocol):
     encoded: EncodedStreams
 
     def voice(self, agent: str) -> VoiceFeed: ...
+
+    def face_slot(self, agent: str) -> int: ...
 
     def watch(self, viewer: int, request: ViewRequest) -> None: ...
 
@@ -152,9 +167,12 @@ class Mountpoint:
     audio_port: int = 0
     video_port: int = 0
     video_rtcp_port: int = 0
+    data_port: int = 0  # its face frames' (0: no data section, the server draws this face)
     viewers: int = 0  # as Janus said at the last check
     pictures: int = 0
     voice_frames: int = 0
+    face_frames: int = 0
+    voice_clocks: int = 0
     keyframe_requests: int = 0
     video: RtpStream | None = None
     audio: RtpStream | None = None
@@ -162,12 +180,19 @@ class Mountpoint:
 
 
 class SfuPublisher:
-    """The faces of `agents`, each published once into a Janus Streaming mountpoint at one size and rate."""
+    """The faces of `agents`, each published once into a Janus Streaming mountpoint at one size and rate.
+
+    `faces`: the agents whose face frames go in too (pages draw them); `video`: whether any face goes in as video
+    (False with `draw` "browser": every face is in `faces`)."""
 
     def __init__(self, backend: PublisherBackend, url: str, agents: tuple[str, ...], width: int, height: int,
-                 fps: float, check_s: float = CHECK_EVERY_S) -> None:
+                 fps: float, check_s: float = CHECK_EVERY_S, faces: tuple[str, ...] = (), video: bool = True) -> None:
         self.backend, self.url, self.agents = backend, url.rstrip("/"), agents
         self.width, self.height, self.fps = width, height, fps
+        self.faces = tuple(a for a in agents if a in faces)
+        self.video = video
+        if not video and len(self.faces) != len(agents):
+            raise SfuError("without video every agent's face must be one pages draw (a 3D face)")
         self.check_s = check_s
         self.janus = JanusClient(self.url)
         self.host = urlsplit(self.url).hostname or ""  # RTP goes to the host of the API (mountpoints bind to all)
@@ -177,6 +202,8 @@ class SfuPublisher:
         self._streams: dict[str, EncodedStream] = {}
         self._video_socket: dict[str, _Socket] = {}
         self._audio_socket: _Socket | None = None
+        self._data_socket: _Socket | None = None
+        self._next_frame_ns = 0
         self._tasks: list[asyncio.Task[None]] = []
         self._lost = False
         self._origin_ns = 0
@@ -187,13 +214,16 @@ class SfuPublisher:
         """What `GET /config` tells pages: where Janus is and which mountpoint shows which agent."""
         ids = {a: m.id for a, m in self.mountpoints.items()}
         return {"url": self.url, "mountpoints": ids, "mountpoint": ids[self.agents[0]] if self.agents else None,
-                "width": self.width, "height": self.height, "fps": self.fps}
+                "width": self.width, "height": self.height, "fps": self.fps,
+                # the agents whose mountpoint carries face frames (a data section) and whether any has video
+                "faces": list(self.faces), "video": self.video, "mids": MIDS}
 
     def stats(self) -> dict[str, Any]:
         """What was sent into Janus (per agent), independent of how many watch there."""
         return {"recreated": self.recreated, "lost": self._lost,
                 "agents": {a: {"mountpoint": m.id, "viewers": m.viewers, "pictures": m.pictures,
                                "voice_frames": m.voice_frames, "keyframe_requests": m.keyframe_requests,
+                               "face_frames": m.face_frames,
                                "video_packets": m.video.packets if m.video else 0,
                                "audio_packets": m.audio.packets if m.audio else 0}
                            for a, m in self.mountpoints.items()}}
@@ -215,21 +245,29 @@ class SfuPublisher:
         self._origin_ns = self.backend.clock.now_ns()
         _, audio = await loop.create_datagram_endpoint(_Socket, local_addr=("0.0.0.0", 0))
         self._audio_socket = audio
-        self.backend.watch(PUBLISHER_VIEWER, ViewRequest(self.agents, self.width, self.height, self.fps, (), None))
+        if self.faces:
+            _, self._data_socket = await loop.create_datagram_endpoint(_Socket, local_addr=("0.0.0.0", 0))
+            self.backend.watch(PUBLISHER_FACES, ViewRequest(self.faces, self.width, self.height, self.fps, (), None,
+                                                            drawn_here=self.faces))
+        if self.video:
+            self.backend.watch(PUBLISHER_VIEWER, ViewRequest(self.agents, self.width, self.height, self.fps, (), None))
         for agent in self.agents:
+            mp = self.mountpoints[agent]
+            mp.audio = RtpStream(AUDIO_PT, AUDIO_RATE, self._origin_ns)
+            self._tasks.append(asyncio.ensure_future(self._send_voice(mp, audio)))
+            if not self.video:
+                continue
             stream = self._streams[agent] = self.backend.encoded.use(agent, self.width, self.height, self.fps)
             _, video = await loop.create_datagram_endpoint(self._rtcp_socket(agent, stream), local_addr=("0.0.0.0", 0))
             self._video_socket[agent] = video
-            mp = self.mountpoints[agent]
             mp.video = RtpStream(VIDEO_PT, VIDEO_RATE, self._origin_ns)
-            mp.audio = RtpStream(AUDIO_PT, AUDIO_RATE, self._origin_ns)
             self._tasks += [asyncio.ensure_future(self._send_video(mp, stream, video)),
-                            asyncio.ensure_future(self._send_voice(mp, audio)),
                             asyncio.ensure_future(self._send_reports(mp, video))]
         self._tasks.append(asyncio.ensure_future(self._watch_janus()))
-        log.info("publishing %s into Janus at %s (mountpoints %s) at %dx%d, %g fps", ", ".join(self.agents),
+        log.info("publishing %s into Janus at %s (mountpoints %s) at %dx%d, %g fps%s%s", ", ".join(self.agents),
                  self.url, ", ".join(f"{a}: {m.id}" for a, m in self.mountpoints.items()), self.width, self.height,
-                 self.fps)
+                 self.fps, f"; face frames of {', '.join(self.faces)}" if self.faces else "",
+                 "" if self.video else "; no video")
 
     def _rtcp_socket(self, agent: str, stream: EncodedStream) -> Callable[[], _Socket]:
         return lambda: _Socket(lambda data: self._on_rtcp(agent, stream, data))
@@ -240,13 +278,14 @@ class SfuPublisher:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks = []
         self.backend.unwatch(PUBLISHER_VIEWER)
+        self.backend.unwatch(PUBLISHER_FACES)
         for stream in self._streams.values():
             self.backend.encoded.release(stream)
         self._streams = {}
-        for sock in [*self._video_socket.values(), self._audio_socket]:
+        for sock in [*self._video_socket.values(), self._audio_socket, self._data_socket]:
             if sock is not None and sock.transport is not None:
                 sock.transport.close()
-        self._video_socket, self._audio_socket = {}, None
+        self._video_socket, self._audio_socket, self._data_socket = {}, None, None
         if not self._lost:
             for mp in self.mountpoints.values():
                 if mp.id:
@@ -266,13 +305,19 @@ class SfuPublisher:
     async def _create(self, mp: Mountpoint) -> None:
         """The agent's mountpoint: under its old id when it had one (pages keep watching the same id), else
         wherever Janus puts it. Only the mountpoint's own secret lets anyone destroy it."""
+        media: list[dict[str, Any]] = [{"type": "audio", "mid": MIDS["audio"], "codec": "opus", "pt": AUDIO_PT,
+                                        "port": 0}]
+        if self.video:
+            # rtcpport: Janus sends keyframe requests (PLI) back to where our reports come from
+            media.append({"type": "video", "mid": MIDS["video"], "codec": "vp8", "pt": VIDEO_PT, "port": 0,
+                          "rtcpport": 0})
+        if mp.agent in self.faces:
+            # binary: each datagram reaches the viewers' data channels as one binary message, as eca sent it
+            media.append({"type": "data", "mid": MIDS["data"], "port": 0, "datatype": "binary"})
         body: dict[str, Any] = {
             "request": "create", "type": "rtp", "permanent": False, "is_private": False,
             "name": f"eca-{mp.agent}", "description": f"eca {mp.agent} {self.width}x{self.height} {self.fps:g} fps",
-            "secret": self.secret,
-            "media": [{"type": "audio", "mid": "a", "codec": "opus", "pt": AUDIO_PT, "port": 0},
-                      # rtcpport: Janus sends keyframe requests (PLI) back to where our reports come from
-                      {"type": "video", "mid": "v", "codec": "vp8", "pt": VIDEO_PT, "port": 0, "rtcpport": 0}],
+            "secret": self.secret, "media": media,
         }
         if mp.id:
             body["id"] = mp.id
@@ -289,8 +334,11 @@ class SfuPublisher:
         try:
             mp.id = int(stream["id"])
             mp.audio_port = int(ports["audio"]["port"])
-            mp.video_port = int(ports["video"]["port"])
-            mp.video_rtcp_port = int(ports["video"].get("rtcp_port") or 0)
+            if self.video:
+                mp.video_port = int(ports["video"]["port"])
+                mp.video_rtcp_port = int(ports["video"].get("rtcp_port") or 0)
+            if mp.agent in self.faces:
+                mp.data_port = int(ports["data"]["port"])
         except (KeyError, TypeError, ValueError):
             raise JanusError(f"Janus's answer to create has no ports: {stream}") from None
 
@@ -305,9 +353,10 @@ class SfuPublisher:
                     await self._create_all()
                     self._lost = False
                     self.recreated += 1
-                    for agent, stream in self._streams.items():
+                    for stream in self._streams.values():
                         stream.request_keyframe()  # the new mountpoint's viewers start from a keyframe
-                        self.mountpoints[agent].viewers = 0
+                    for mp in self.mountpoints.values():
+                        mp.viewers = 0
                     log.warning("Janus at %s: mountpoints made again (%s)", self.url,
                                 ", ".join(f"{a}: {m.id}" for a, m in self.mountpoints.items()))
                 else:
@@ -352,12 +401,33 @@ class SfuPublisher:
                 sock.send(datagram, (self.host, mp.video_port))
             mp.pictures += 1
 
+    def send_face_frames(self, frames: dict[str, bytes], frame_ns: int, early: bool = False) -> None:
+        """One frame slot's face frames (on the event loop's thread), each as one datagram to its mountpoint's data
+        port, at this publisher's rate (the slots come at the fastest any page asked; a frame made early for a
+        commanded change goes at once). Janus relays each to every viewer's data channel."""
+        sock = self._data_socket
+        if sock is None:
+            return
+        if not early:
+            if frame_ns < self._next_frame_ns:
+                return
+            period_ns = int(1e9 / self.fps)
+            self._next_frame_ns = max(self._next_frame_ns + period_ns, frame_ns + period_ns // 2)
+        for agent in self.faces:
+            data = frames.get(agent)
+            mp = self.mountpoints[agent]
+            if data is None or not mp.data_port or len(data) > MAX_DATA_BYTES:
+                continue
+            sock.send(data, (self.host, mp.data_port))
+            mp.face_frames += 1
+
     async def _send_voice(self, mp: Mountpoint, sock: _Socket) -> None:
         """The voice in 20 ms frames, each when its first sample reaches the output (the direct path's
         VoiceTrack), Opus-encoded once for every viewer of Janus."""
         assert mp.audio is not None
         track = VoiceTrack(self.backend.voice(mp.agent), self.backend.clock)
         encoder = OpusEncoder()
+        slot = self.backend.face_slot(mp.agent) if mp.agent in self.faces else None
         while True:
             frame = await track.recv()
             payloads, _ = encoder.encode(frame)
@@ -367,6 +437,20 @@ class SfuPublisher:
             for datagram in mp.audio.packetize(payloads, start_ns):
                 sock.send(datagram, (self.host, mp.audio_port))
             mp.voice_frames += 1
+            if slot is not None and mp.voice_frames % VOICE_CLOCK_EVERY == 0:
+                self._send_voice_clock(mp, slot, start_ns)
+
+    def _send_voice_clock(self, mp: Mountpoint, slot: int, stamp_ns: int) -> None:
+        """The voice's clock on the face's data section: the RTP timestamp of the packet just sent and its time on
+        the wall clock's NTP scale (the face frames' clock). Janus renumbers each viewer's voice from the first
+        packet it relays to it; the page works out which that was (static/face3d.js VoiceClock.rebase)."""
+        assert mp.audio is not None
+        if self._data_socket is None or not mp.data_port:
+            return
+        wall_offset_ns = time.time_ns() - self.backend.clock.now_ns()
+        ntp = (stamp_ns + wall_offset_ns) / 1e6 + NTP_UNIX_OFFSET_MS
+        self._data_socket.send(pack_voice_clock(slot, mp.audio.last_ts, ntp), (self.host, mp.data_port))
+        mp.voice_clocks += 1
 
     async def _send_reports(self, mp: Mountpoint, sock: _Socket) -> None:
         """A sender report on the video stream every second, to the mountpoint's RTCP port (see the module's

@@ -10,8 +10,9 @@
 // width, height, fps (within the server's limits), mic=0 (start without the microphone), draw=server (video),
 // sfu=0 (peer with eca even when it publishes through Janus).
 //
-// With an SFU (GET /config's "sfu"), the page watches each agent's video and voice through Janus (janus_watch.js)
-// instead of peering with eca: no microphone and no face drawn here then (those need the direct connection).
+// With an SFU (GET /config's "sfu"), the page watches each agent through Janus (janus_watch.js) instead of peering
+// with eca: its video and voice, or its voice and face frames for a face drawn here; no microphone then (that
+// needs the direct connection).
 "use strict";
 
 const params = new URLSearchParams(location.search);
@@ -102,24 +103,54 @@ async function connectThroughJanus(sfu, agents) {
   const { JanusWatch } = await import("./janus_watch.js");
   eca.agents = agents;
   eca.janus = [];
+  const faces = sfu.faces || {};
+  let drawHere = [];
+  if (params.get("draw") !== "server" && agents.some((a) => faces[a])) {
+    const module = await drawingModule();
+    if (module.webglAvailable()) drawHere = agents.filter((a) => faces[a]);
+  }
+  if (sfu.video === false && drawHere.length !== agents.length) {
+    throw new Error("this server sends no video (draw = browser) and this browser has no WebGL");
+  }
   for (const agent of agents) {
     const mountpoint = sfu.mountpoints[agent];
     if (mountpoint == null) throw new Error(`the SFU carries no mountpoint for ${agent}`);
     const watch = new JanusWatch(sfu.url, mountpoint);
     eca.janus.push(watch);
-    const element = faceFor(agent);
+    const here = drawHere.includes(agent);
+    const element = faceFor(agent, here);
+    let receiver = null;
+    // what this page takes of the mountpoint: the voice and face frames of a face it draws, the voice and video of
+    // one it is shown (Janus then sends nothing else)
+    const mids = sfu.mids;
+    const media = !mids ? null : here ? [mids.audio, mids.data] : [mids.audio, mids.video];
     const pc = await watch.start((event) => {
+      if (here && event.track.kind !== "audio") return;  // a face drawn here needs only the voice
+      if (event.track.kind === "audio") receiver = event.receiver;
       if (!element.srcObject) element.srcObject = new MediaStream();
       element.srcObject.addTrack(event.track);
-    });
+    }, 20000, here ? onFaceFrame : null, media);
     if (!eca.pc) {
       eca.pc = pc;  // the status line's figures: the first agent's connection
-      pc.onconnectionstatechange = () => {
+      const onState = () => {
         eca.state = pc.connectionState === "connected" ? "connected" : pc.connectionState;
         showStats();
       };
+      pc.onconnectionstatechange = onState;
+      onState();  // it may have connected already
+    }
+    if (here) {
+      // Janus numbers the voice's RTP timestamps from the first packet it relays here (face3d.js VoiceClock)
+      const description = faces[agent];
+      const canvas = eca.faces[agent].parentElement.querySelector("canvas");
+      const url = token ? `${description.url}?token=${encodeURIComponent(token)}` : description.url;
+      receiver = receiver || pc.getReceivers().find((r) => r.track.kind === "audio");
+      const face = new face3d.BrowserFace(canvas, { ...description, url }, { token, receiver, rebased: true });
+      await face.load();
+      eca.drawn[agent] = face;
     }
   }
+  if (Object.keys(eca.drawn).length) requestAnimationFrame(animate);
 }
 
 async function connect() {

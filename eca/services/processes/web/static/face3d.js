@@ -6,6 +6,8 @@
 // server repeats those reports on the data channel (an RTP timestamp of the voice and when it left); the audio
 // receiver's synchronization source says which RTP timestamp this browser last handed to its speakers, and when.
 // Together: "what the listener hears now" at every animation frame, through jitter, drift and buffer changes.
+// Through Janus, whose Streaming plugin numbers each viewer's voice from the first packet it relays to it (RTP
+// timestamp less that packet's), the page works out that first packet from its own counts (VoiceClock.rebase).
 // What the voice moves (mouth, jaw) is taken from the frame of that instant; everything else (brows, eyes, head,
 // an emotion, a barge-in) from the newest frame, as soon as it arrives.
 import * as THREE from "three";
@@ -19,6 +21,9 @@ const MARK = 2;  // the frame's time is a whole second of the master clock (the 
 const LOG_MAX = 2000;
 const OPUS_RATE = 48000;  // RTP clock of the voice (Opus)
 const KEEP_MS = 3000;  // frames kept for the voice to catch up with
+const FRAME_SAMPLES = 960;  // through Janus: the voice's packets, 20 ms each, one after another (no pauses)
+const OFFSET_REPORTS = 20;  // the reports whose earliest arrival gives the clocks' offset (about 5 s of them)
+const BASE_VOTES = 7;  // the latest estimates of Janus's first packet, the most frequent taken
 
 export function webglAvailable() {
   try {
@@ -35,9 +40,14 @@ export function webglAvailable() {
 // source says which RTP timestamp was last handed to the speakers, and when. Both are of the same RTP clock,
 // so what plays now is the report's time plus the samples between them.
 export class VoiceClock {
-  constructor(receiver) {
+  // `rebased`: the voice comes through Janus, whose RTP timestamps start from the first packet it relayed here
+  constructor(receiver, { rebased = false } = {}) {
     this.receiver = receiver;
-    this.report = null;  // { rtp, ntpMs }
+    this.rebased = rebased;
+    this.report = null;  // { rtp, ntpMs }, in this receiver's RTP numbering
+    this.arrivals = [];  // rebased: the latest reports' arrival (this page's clock) less their time (the sender's)
+    this.bases = [];  // rebased: the latest estimates of the sender's RTP timestamp this receiver numbers from
+    this.base = null;
     // what the synchronization source says was handed to the speakers still goes through the output's buffers:
     // the audio output's own latency (as an AudioContext on the default device reports it) is heard later
     this.outputLatencyMs = 0;
@@ -52,7 +62,45 @@ export class VoiceClock {
   }
 
   onReport(rtp, ntpMs) {
-    this.report = { rtp, ntpMs };
+    if (!this.rebased) {
+      this.report = { rtp, ntpMs };
+      return;
+    }
+    this.arrivals.push(performance.timeOrigin + performance.now() - ntpMs);
+    if (this.arrivals.length > OFFSET_REPORTS) this.arrivals.shift();
+    this.rebase(rtp, ntpMs);
+  }
+
+  // Janus numbers this viewer's voice from the first packet it relays: RTP timestamp less that packet's (`base`),
+  // which the page is not told. It counts: the receiver's newest packet is packet number packetsReceived +
+  // packetsLost - 1 of the ones Janus relayed, 960 samples apart, and arrived at lastPacketReceivedTimestamp (the
+  // network's time, not the page's, so a busy page does not move it). The sender's clock at that arrival follows
+  // from the earliest arrival of the recent reports (what this page's clock reads when the sender's says a
+  // report's time, plus the shortest trip), and so does the sender's RTP timestamp of that packet: base is within
+  // a few ms of the packet grid's point, on which it is exact. A few estimates vote, so one odd reading changes
+  // nothing; a Janus that starts numbering afresh (a restart) gets a new majority.
+  async rebase(rtp, ntpMs) {
+    let stats;
+    try {
+      stats = await this.receiver.getStats();
+    } catch {
+      return;  // the connection is closing
+    }
+    for (const r of stats.values()) {
+      if (r.type !== "inbound-rtp" || !r.packetsReceived || !r.lastPacketReceivedTimestamp) continue;
+      const newest = r.packetsReceived + (r.packetsLost || 0) - 1;
+      const sentMs = r.lastPacketReceivedTimestamp - Math.min(...this.arrivals);
+      const newestRtp = rtp + ((sentMs - ntpMs) * OPUS_RATE) / 1000;
+      const base = rtp + Math.round((newestRtp - newest * FRAME_SAMPLES - rtp) / FRAME_SAMPLES) * FRAME_SAMPLES;
+      this.bases.push(base);
+      if (this.bases.length > BASE_VOTES) this.bases.shift();
+      const votes = new Map();
+      for (const b of this.bases) votes.set(b, (votes.get(b) || 0) + 1);
+      this.base = [...votes.entries()].sort((a, b) => b[1] - a[1])[0][0];
+      this.report = { rtp: (((rtp - this.base) % 2 ** 32) + 2 ** 32) % 2 ** 32, ntpMs };
+      this.rebasings = (this.rebasings || 0) + 1;
+      return;
+    }
   }
 
   // the RTP position (samples) of what plays now, unwrapped near `near` (the RTP clock wraps at 2^32)
@@ -101,11 +149,12 @@ function findNodes(gltf) {
 }
 
 export class BrowserFace {
-  constructor(canvas, description, { token = null, receiver = null, background = 0xf3efe8 } = {}) {
+  // `rebased`: the voice comes through Janus (VoiceClock)
+  constructor(canvas, description, { token = null, receiver = null, background = 0xf3efe8, rebased = false } = {}) {
     this.canvas = canvas;
     this.d = description;
     this.token = token;
-    this.clock = receiver ? new VoiceClock(receiver) : null;
+    this.clock = receiver ? new VoiceClock(receiver, { rebased }) : null;
     this.frames = [];  // { seq, flags, timeMs, weights: Uint8Array, quats: Int16Array, arrivedMs }
     this.stats = { received: 0, bad: 0, presented: 0, lastSeq: null, firstArrival: null, lastArrival: null,
                    syncedMs: null, voiced: false };

@@ -4,8 +4,9 @@
 // janus.plugin.streaming, "watch" the mountpoint, answer Janus's offer with "start", trickle this page's ICE
 // candidates, and long-poll the session for Janus's events (its offer, its candidates); the long poll also keeps the
 // session alive (Janus drops one after 60 s without a request). Janus must allow this page's origin (its HTTP
-// transport's cors allow_origin). Only the server-drawn video and the voice come this way: the faces a page draws
-// itself (face frames on a data channel) and the microphone stay on a direct connection with eca.
+// transport's cors allow_origin). The server-drawn video, the voice and, for a face the page draws itself, its face
+// frames (a mountpoint's data section, relayed to the page's data channel) come this way; the microphone stays on a
+// direct connection with eca.
 "use strict";
 
 const transaction = () => Math.random().toString(36).slice(2, 14);
@@ -35,13 +36,15 @@ export class JanusWatch {
 
   get handleUrl() { return `${this.url}/${this.session}/${this.handle}`; }
 
-  // Watch the mountpoint; `onTrack` gets each received track's event (as RTCPeerConnection.ontrack).
-  async start(onTrack, timeoutMs = 20000) {
+  // Watch the mountpoint; `onTrack` gets each received track's event (as RTCPeerConnection.ontrack), `onData` (if
+  // given) each message of the mountpoint's data section; `media`: the mids to watch (null: all of them).
+  async start(onTrack, timeoutMs = 20000, onData = null, media = null) {
     this.session = (await janusPost(this.url, { janus: "create" })).data.id;
     this.handle = (await janusPost(`${this.url}/${this.session}`,
                                    { janus: "attach", plugin: "janus.plugin.streaming" })).data.id;
     this.poll();
-    await janusPost(this.handleUrl, { janus: "message", body: { request: "watch", id: this.mountpoint } });
+    const watch = { request: "watch", id: this.mountpoint, ...(media ? { media } : {}) };
+    await janusPost(this.handleUrl, { janus: "message", body: watch });
     const offer = await this.nextOffer(timeoutMs);
     const pc = new RTCPeerConnection();
     this.pc = pc;
@@ -54,6 +57,13 @@ export class JanusWatch {
       if (!this.closed) janusPost(this.handleUrl, { janus: "trickle", candidate }).catch(() => {});
     };
     await pc.setRemoteDescription(offer);
+    if (onData && offer.sdp.includes("m=application")) {
+      // Janus relays a mountpoint's data once the viewer's data channel is open: the page opens it, under the label
+      // Janus sends on when its plugin names none (as janus.js does)
+      this.channel = pc.createDataChannel("JanusDataChannel");
+      this.channel.binaryType = "arraybuffer";
+      this.channel.onmessage = onData;
+    }
     for (const c of this.candidates.splice(0)) await pc.addIceCandidate(c.completed ? null : c).catch(() => {});
     await pc.setLocalDescription(await pc.createAnswer());
     await janusPost(this.handleUrl, { janus: "message", body: { request: "start" },
