@@ -258,19 +258,25 @@ def test_a_microphone_with_discontinuous_transmission_gives_the_same_turns_from_
 def test_the_token_rule_holds_for_the_page_and_the_offer(token_web: tuple[BusConfig, WebService]) -> None:
     config, service = token_web
 
-    async def main() -> list[int]:
+    async def main() -> tuple[list[int], float, float, float]:
         statuses = []
         async with aiohttp.ClientSession() as session:
-            for path in ("", "?token=wrong-token", "?token=s3cret-token"):
+            for path in ("", "?token=wrong-token", "?token=s3cret-token", "clock", "clock?token=s3cret-token"):
+                asked_ms = time.time_ns() / 1e6
                 async with session.get(base(service) + path) as response:
                     statuses.append(response.status)
+                    answer = await response.json() if path.startswith("clock?") else None
+                answered_ms = time.time_ns() / 1e6
         client = Client(base(service), ["ada"], token="wrong-token")
         status, _ = await post(base(service) + "offer", await client.offer_body())
         statuses.append(status)
         await client.pc.close()
-        return statuses
+        assert answer is not None
+        return statuses, asked_ms, float(answer["unix_ms"]), answered_ms
 
-    assert asyncio.run(main()) == [403, 403, 200, 403]
+    statuses, asked_ms, clock_ms, answered_ms = asyncio.run(main())
+    assert statuses == [403, 403, 200, 403, 200, 403]
+    assert asked_ms <= clock_ms <= answered_ms  # GET /clock: this machine's wall clock, when it answered
     assert not service.viewers.open  # nothing else happened
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import json
+import statistics
 import subprocess
 import sys
 import time
@@ -367,17 +368,21 @@ def test_the_page_in_a_real_browser_watches_the_face_through_janus(web: tuple[Bu
     assert rgb.std() > 20, "a blank picture"  # the face on its background: many colours
 
 
-# What the page knows of the packet its voice played last: its RTP timestamp as Janus renumbered it and when it
-# played (the synchronization source), the page's estimate of Janus's first packet, and the jitter buffer's own
-# delay over the last second (getStats, twice), in ms.
+# What the page knows of the packets its voice played: five times over a second, the RTP timestamp of the one played
+# last as Janus renumbered it and when it played (the synchronization source); the page's estimate of Janus's first
+# packet; and the jitter buffer's own delay over that second (getStats, before and after), in ms.
 PLAYED = """
     const done = arguments[0]; const f = window.eca.drawn.ada; const receiver = f.clock.receiver;
     const inbound = async () => { for (const r of (await receiver.getStats()).values()) {
       if (r.type === "inbound-rtp") return r; } return null; };
     (async () => {
-      const a = await inbound(); await new Promise((r) => setTimeout(r, 1000)); const b = await inbound();
-      const src = receiver.getSynchronizationSources()[0];
-      done([src.rtpTimestamp, src.timestamp, f.clock.base, 1000 * (b.jitterBufferDelay - a.jitterBufferDelay)
+      const a = await inbound(); const played = [];
+      for (let i = 0; i < 5; i += 1) {
+        await new Promise((r) => setTimeout(r, 200));
+        const src = receiver.getSynchronizationSources()[0]; played.push([src.rtpTimestamp, src.timestamp]);
+      }
+      const b = await inbound();
+      done([played, f.clock.base, 1000 * (b.jitterBufferDelay - a.jitterBufferDelay)
             / (b.jitterBufferEmittedCount - a.jitterBufferEmittedCount)]);
     })();"""
 
@@ -389,8 +394,8 @@ def test_the_page_in_a_real_browser_draws_the_face_from_frames_through_janus(
     """draw = "browser" through Janus, in a real headless Chromium: the page watches the agent through Janus, opens
     the mountpoint's data channel, draws the head from the face frames (no video anywhere), and knows what its voice
     plays although Janus renumbers the voice's RTP timestamps (the page works out from what: exactly the first
-    packet Janus relayed to it): what it hears is a little behind the newest frame (the voice's jitter buffer), not
-    seconds away, and it hears the voice's frames while a tone plays."""
+    packet Janus relayed to it): each packet it played, taken back to eca's numbering and so to when eca sent it,
+    was played as long after as the jitter buffer held it; it hears the voice's frames while a tone plays."""
     config, service = web_drawn
     with audio_and_dialogue(config) as (audio, _), chromium() as driver:
         driver.get(service.url + "?mic=0")
@@ -405,23 +410,23 @@ def test_the_page_in_a_real_browser_draws_the_face_from_frames_through_janus(
                  "the page working out Janus's numbering of the voice", lambda n: n >= 3)
         speak_tone(audio, 3.0)
         wait_for(driver, "return window.eca.drawn.ada.stats.voiced", 15.0, "the page hearing the voice")
-        played_rtp, played_ms, base, buffered_ms = driver.execute_async_script(PLAYED)
-        heard_ms, newest_ms, bases = driver.execute_script("""
+        played, base, buffered_ms = driver.execute_async_script(PLAYED)
+        heard_ms, newest_ms = driver.execute_script("""
             const f = window.eca.drawn.ada; f.present();
-            return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs, f.clock.bases];""")
+            return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs];""")
         pixels = canvas_pixels(driver)
         driver.save_screenshot(str(tmp_path / "drawn_through_janus.png"))
-    assert len(set(bases[-5:])) == 1, f"the latest estimates of Janus's first packet disagree: {bases}"
-    # the packet played last, in eca's numbering by the page's estimate, and so when eca sent it: played that long
-    # after, as long as the jitter buffer held it (a packet off, 20 ms, on Janus's numbering shows here)
+    # each packet played, in eca's numbering by the page's estimate, and so when eca sent it: played as long after as
+    # the jitter buffer held it (a packet off on Janus's numbering, 20 ms, shows here)
     assert service.sfu is not None and base is not None
     stream = service.sfu.mountpoints["ada"].audio
     assert stream is not None
-    stamp_ns = stream.origin_ns + ((played_rtp + base - stream.ts_offset) % 2**32) * 1_000_000_000 // stream.rate
-    sent_ms = (stamp_ns + time.time_ns() - service.clock.now_ns()) / 1e6
-    assert abs(played_ms - sent_ms - buffered_ms) < 12.0, (played_ms - sent_ms, buffered_ms)
+    wall_offset_ms = (time.time_ns() - service.clock.now_ns()) / 1e6
+    held = [played_ms - (stream.origin_ns + ((rtp + base - stream.ts_offset) % 2**32) * 1_000_000_000 // stream.rate)
+            / 1e6 - wall_offset_ms for rtp, played_ms in played]
+    assert abs(statistics.median(held) - buffered_ms) < 10.0, (held, buffered_ms)
     behind = heard_ms - newest_ms
-    assert -1500.0 < behind < 100.0, f"the voice heard {behind:.0f} ms from the newest frame"
+    assert -1500.0 < behind < 500.0, f"the voice heard {behind:.0f} ms from the newest frame"
     top, bottom, left, right = head_box(pixels)
     assert bottom - top > 0.5 * pixels.shape[0], f"the head is {bottom - top} of {pixels.shape[0]} pixels high"
     assert service.sfu is not None and service.sfu.mountpoints["ada"].face_frames > 0

@@ -18,6 +18,7 @@ import hmac
 import json
 import logging
 import math
+import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -179,6 +180,13 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
                                   # with an SFU: where pages watch each agent through Janus (web/sfu.py)
                                   "sfu": sfu_info()})
 
+    async def clock(request: web.Request) -> web.Response:
+        """This machine's wall clock (Unix ms), for a page that watches through Janus to learn how far its own clock
+        is from the one the face frames are stamped with (static/face3d.js VoiceClock: it keeps the quickest of
+        several asks, as NTP does)."""
+        _check_token(options, request.query.get("token"))
+        return web.json_response({"unix_ms": time.time_ns() / 1e6}, headers={"Cache-Control": "no-store"})
+
     async def offer(request: web.Request) -> web.Response:
         body = await _json_body(request)
         _check_token(options, body.get("token"))
@@ -206,6 +214,7 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
 
     app.router.add_get("/", page)
     app.router.add_get("/config", config)
+    app.router.add_get("/clock", clock)
     app.router.add_get("/static/{path:.+}", static)
     app.router.add_get("/avatars/{slot}/{name:.+}", avatar)
     app.router.add_post("/offer", offer)

@@ -145,7 +145,8 @@ async function connectThroughJanus(sfu, agents) {
       const canvas = eca.faces[agent].parentElement.querySelector("canvas");
       const url = token ? `${description.url}?token=${encodeURIComponent(token)}` : description.url;
       receiver = receiver || pc.getReceivers().find((r) => r.track.kind === "audio");
-      const face = new face3d.BrowserFace(canvas, { ...description, url }, { token, receiver, rebased: true });
+      const serverClock = async () => (await fetch(withToken("/clock"), { cache: "no-store" })).json();
+      const face = new face3d.BrowserFace(canvas, { ...description, url }, { token, receiver, serverClock });
       await face.load();
       eca.drawn[agent] = face;
     }

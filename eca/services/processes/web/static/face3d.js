@@ -22,8 +22,11 @@ const LOG_MAX = 2000;
 const OPUS_RATE = 48000;  // RTP clock of the voice (Opus)
 const KEEP_MS = 3000;  // frames kept for the voice to catch up with
 const FRAME_SAMPLES = 960;  // through Janus: the voice's packets, 20 ms each, one after another (no pauses)
-const OFFSET_REPORTS = 20;  // the reports whose earliest arrival gives the clocks' offset (about 5 s of them)
-const BASE_VOTES = 7;  // the latest estimates of Janus's first packet, the most frequent taken
+const FRAME_MS = 20;
+const FIRST_READINGS = 20;  // the latest estimates of when Janus's first packet left (about 5 s of them)
+const CLOCK_ASKS = 12;  // the latest asks of the server's clock, the quickest taken
+const CLOCK_ASK_EVERY_MS = 2000;
+const NTP_UNIX_OFFSET_MS = 2208988800000;  // NTP counts from 1900, Unix time from 1970
 
 export function webglAvailable() {
   try {
@@ -40,14 +43,31 @@ export function webglAvailable() {
 // source says which RTP timestamp was last handed to the speakers, and when. Both are of the same RTP clock,
 // so what plays now is the report's time plus the samples between them.
 export class VoiceClock {
-  // `rebased`: the voice comes through Janus, whose RTP timestamps start from the first packet it relayed here
-  constructor(receiver, { rebased = false } = {}) {
+  // `serverClock` (a function answering the server's wall clock, Unix ms): the voice comes through Janus, whose RTP
+  // timestamps start from the first packet it relayed here
+  constructor(receiver, { serverClock = null } = {}) {
     this.receiver = receiver;
-    this.rebased = rebased;
+    this.rebased = !!serverClock;
     this.report = null;  // { rtp, ntpMs }, in this receiver's RTP numbering
-    this.arrivals = [];  // rebased: the latest reports' arrival (this page's clock) less their time (the sender's)
-    this.bases = [];  // rebased: the latest estimates of the sender's RTP timestamp this receiver numbers from
-    this.base = null;
+    this.asks = [];  // rebased: { rttMs, offsetMs } of the latest asks of the server's clock
+    this.firsts = [];  // rebased: the latest estimates of when Janus's first packet left (sender's NTP ms)
+    this.base = null;  // rebased: the sender's RTP timestamp of that packet
+    this.timer = null;
+    if (serverClock) {
+      const ask = async () => {
+        const sent = performance.timeOrigin + performance.now();
+        try {
+          const { unix_ms: serverMs } = await serverClock();
+          const back = performance.timeOrigin + performance.now();
+          this.asks.push({ rttMs: back - sent, offsetMs: serverMs - (sent + back) / 2 });
+          if (this.asks.length > CLOCK_ASKS) this.asks.shift();
+        } catch {
+          // the server away for a moment: the asks kept still hold
+        }
+      };
+      for (let i = 0; i < 4; i += 1) setTimeout(ask, 100 * i);
+      this.timer = setInterval(ask, CLOCK_ASK_EVERY_MS);
+    }
     // what the synchronization source says was handed to the speakers still goes through the output's buffers:
     // the audio output's own latency (as an AudioContext on the default device reports it) is heard later
     this.outputLatencyMs = 0;
@@ -66,20 +86,27 @@ export class VoiceClock {
       this.report = { rtp, ntpMs };
       return;
     }
-    this.arrivals.push(performance.timeOrigin + performance.now() - ntpMs);
-    if (this.arrivals.length > OFFSET_REPORTS) this.arrivals.shift();
     this.rebase(rtp, ntpMs);
+  }
+
+  // How far the server's clock is ahead of this page's: from the quickest of the latest asks (a slow answer, held
+  // up anywhere, says least), as NTP does
+  serverOffsetMs() {
+    if (!this.asks.length) return null;
+    return this.asks.reduce((a, b) => (b.rttMs < a.rttMs ? b : a)).offsetMs;
   }
 
   // Janus numbers this viewer's voice from the first packet it relays: RTP timestamp less that packet's (`base`),
   // which the page is not told. It counts: the receiver's newest packet is packet number packetsReceived +
-  // packetsLost - 1 of the ones Janus relayed, 960 samples apart, and arrived at lastPacketReceivedTimestamp (the
-  // network's time, not the page's, so a busy page does not move it). The sender's clock at that arrival follows
-  // from the earliest arrival of the recent reports (what this page's clock reads when the sender's says a
-  // report's time, plus the shortest trip), and so does the sender's RTP timestamp of that packet: base is within
-  // a few ms of the packet grid's point, on which it is exact. A few estimates vote, so one odd reading changes
-  // nothing; a Janus that starts numbering afresh (a restart) gets a new majority.
+  // packetsLost - 1 of the ones Janus relayed, 20 ms apart, and arrived at lastPacketReceivedTimestamp (the
+  // network's time, not the page's, so a busy page does not move it), on this page's clock: on the server's, that
+  // plus the clocks' offset (serverOffsetMs). Each reading says when the first packet left, late by the packet's
+  // trip and by however late it left (a loaded server sends late, never early): the earliest of the latest readings
+  // is the one to take. The server's report (a packet's RTP timestamp and when it left) then gives the first
+  // packet's timestamp on the packets' 960-sample grid, on which it is exact.
   async rebase(rtp, ntpMs) {
+    const offsetMs = this.serverOffsetMs();
+    if (offsetMs == null) return;
     let stats;
     try {
       stats = await this.receiver.getStats();
@@ -89,18 +116,21 @@ export class VoiceClock {
     for (const r of stats.values()) {
       if (r.type !== "inbound-rtp" || !r.packetsReceived || !r.lastPacketReceivedTimestamp) continue;
       const newest = r.packetsReceived + (r.packetsLost || 0) - 1;
-      const sentMs = r.lastPacketReceivedTimestamp - Math.min(...this.arrivals);
-      const newestRtp = rtp + ((sentMs - ntpMs) * OPUS_RATE) / 1000;
-      const base = rtp + Math.round((newestRtp - newest * FRAME_SAMPLES - rtp) / FRAME_SAMPLES) * FRAME_SAMPLES;
-      this.bases.push(base);
-      if (this.bases.length > BASE_VOTES) this.bases.shift();
-      const votes = new Map();
-      for (const b of this.bases) votes.set(b, (votes.get(b) || 0) + 1);
-      this.base = [...votes.entries()].sort((a, b) => b[1] - a[1])[0][0];
+      const leftMs = r.lastPacketReceivedTimestamp + offsetMs + NTP_UNIX_OFFSET_MS;  // the server's NTP clock
+      this.firsts.push(leftMs - newest * FRAME_MS);
+      if (this.firsts.length > FIRST_READINGS) this.firsts.shift();
+      const firstMs = Math.min(...this.firsts);
+      const packets = Math.round((firstMs - ntpMs) / FRAME_MS);  // from the reported packet to the first
+      this.base = (((rtp + packets * FRAME_SAMPLES) % 2 ** 32) + 2 ** 32) % 2 ** 32;
       this.report = { rtp: (((rtp - this.base) % 2 ** 32) + 2 ** 32) % 2 ** 32, ntpMs };
       this.rebasings = (this.rebasings || 0) + 1;
       return;
     }
+  }
+
+  stop() {
+    if (this.timer) clearInterval(this.timer);
+    this.timer = null;
   }
 
   // the RTP position (samples) of what plays now, unwrapped near `near` (the RTP clock wraps at 2^32)
@@ -149,12 +179,12 @@ function findNodes(gltf) {
 }
 
 export class BrowserFace {
-  // `rebased`: the voice comes through Janus (VoiceClock)
-  constructor(canvas, description, { token = null, receiver = null, background = 0xf3efe8, rebased = false } = {}) {
+  // `serverClock`: the voice comes through Janus (VoiceClock)
+  constructor(canvas, description, { token = null, receiver = null, background = 0xf3efe8, serverClock = null } = {}) {
     this.canvas = canvas;
     this.d = description;
     this.token = token;
-    this.clock = receiver ? new VoiceClock(receiver, { rebased }) : null;
+    this.clock = receiver ? new VoiceClock(receiver, { serverClock }) : null;
     this.frames = [];  // { seq, flags, timeMs, weights: Uint8Array, quats: Int16Array, arrivedMs }
     this.stats = { received: 0, bad: 0, presented: 0, lastSeq: null, firstArrival: null, lastArrival: null,
                    syncedMs: null, voiced: false };
@@ -308,6 +338,7 @@ export class BrowserFace {
   }
 
   dispose() {
+    if (this.clock) this.clock.stop();
     this.renderer.dispose();
     this.frames = [];
   }
