@@ -67,8 +67,9 @@ RETRY_MAX_S = 10.0
 PSFB_PLI, PSFB_FIR = 1, 4  # RTCP payload-specific feedback formats (RFC 4585, RFC 5104): keyframe requests
 PUBLISHER_VIEWER = 0  # the numbers the publisher watches under: the video (the viewers' own numbers start at 1)
 PUBLISHER_FACES = -1  # and the face frames
-# Janus's Streaming plugin reads a data port's datagrams into a 1500-byte buffer (janus_streaming.c): a face frame
-# larger than that (an avatar with many morph targets) cannot go through it, and is sent as video instead
+# Janus's Streaming plugin reads a data port's datagrams into a 1500-byte buffer (janus_streaming.c): a face whose
+# frames are larger (an avatar with many morph targets) cannot go through it; the web service sends it as video
+# (draw "auto") or refuses to start (draw "browser")
 MAX_DATA_BYTES = 1500
 VOICE_CLOCK_EVERY = 12  # voice frames (240 ms) between the voice's clock reports on a face's data section
 NTP_EPOCH_S = 2_208_988_800
@@ -223,7 +224,7 @@ class SfuPublisher:
         return {"recreated": self.recreated, "lost": self._lost,
                 "agents": {a: {"mountpoint": m.id, "viewers": m.viewers, "pictures": m.pictures,
                                "voice_frames": m.voice_frames, "keyframe_requests": m.keyframe_requests,
-                               "face_frames": m.face_frames,
+                               "face_frames": m.face_frames, "voice_clocks": m.voice_clocks,
                                "video_packets": m.video.packets if m.video else 0,
                                "audio_packets": m.audio.packets if m.audio else 0}
                            for a, m in self.mountpoints.items()}}
