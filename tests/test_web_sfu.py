@@ -327,6 +327,25 @@ def test_a_mountpoint_janus_lost_is_made_again_and_direct_viewers_carry_on(netwo
 
 
 @needs_janus
+def test_face_frames_flow_again_into_a_mountpoint_janus_made_again(network: Network, janus: Janus,
+                                                                   web_drawn: tuple[BusConfig, WebService]) -> None:
+    """Janus restarted under an instance whose pages draw the face: eca makes the mountpoint again, its data section
+    with it, under the same id, and a new viewer gets the face frames (and the voice) at the rate."""
+    _, service = web_drawn
+    assert service.sfu is not None
+    mp = service.sfu.mountpoints["ada"]
+    old_id, recreated = mp.id, service.sfu.recreated
+    janus.restart()
+    assert wait_until(lambda: service.sfu is not None and service.sfu.recreated > recreated, 30.0), \
+        "the mountpoint was not made again"
+    assert mp.id == old_id and mp.data_port
+    got = result_of(watch_from(network["viewer"], janus.url, mp.id, 4.0))["viewers"][0]
+    frames = [m for m in got["messages"] if m["binary"] and base64.b64decode(m["data"])[2] == FRAME]
+    assert len(frames) >= 0.6 * FPS * 3, f"{len(frames)} face frames in 4 s at {FPS:g} fps"
+    assert got["audio_frames"] >= 100, got["audio_frames"]
+
+
+@needs_janus
 def test_a_janus_that_does_not_answer_stops_eca_web_at_once_with_one_line(network: Network) -> None:
     with private_bus_config(agents=["ada"]) as config:
         unreachable = f"http://{network['sfu'].address}:1/janus"  # the host is there, nothing listens on port 1
