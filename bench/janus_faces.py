@@ -33,7 +33,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from bench._scale_janus import WorkerProcesses  # noqa: E402
+from bench._workers import WorkerProcesses  # noqa: E402
 from bench.procs import cpu_seconds, descendants, pss_mib  # noqa: E402
 
 FPS = 30.0  # the face frames' rate (the page's default)

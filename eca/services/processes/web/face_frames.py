@@ -32,6 +32,16 @@ def avatar_file(face: str) -> Path | None:
     return path if path.suffix.lower() in (".glb", ".gltf", ".vrm") else None
 
 
+def next_due_ns(due_ns: int, frame_ns: int, fps: float) -> int | None:
+    """A reader at its own rate `fps` (a page, a Janus mountpoint) takes the slot at `frame_ns` when its next frame
+    is due by then (`due_ns`): then when the one after is due, else None. Its own grid, a frame per period on
+    average, whatever the slots' rate (they come at the fastest any reader asked)."""
+    if frame_ns < due_ns:
+        return None
+    period_ns = int(1e9 / fps)
+    return max(due_ns + period_ns, frame_ns + period_ns // 2)
+
+
 class FaceFrames:
     """The browser-drawn faces of a web service's agents: their avatars (loaded once per file) and frames."""
 

@@ -164,10 +164,9 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
     def sfu_info() -> dict[str, Any] | None:
         """Where pages watch through Janus, with what they need to draw each face whose frames go there."""
         sfu: dict[str, Any] | None = getattr(backend, "sfu_info", lambda: None)()
-        if sfu is not None:
-            sfu = {**sfu, "faces": {a: face_frames.description(a, avatar_url(a)) for a in sfu.get("faces", ())
-                                    if face_frames is not None}}
-        return sfu
+        if sfu is None or face_frames is None:
+            return sfu
+        return {**sfu, "faces": {a: face_frames.description(a, avatar_url(a)) for a in sfu.get("faces", ())}}
 
     async def config(request: web.Request) -> web.Response:
         _check_token(options, request.query.get("token"))

@@ -50,6 +50,7 @@ from aiortc.rtp import RtcpPacket, RtcpPsfbPacket, RtcpSenderInfo, RtcpSrPacket,
 from eca.agent.clock import Clock
 from eca.services.processes.web.browser_face import NTP_UNIX_OFFSET_MS, pack_voice_clock
 from eca.services.processes.web.encoding import VIDEO_RATE, EncodedStream, EncodedStreams
+from eca.services.processes.web.face_frames import next_due_ns
 from eca.services.processes.web.feeds import VoiceFeed
 from eca.services.processes.web.janus import MOUNTPOINT_EXISTS, NO_SUCH_MOUNTPOINT, JanusClient, JanusError
 from eca.services.processes.web.tracks import VoiceTrack
@@ -410,10 +411,10 @@ class SfuPublisher:
         if sock is None:
             return
         if not early:
-            if frame_ns < self._next_frame_ns:
+            due_ns = next_due_ns(self._next_frame_ns, frame_ns, self.fps)
+            if due_ns is None:
                 return
-            period_ns = int(1e9 / self.fps)
-            self._next_frame_ns = max(self._next_frame_ns + period_ns, frame_ns + period_ns // 2)
+            self._next_frame_ns = due_ns
         for agent in self.faces:
             data = frames.get(agent)
             mp = self.mountpoints[agent]

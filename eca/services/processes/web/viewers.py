@@ -27,6 +27,7 @@ from eca.protocol.messages import Message, UserAudio, UserSpeech
 from eca.services.processes.web.browser_face import ntp_ms, pack_voice_clock
 from eca.services.processes.web.calibration import click_track, flash_track
 from eca.services.processes.web.encoding import EncodedStreams
+from eca.services.processes.web.face_frames import next_due_ns
 from eca.services.processes.web.feeds import FrameFeed, VoiceFeed
 from eca.services.processes.web.microphone import MicBlock, Microphone
 from eca.services.processes.web.options import VadSettings
@@ -264,11 +265,10 @@ class Viewers:
             if channel is None or channel.readyState != "open" or viewer.pc.connectionState != "connected":
                 continue
             if not early:
-                if frame_ns < viewer.next_frame_ns:
+                due_ns = next_due_ns(viewer.next_frame_ns, frame_ns, viewer.request.fps)
+                if due_ns is None:
                     continue
-                period_ns = int(1e9 / viewer.request.fps)
-                # its own grid: a frame per period on average, whatever the slots' rate
-                viewer.next_frame_ns = max(viewer.next_frame_ns + period_ns, frame_ns + period_ns // 2)
+                viewer.next_frame_ns = due_ns
             for agent in viewer.request.drawn_here:
                 data = frames.get(agent)
                 if data is None:
