@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import json
+import shutil
 import statistics
 import subprocess
 import sys
@@ -49,6 +50,7 @@ from tests.support.web_client import SMALL, Client, speak_tone
 
 ROOT = Path(__file__).resolve().parents[1]
 WIDTH, HEIGHT, FPS = 160, 120, 15.0  # tests/support/web_client.py's SMALL: what direct viewers there ask
+FAR_S = 0.03  # a far Janus: each way between it and everything else
 
 
 def _skip_reason() -> str | None:
@@ -415,7 +417,34 @@ def test_the_page_in_a_real_browser_draws_the_face_from_frames_through_janus(
     plays although Janus renumbers the voice's RTP timestamps (the page works out from what: exactly the first
     packet Janus relayed to it): each packet it played, taken back to eca's numbering and so to when eca sent it,
     was played as long after as the jitter buffer held it; it hears the voice's frames while a tone plays."""
-    config, service = web_drawn
+    check_drawn_through_janus(*web_drawn, tmp_path)
+
+
+@needs_janus
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+@pytest.mark.skipif(shutil.which("ethtool") is None, reason="a delayed link needs ethtool (Debian: ethtool)")
+def test_a_page_far_from_janus_and_a_janus_far_from_eca_still_find_janus_s_first_packet(tmp_path: Path) -> None:
+    """The same, with Janus on a host 30 ms away from everything (eca, the page): the voice takes 60 ms from eca to
+    the page. The page still works out exactly which packet Janus relayed first: eca dates its voice's clock reports
+    by their arrival at Janus (half its API round trip to Janus), the page its packets' by their departure from
+    Janus (half its connection's round trip). Counted from arrival at the page, as before, it would be three
+    packets late, the mouth 60 ms behind the voice."""
+    with hosts("sfu", delays={"sfu": FAR_S}) as net, janus_server(net["sfu"]) as janus, \
+            private_bus_config(agents=["ada"]) as config, BrokerThread(config):
+        service = WebService(config, WebOptions(port=0, sfu=janus.url, width=WIDTH, height=HEIGHT, fps=FPS,
+                                                face="head", draw="browser"))
+        with ServiceThread(service):
+            assert service.sfu is not None
+            assert abs(service.sfu.janus.one_way_s() - FAR_S) < 0.01, service.sfu.janus.round_trips
+            leg_ms = check_drawn_through_janus(config, service, tmp_path, trip_ms=2000 * FAR_S)
+    assert abs(leg_ms - 1000 * FAR_S) < 10.0, leg_ms
+
+
+def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: Path, trip_ms: float = 0.0) -> float:
+    """A real Chromium draws `service`'s agent ada from face frames through Janus (voice and data, no video) and
+    plays each voice packet as long after eca sent it as the way there (`trip_ms`, eca -> Janus -> page) and its
+    jitter buffer make: a packet off on Janus's numbering, 20 ms, shows. The page's estimate of its way from Janus
+    (ms) is returned."""
     with audio_and_dialogue(config) as (audio, _), chromium() as driver:
         driver.get(service.url + "?mic=0")
         driver.find_element("id", "connect").click()
@@ -433,23 +462,27 @@ def test_the_page_in_a_real_browser_draws_the_face_from_frames_through_janus(
         heard_ms, newest_ms = driver.execute_script("""
             const f = window.eca.drawn.ada; f.present();
             return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs];""")
+        leg_ms = driver.execute_script("return window.eca.drawn.ada.clock.legMs")
         pixels = canvas_pixels(driver)
         driver.save_screenshot(str(tmp_path / "drawn_through_janus.png"))
     # each packet played, in eca's numbering by the page's estimate, and so when eca sent it: played as long after as
-    # the jitter buffer held it (a packet off on Janus's numbering, 20 ms, shows here)
+    # the way and the jitter buffer held it (a packet off on Janus's numbering, 20 ms, shows here)
     assert service.sfu is not None and base is not None
     stream = service.sfu.mountpoints["ada"].audio
     assert stream is not None
     wall_offset_ms = (time.time_ns() - service.clock.now_ns()) / 1e6
     held = [played_ms - (stream.origin_ns + ((rtp + base - stream.ts_offset) % 2**32) * 1_000_000_000 // stream.rate)
             / 1e6 - wall_offset_ms for rtp, played_ms in played]
-    assert abs(statistics.median(held) - buffered_ms) < 10.0, (held, buffered_ms)
+    assert abs(statistics.median(held) - trip_ms - buffered_ms) < 10.0, (held, trip_ms, buffered_ms)
     behind = heard_ms - newest_ms
     assert -1500.0 < behind < 500.0, f"the voice heard {behind:.0f} ms from the newest frame"
     top, bottom, left, right = head_box(pixels)
     assert bottom - top > 0.5 * pixels.shape[0], f"the head is {bottom - top} of {pixels.shape[0]} pixels high"
     assert service.sfu is not None and service.sfu.mountpoints["ada"].face_frames > 0
     assert not service.encoded.streams  # nothing drawn nor encoded on the server
+    return float(leg_ms)
+
+
 
 
 INBOUND_KINDS = """

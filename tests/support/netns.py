@@ -17,12 +17,15 @@ import itertools
 import os
 import shutil
 import subprocess
+import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 _count = itertools.count(1)
+_ROOT = Path(__file__).resolve().parents[2]  # the repository: where `-m tests.support...` runs
 
 
 def netns_available() -> str | None:
@@ -78,11 +81,39 @@ class Network:
         return self.hosts[name]
 
 
+def _no_offloads(ns: str | None, link: str) -> None:
+    """Frames one MTU at most on `link` (a delay link forwards frames as they are; see tests/support/delay_link.py)."""
+    argv = ["ethtool", "-K", link, "gro", "off", "gso", "off", "tso", "off", "tx", "off", "rx", "off"]
+    done = subprocess.run(argv if ns is None else ["ip", "netns", "exec", ns, *argv], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv)}: {done.stderr.strip()}")
+
+
+def _delay_link(ns: str, a: str, b: str, delay_s: float) -> subprocess.Popen[str]:
+    """tests/support/delay_link.py between `a` and `b` in namespace `ns`, once it is forwarding."""
+    proc = subprocess.Popen(["ip", "netns", "exec", ns, sys.executable, "-m", "tests.support.delay_link", a, b,
+                             repr(delay_s)], cwd=_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()  # the program says "ready" once bound, or ends (an error on stderr)
+    if line.strip() != "ready":
+        proc.kill()
+        _, err = proc.communicate(timeout=5)
+        raise RuntimeError(f"the delay link in {ns} did not start: {err.strip()[-500:]}")
+    return proc
+
+
 @contextmanager
-def hosts(*names: str) -> Iterator[Network]:
-    """One namespace per name on a private bridge; all removed afterwards."""
+def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Network]:
+    """One namespace per name on a private bridge; all removed afterwards.
+
+    `delays`: hosts whose cable to the bridge holds every frame this many seconds each way (a far host: a round trip
+    of twice that to any other), through a namespace of its own between them that runs tests/support/delay_link.py
+    (needs ethtool)."""
     if not 1 <= len(names) <= 50:
         raise ValueError("between 1 and 50 hosts")
+    delays = dict(delays or {})
+    if set(delays) - set(names) or any(not 0.0 <= d <= 5.0 for d in delays.values()):
+        raise ValueError(f"delays name hosts of {names}, each 0..5 s: {delays}")
     tag = f"{os.getpid() % 100000}{next(_count)}"
     subnet = 10 + (os.getpid() + next(_count)) % 200  # a /24 of 10.<x>.<y>.0, unlikely to collide
     third = (os.getpid() // 200) % 250
@@ -90,6 +121,7 @@ def hosts(*names: str) -> Iterator[Network]:
     bridge = f"ecb{tag}"[:15]
     made_ns: list[str] = []
     made_links: list[str] = []
+    links: list[subprocess.Popen[str]] = []
     try:
         _ip("link", "add", bridge, "type", "bridge")
         made_links.append(bridge)
@@ -103,15 +135,37 @@ def hosts(*names: str) -> Iterator[Network]:
             outside, inside = f"eo{tag}{i}"[:15], f"ei{tag}{i}"[:15]
             _ip("link", "add", outside, "type", "veth", "peer", "name", inside)
             made_links.append(outside)
+            if name in delays:
+                # host <-> (a | delay link | b) <-> bridge: the outside end stays on the bridge, so cut() still works
+                link_ns = f"eca{tag}{name}"[:30] + "dl"
+                _ip("netns", "add", link_ns)
+                made_ns.append(link_ns)
+                a, b = f"ea{tag}{i}"[:14], f"eb{tag}{i}"[:14]
+                _ip("link", "add", a, "type", "veth", "peer", "name", b)
+                _ip("link", "set", a, "netns", link_ns)
+                _ip("link", "set", inside, "netns", link_ns)  # the outside's peer: side b of the link
+                _ip("netns", "exec", link_ns, "ip", "link", "set", inside, "name", b + "x")
+                inside_of_link = b + "x"
+                for end in (a, inside_of_link):
+                    _ip("netns", "exec", link_ns, "ip", "link", "set", end, "up")
+                    _no_offloads(link_ns, end)
+                _no_offloads(None, outside)
+                inside = b  # the host's end, still in this namespace: moved below
+                links.append(_delay_link(link_ns, a, inside_of_link, delays[name]))
             _ip("link", "set", inside, "netns", ns)
             _ip("link", "set", outside, "master", bridge)
             _ip("link", "set", outside, "up")
             _ip("netns", "exec", ns, "ip", "addr", "add", f"{prefix}.{i}/24", "dev", inside)
             _ip("netns", "exec", ns, "ip", "link", "set", inside, "up")
+            if name in delays:
+                _no_offloads(ns, inside)
             _ip("netns", "exec", ns, "ip", "link", "set", "lo", "up")
             out[name] = Host(ns, f"{prefix}.{i}", outside)
         yield Network(out, bridge, f"{prefix}.1")
     finally:
+        for proc in links:
+            proc.kill()
+            proc.communicate()
         for link in reversed(made_links):
             subprocess.run(["ip", "link", "delete", link], capture_output=True)
         for ns in made_ns:

@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import json
 import secrets
+import time
 import urllib.error
 import urllib.request
+from collections import deque
 from typing import Any
 
 import aiohttp
@@ -26,6 +28,7 @@ HANDLE_NOT_FOUND = 459
 NO_SUCH_MOUNTPOINT = 455
 MOUNTPOINT_EXISTS = 456
 MAX_ANSWER_BYTES = 1 << 20  # an answer larger than this is not Janus's
+ROUND_TRIPS_KEPT = 12  # the latest requests' round trips the way to Janus is taken from
 
 
 class JanusError(RuntimeError):
@@ -71,13 +74,22 @@ class JanusClient:
         self.session_id = 0
         self.handle_id = 0
         self._http: aiohttp.ClientSession | None = None
+        # the latest requests' round trips (s): the quickest is the network's, twice the way to Janus
+        self.round_trips: deque[float] = deque(maxlen=ROUND_TRIPS_KEPT)
+
+    def one_way_s(self) -> float:
+        """How long a packet takes to reach Janus, from the quickest of the latest requests' round trips (half of
+        it, as NTP takes it: a slow answer, held up anywhere, says least); 0 before any answer."""
+        return min(self.round_trips) / 2 if self.round_trips else 0.0
 
     async def _post(self, path: str, body: dict[str, Any]) -> dict[str, Any]:
         if self._http is None or self._http.closed:
             self._http = aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=self.timeout_s))
         try:
+            sent = time.monotonic()
             async with self._http.post(self.url + path, json={**body, "transaction": secrets.token_hex(8)}) as r:
                 raw = await r.content.read(MAX_ANSWER_BYTES)
+            self.round_trips.append(time.monotonic() - sent)
         except (aiohttp.ClientError, TimeoutError, OSError) as exc:
             raise JanusError(f"no answer from Janus at {self.url} ({type(exc).__name__}: {exc})") from None
         try:

@@ -443,14 +443,17 @@ class SfuPublisher:
                 self._send_voice_clock(mp, slot, start_ns)
 
     def _send_voice_clock(self, mp: Mountpoint, slot: int, stamp_ns: int) -> None:
-        """The voice's clock on the face's data section: the RTP timestamp of the packet just sent and its time on
-        the wall clock's NTP scale (the face frames' clock). Janus renumbers each viewer's voice from the first
-        packet it relays to it; the page works out which that was (static/face3d.js VoiceClock.rebase)."""
+        """The voice's clock on the face's data section: the RTP timestamp of the packet just sent and when it
+        reaches Janus, on the wall clock's NTP scale (the face frames' clock): its time plus the way to Janus (half
+        the quickest of the latest API round trips). Janus renumbers each viewer's voice from the first packet it
+        relays to it; the page works out which that was (static/face3d.js VoiceClock.rebase) from when its packets
+        arrive, less its own way from Janus: each leg is taken off where it is known, so a Janus far from eca, or a
+        page far from Janus, leaves the page's count on the right packet."""
         assert mp.audio is not None
         if self._data_socket is None or not mp.data_port:
             return
         wall_offset_ns = time.time_ns() - self.backend.clock.now_ns()
-        ntp = (stamp_ns + wall_offset_ns) / 1e6 + NTP_UNIX_OFFSET_MS
+        ntp = (stamp_ns + wall_offset_ns) / 1e6 + NTP_UNIX_OFFSET_MS + self.janus.one_way_s() * 1e3
         self._data_socket.send(pack_voice_clock(slot, mp.audio.last_ts, ntp), (self.host, mp.data_port))
         mp.voice_clocks += 1
 

@@ -50,7 +50,8 @@ export class VoiceClock {
     this.rebased = !!serverClock;
     this.report = null;  // { rtp, ntpMs }, in this receiver's RTP numbering
     this.asks = [];  // rebased: { rttMs, offsetMs } of the latest asks of the server's clock
-    this.firsts = [];  // rebased: the latest estimates of when Janus's first packet left (sender's NTP ms)
+    this.firsts = [];  // rebased: the latest estimates of when Janus's first packet arrived (sender's NTP ms)
+    this.legs = [];  // rebased: the latest round trips to Janus (ms), from the connection's own checks
     this.base = null;  // rebased: the sender's RTP timestamp of that packet
     this.timer = null;
     if (serverClock) {
@@ -100,10 +101,11 @@ export class VoiceClock {
   // which the page is not told. It counts: the receiver's newest packet is packet number packetsReceived +
   // packetsLost - 1 of the ones Janus relayed, 20 ms apart, and arrived at lastPacketReceivedTimestamp (the
   // network's time, not the page's, so a busy page does not move it), on this page's clock: on the server's, that
-  // plus the clocks' offset (serverOffsetMs). Each reading says when the first packet left, late by the packet's
-  // trip and by however late it left (a loaded server sends late, never early): the earliest of the latest readings
-  // is the one to take. The server's report (a packet's RTP timestamp and when it left) then gives the first
-  // packet's timestamp on the packets' 960-sample grid, on which it is exact.
+  // plus the clocks' offset (serverOffsetMs). Less the way from Janus to here (half the quickest of the connection's
+  // latest round trips, which its ICE checks measure), each reading says when the first packet reached Janus, late
+  // by however late it left (a loaded server sends late, never early): the earliest of the latest readings is the
+  // one to take. The server's report (a packet's RTP timestamp and when it reached Janus: the server takes off its
+  // own way there) then gives the first packet's timestamp on the packets' 960-sample grid, on which it is exact.
   async rebase(rtp, ntpMs) {
     const offsetMs = this.serverOffsetMs();
     if (offsetMs == null) return;
@@ -113,19 +115,40 @@ export class VoiceClock {
     } catch {
       return;  // the connection is closing
     }
+    const legMs = this.legFromJanusMs(stats);
     for (const r of stats.values()) {
       if (r.type !== "inbound-rtp" || !r.packetsReceived || !r.lastPacketReceivedTimestamp) continue;
       const newest = r.packetsReceived + (r.packetsLost || 0) - 1;
-      const leftMs = r.lastPacketReceivedTimestamp + offsetMs + NTP_UNIX_OFFSET_MS;  // the server's NTP clock
-      this.firsts.push(leftMs - newest * FRAME_MS);
+      const arrivedMs = r.lastPacketReceivedTimestamp + offsetMs + NTP_UNIX_OFFSET_MS;  // the server's NTP clock
+      this.firsts.push(arrivedMs - newest * FRAME_MS);
       if (this.firsts.length > FIRST_READINGS) this.firsts.shift();
-      const firstMs = Math.min(...this.firsts);
+      const firstMs = Math.min(...this.firsts) - legMs;
       const packets = Math.round((firstMs - ntpMs) / FRAME_MS);  // from the reported packet to the first
       this.base = (((rtp + packets * FRAME_SAMPLES) % 2 ** 32) + 2 ** 32) % 2 ** 32;
       this.report = { rtp: (((rtp - this.base) % 2 ** 32) + 2 ** 32) % 2 ** 32, ntpMs };
       this.rebasings = (this.rebasings || 0) + 1;
+      this.legMs = legMs;
       return;
     }
+  }
+
+  // Half the quickest of the latest round trips of the connection's selected candidate pair (its ICE checks, to
+  // Janus and back), noted from `stats` (the receiver's, which name the transport and its pair); 0 before any is measured
+  legFromJanusMs(stats) {
+    let pair = null;
+    for (const r of stats.values()) {
+      if (r.type === "transport" && r.selectedCandidatePairId) pair = stats.get(r.selectedCandidatePairId) || pair;
+    }
+    if (!pair) {
+      for (const r of stats.values()) {
+        if (r.type === "candidate-pair" && r.nominated && r.state === "succeeded") pair = r;
+      }
+    }
+    if (pair && pair.currentRoundTripTime > 0) {
+      this.legs.push(pair.currentRoundTripTime * 1000);
+      if (this.legs.length > FIRST_READINGS) this.legs.shift();
+    }
+    return this.legs.length ? Math.min(...this.legs) / 2 : 0;
   }
 
   stop() {
