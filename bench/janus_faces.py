@@ -10,9 +10,10 @@ the instance), of its web service alone, of Janus and of the viewers' processes,
 the face frames and voice packets a second it received. The baseline is measured in the same run: K = the first
 count (1 by default); the figures per added conversation are the lines through the counts.
 
-The viewers decode the voice (aiortc's receiver does) but draw nothing; the agents do not speak (the voice goes in
-continuously whatever it holds, so its cost does not depend on it). All the hosts share the machine's cores (two
-here): the figures are of this machine, not of hosts.
+The viewers decode the voice (aiortc's receiver does) but draw nothing; the agents do not speak. Into a mountpoint
+without video the voice pauses in silence (web/sfu.py), so these are a listening agent's figures: no voice packet
+goes in or out (`voice pps` 0); a speaking agent adds its 50 voice packets a second, in and out. All the hosts share
+the machine's cores (two here): the figures are of this machine, not of hosts.
 
     python bench/janus_faces.py [--counts 1,8,16] [--window-s 15] [--json]
 """

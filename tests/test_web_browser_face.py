@@ -218,3 +218,65 @@ def test_the_page_draws_the_head_through_the_systems_egl_too(instance: tuple[Bus
 def test_an_unknown_software_gl_is_refused() -> None:
     with pytest.raises(ValueError, match="gl must be one of"), chromium(gl="vulkan"):
         pass
+
+
+JANUS_NUMBERING = """
+const done = arguments[arguments.length - 1];
+(async () => {
+  const { VoiceClock } = await import("./static/face3d.js");
+  const OFFSET_MS = 123456.5, NTP = 2208988800000, WAY_MS = 7, LEG_MS = 11;  // server ahead; eca -> Janus -> page
+  const pageNow = () => performance.timeOrigin + performance.now();
+  // the server's voice: three talk spurts with pauses, sequence numbers and RTP timestamps about to wrap
+  const seq0 = 65530, ts0 = 2 ** 32 - 5000, t0 = pageNow() + OFFSET_MS + NTP;  // server NTP ms of the first packet
+  const packets = [];  // { seq (unwrapped), ts, sentMs, spurt }
+  let seq = seq0, slot = 0;  // slot: 20 ms frames of the master clock since t0
+  for (const [spurt, length, pause] of [[0, 10, 25], [1, 20, 15], [2, 30, 0]]) {
+    for (let i = 0; i < length; i += 1, seq += 1, slot += 1) {
+      packets.push({ seq, ts: (ts0 + slot * 960) % 2 ** 32, sentMs: t0 + slot * 20, spurt, first: i === 0 });
+    }
+    slot += pause;
+  }
+  const firstRelayed = 3;  // Janus relayed from the fourth packet of the first spurt on
+  let lateness = 1;
+  const late = () => { lateness = (lateness * 75) % 65537; return lateness % 7 === 0 ? 1 : 5 + lateness % 40; };
+  let newest = packets[firstRelayed], arrived = 0;
+  const receiver = { getSynchronizationSources: () => [], getStats: async () => new Map([
+    ["in", { type: "inbound-rtp", packetsReceived: newest.seq - packets[firstRelayed].seq + 1, packetsLost: 0,
+             lastPacketReceivedTimestamp: arrived }],
+    ["tr", { type: "transport", selectedCandidatePairId: "cp" }],
+    ["cp", { type: "candidate-pair", currentRoundTripTime: 2 * LEG_MS / 1000 }],
+  ]) };
+  const clock = new VoiceClock(receiver, { serverClock: async () => ({ unix_ms: pageNow() + OFFSET_MS }) });
+  await new Promise((r) => setTimeout(r, 400));  // its first asks of the server's clock
+  // the page hears from the server only once the first spurt is over (its data channel opened late): reports at
+  // each later spurt's first packet and every 12 packets, each naming the latest spurts
+  const spurts = [];
+  for (const p of packets) {
+    if (p.first) spurts.push([p.seq % 2 ** 16, p.ts]);
+    if (p.spurt === 0 || !(p.first || p.seq % 12 === 0)) continue;
+    newest = p;
+    arrived = p.sentMs - NTP - OFFSET_MS + WAY_MS + LEG_MS + late();  // on the page's clock
+    clock.onSpurts(p.ts, p.sentMs, WAY_MS, p.seq % 2 ** 16, spurts.slice(-8));
+    await new Promise((r) => setTimeout(r, 0));
+  }
+  done([clock.base, packets[firstRelayed].ts, clock.rebasings || 0, clock.legMs]);
+  clock.stop();
+})().catch((e) => done(String(e)));
+"""
+
+
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_the_page_finds_janus_s_first_packet_across_pauses_in_the_voice(instance: tuple[BusConfig, str]) -> None:
+    """Through Janus, the page's voice clock (static/face3d.js VoiceClock) finds the RTP timestamp of the first packet
+    Janus relayed to it, which Janus's numbering starts from, when the voice pauses in silence and the page hears of
+    it only after the first talk spurt is over: its packet counts are mapped to packets through the spurts the server
+    names, sequence numbers and timestamps wrapping on the way, most readings late by up to 45 ms. A count that took
+    the voice as continuous would put that packet a pause's length too late."""
+    _, url = instance
+    with chromium() as driver:
+        driver.get(url + "?mic=0")
+        got = driver.execute_async_script(JANUS_NUMBERING)
+    assert isinstance(got, list), got
+    base, truth, rebasings, leg_ms = got
+    assert rebasings >= 5 and abs(leg_ms - 11) < 0.01, got
+    assert base == truth, f"the page took {base}, Janus numbers from {truth} ({(base - truth) % 2**32 / 960} packets)"

@@ -28,6 +28,16 @@ with the RTP timestamps its audio receiver reports, since a browser does not giv
 
     u16 slot | u8 kind (2: the voice's clock) | u8 0 | u32 the RTP timestamp of the last voice packet sent |
     f64 when it was sent, on the sender's NTP clock (milliseconds)
+
+Through Janus, which numbers each viewer's voice afresh from the first packet it relays to it, the voice's clock
+also says what the page needs to work out that first packet (static/face3d.js VoiceClock.rebase), at each talk
+spurt's first packet and every 12 packets within one (the voice pauses in silence there too, so a spurt is a run
+of packets sent one after another, 20 ms apart):
+
+    the 16 bytes above with kind 3 (the voice's spurts) and, in place of the 0, K: the spurts that follow (1..8) |
+    f32 the way from eca to Janus (milliseconds: half eca's quickest recent round trip to Janus's API) |
+    u16 the RTP sequence number of the last voice packet sent |
+    K x (u16 sequence number, u32 RTP timestamp) of the first packets of the latest K spurts, oldest first
 """
 
 from __future__ import annotations
@@ -44,8 +54,11 @@ from eca.agent.rig.names import ARKIT_NAMES, N_ARKIT, N_VISEMES, VRM_VOWELS
 from eca.services.processes.avatar.drive import AvatarDriver
 from eca.services.processes.avatar.model import Avatar
 
-FRAME, VOICE_CLOCK = 1, 2  # message kinds
+FRAME, VOICE_CLOCK, VOICE_SPURTS = 1, 2, 3  # message kinds
 HEADER = struct.Struct("<HBBId")
+_SPURTS_HEAD = struct.Struct("<fH")  # after the header: the way to Janus (ms), the last packet's sequence number
+_SPURT = struct.Struct("<HI")
+MAX_SPURTS = 8  # spurts a voice's clock through Janus names
 VOICED = 1  # flags: the agent's voice sounds at the frame's time
 MARK = 2  # flags: the frame's time is a whole second of the master clock (the calibration clicks' times)
 NTP_UNIX_OFFSET_MS = 2_208_988_800_000.0  # NTP counts from 1900, Unix time from 1970
@@ -185,6 +198,33 @@ class BrowserFace:
 def pack_voice_clock(slot: int, rtp_timestamp: int, ntp_ms: float) -> bytes:
     """The voice's clock message (see the module docstring)."""
     return HEADER.pack(slot, VOICE_CLOCK, 0, rtp_timestamp & 0xFFFFFFFF, ntp_ms)
+
+
+def pack_voice_spurts(slot: int, rtp_timestamp: int, ntp_ms: float, way_ms: float, last_seq: int,
+                      spurts: Sequence[tuple[int, int]]) -> bytes:
+    """The voice's clock through Janus (see the module docstring): `spurts` (sequence number, RTP timestamp) of the
+    latest spurts' first packets, oldest first."""
+    if not 1 <= len(spurts) <= MAX_SPURTS:
+        raise ValueError(f"a voice's clock names 1..{MAX_SPURTS} spurts, not {len(spurts)}")
+    return b"".join((HEADER.pack(slot, VOICE_SPURTS, len(spurts), rtp_timestamp & 0xFFFFFFFF, ntp_ms),
+                     _SPURTS_HEAD.pack(way_ms, last_seq & 0xFFFF),
+                     *(_SPURT.pack(seq & 0xFFFF, ts & 0xFFFFFFFF) for seq, ts in spurts)))
+
+
+def unpack_voice_spurts(data: bytes) -> tuple[int, int, float, float, int, list[tuple[int, int]]]:
+    """(slot, RTP timestamp, NTP ms, way to Janus ms, last sequence number, spurts) of a voice's clock through Janus:
+    the page's reading, for tests and tools. ValueError for bytes that are not one."""
+    if len(data) < HEADER.size + _SPURTS_HEAD.size:
+        raise ValueError(f"a voice's clock through Janus has at least {HEADER.size + _SPURTS_HEAD.size} bytes")
+    slot, kind, count, rtp, ntp = HEADER.unpack_from(data, 0)
+    if kind != VOICE_SPURTS or not 1 <= count <= MAX_SPURTS:
+        raise ValueError(f"message kind {kind} with {count} spurts, not the voice's spurts ({VOICE_SPURTS})")
+    at = HEADER.size + _SPURTS_HEAD.size
+    if len(data) != at + count * _SPURT.size:
+        raise ValueError(f"a voice's clock with {count} spurts has {at + count * _SPURT.size} bytes, not {len(data)}")
+    way_ms, last_seq = _SPURTS_HEAD.unpack_from(data, HEADER.size)
+    spurts = [_SPURT.unpack_from(data, at + i * _SPURT.size) for i in range(count)]
+    return slot, rtp, ntp, way_ms, last_seq, spurts
 
 
 def ntp_ms(ntp: int) -> float:

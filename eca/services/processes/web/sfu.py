@@ -10,7 +10,8 @@ Per agent, the publisher creates a mountpoint through Janus's HTTP API (web/janu
 on ports Janus picks, and sends it RTP over UDP: the VP8 pictures of the same shared encoder the direct viewers'
 tracks send (web/encoding.py: one encode per picture at the configured size and rate, also shared with direct
 viewers of that size), and the voice as the direct path's VoiceTrack paces it (20 ms frames, each sent when its
-first sample reaches the output), Opus-encoded once for all. eca's cost is one viewer's, however many watch Janus.
+first sample reaches the output), Opus-encoded once for all; into a mountpoint without video it pauses in silence,
+as to a direct page that draws the face. eca's cost is one viewer's, however many watch Janus.
 
 Timing. Both streams' RTP timestamps come from the master clock's stamps (a picture's `frame_ns`, a voice frame's
 DAC time) from one origin, and each packet leaves at its stamp, as on the direct path. Janus strips the RTCP sender
@@ -37,6 +38,7 @@ import random
 import secrets
 import socket
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, cast
@@ -48,12 +50,12 @@ from aiortc.codecs.vpx import Vp8Encoder as Vp8Packetizer
 from aiortc.rtp import RtcpPacket, RtcpPsfbPacket, RtcpSenderInfo, RtcpSrPacket, RtpPacket
 
 from eca.agent.clock import Clock
-from eca.services.processes.web.browser_face import NTP_UNIX_OFFSET_MS, pack_voice_clock
+from eca.services.processes.web.browser_face import MAX_SPURTS, NTP_UNIX_OFFSET_MS, pack_voice_spurts
 from eca.services.processes.web.encoding import VIDEO_RATE, EncodedStream, EncodedStreams
 from eca.services.processes.web.face_frames import next_due_ns
 from eca.services.processes.web.feeds import VoiceFeed
 from eca.services.processes.web.janus import MOUNTPOINT_EXISTS, NO_SUCH_MOUNTPOINT, JanusClient, JanusError
-from eca.services.processes.web.tracks import VoiceTrack
+from eca.services.processes.web.tracks import AUDIO_FRAME_S, VoiceTrack
 from eca.services.processes.web.viewers import ViewRequest
 
 log = logging.getLogger("web")
@@ -178,6 +180,8 @@ class Mountpoint:
     keyframe_requests: int = 0
     video: RtpStream | None = None
     audio: RtpStream | None = None
+    # (sequence number, RTP timestamp) of the latest talk spurts' first voice packets (runs sent one after another)
+    spurts: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=MAX_SPURTS))
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
 
 
@@ -425,36 +429,51 @@ class SfuPublisher:
 
     async def _send_voice(self, mp: Mountpoint, sock: _Socket) -> None:
         """The voice in 20 ms frames, each when its first sample reaches the output (the direct path's
-        VoiceTrack), Opus-encoded once for every viewer of Janus."""
+        VoiceTrack), Opus-encoded once for every viewer of Janus. Into a mountpoint without video (every page draws
+        the face) it pauses in silence, as to a direct page that draws it: Janus relays nothing then. A mountpoint
+        with video keeps it continuous (a browser lines the video up with it)."""
         assert mp.audio is not None
-        track = VoiceTrack(self.backend.voice(mp.agent), self.backend.clock)
+        pause = mp.agent in self.faces and not self.video
+        track = VoiceTrack(self.backend.voice(mp.agent), self.backend.clock, pause_in_silence=pause)
         encoder = OpusEncoder()
         slot = self.backend.face_slot(mp.agent) if mp.agent in self.faces else None
+        frame_ts = round(AUDIO_RATE * AUDIO_FRAME_S)
         while True:
             frame = await track.recv()
-            payloads, _ = encoder.encode(frame)
-            if not payloads:
-                continue  # the encoder's first frame: it holds samples back
+            if isinstance(frame, av.Packet):  # the paused voice's own Opus packet
+                payloads = [bytes(frame)]
+            else:
+                payloads, _ = encoder.encode(frame)
+                if not payloads:
+                    continue  # the encoder's first frame: it holds samples back
             start_ns = track.frame_start_ns((frame.pts or 0) // track.samples_per_frame)
+            first_seq, ts = mp.audio.seq, mp.audio.timestamp(start_ns)
+            spurt = mp.audio.last_ns is None or ts != (mp.audio.last_ts + frame_ts) & 0xFFFFFFFF
             for datagram in mp.audio.packetize(payloads, start_ns):
                 sock.send(datagram, (self.host, mp.audio_port))
+            if spurt:
+                mp.spurts.append((first_seq, ts))
             mp.voice_frames += 1
-            if slot is not None and mp.voice_frames % VOICE_CLOCK_EVERY == 0:
+            if slot is not None and (spurt or mp.voice_frames % VOICE_CLOCK_EVERY == 0):
                 self._send_voice_clock(mp, slot, start_ns)
 
     def _send_voice_clock(self, mp: Mountpoint, slot: int, stamp_ns: int) -> None:
-        """The voice's clock on the face's data section: the RTP timestamp of the packet just sent and when it
-        reaches Janus, on the wall clock's NTP scale (the face frames' clock): its time plus the way to Janus (half
-        the quickest of the latest API round trips). Janus renumbers each viewer's voice from the first packet it
-        relays to it; the page works out which that was (static/face3d.js VoiceClock.rebase) from when its packets
-        arrive, less its own way from Janus: each leg is taken off where it is known, so a Janus far from eca, or a
-        page far from Janus, leaves the page's count on the right packet."""
+        """The voice's clock on the face's data section (browser_face.py, kind 3): the RTP timestamp of the packet
+        just sent and its time on the wall clock's NTP scale (the face frames' clock), the way to Janus (half the
+        quickest of the latest API round trips), and the latest talk spurts' first packets. Janus renumbers each
+        viewer's voice from the first packet it relays to it; the page works out which that was
+        (static/face3d.js VoiceClock.rebase) from when its packets arrive, less its own way from Janus and eca's way
+        to it: each leg is taken off where it is known, so a Janus far from eca, or a page far from Janus, leaves
+        the page's count on the right packet."""
         assert mp.audio is not None
-        if self._data_socket is None or not mp.data_port:
+        if self._data_socket is None or not mp.data_port or not mp.spurts:
             return
         wall_offset_ns = time.time_ns() - self.backend.clock.now_ns()
-        ntp = (stamp_ns + wall_offset_ns) / 1e6 + NTP_UNIX_OFFSET_MS + self.janus.one_way_s() * 1e3
-        self._data_socket.send(pack_voice_clock(slot, mp.audio.last_ts, ntp), (self.host, mp.data_port))
+        ntp = (stamp_ns + wall_offset_ns) / 1e6 + NTP_UNIX_OFFSET_MS
+        last_seq = (mp.audio.seq - 1) & 0xFFFF
+        message = pack_voice_spurts(slot, mp.audio.last_ts, ntp, self.janus.one_way_s() * 1e3, last_seq,
+                                    list(mp.spurts))
+        self._data_socket.send(message, (self.host, mp.data_port))
         mp.voice_clocks += 1
 
     async def _send_reports(self, mp: Mountpoint, sock: _Socket) -> None:

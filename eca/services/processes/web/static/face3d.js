@@ -7,26 +7,34 @@
 // receiver's synchronization source says which RTP timestamp this browser last handed to its speakers, and when.
 // Together: "what the listener hears now" at every animation frame, through jitter, drift and buffer changes.
 // Through Janus, whose Streaming plugin numbers each viewer's voice from the first packet it relays to it (RTP
-// timestamp less that packet's), the page works out that first packet from its own counts (VoiceClock.rebase).
+// timestamp less that packet's), the page works out that first packet from its own counts and the talk spurts the
+// server names (VoiceClock.rebase).
 // What the voice moves (mouth, jaw) is taken from the frame of that instant; everything else (brows, eyes, head,
 // an emotion, a barge-in) from the newest frame, as soon as it arrives.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 import { VRMHumanoidLoaderPlugin, VRMLoaderPlugin, VRMMetaLoaderPlugin, VRMUtils } from "@pixiv/three-vrm";
 
-const FRAME = 1, VOICE_CLOCK = 2;  // message kinds
+const FRAME = 1, VOICE_CLOCK = 2, VOICE_SPURTS = 3;  // message kinds
 const HEADER_BYTES = 16;
+const SPURTS_HEAD_BYTES = 6;  // after the header of the voice's spurts: f32 the way to Janus, u16 the last sequence number
+const SPURT_BYTES = 6;  // u16 sequence number, u32 RTP timestamp
+const SPURTS_KEPT = 256;  // talk spurts the page remembers (through Janus)
 const VOICED = 1;
 const MARK = 2;  // the frame's time is a whole second of the master clock (the calibration clicks' times)
 const LOG_MAX = 2000;
 const OPUS_RATE = 48000;  // RTP clock of the voice (Opus)
 const KEEP_MS = 3000;  // frames kept for the voice to catch up with
-const FRAME_SAMPLES = 960;  // through Janus: the voice's packets, 20 ms each, one after another (no pauses)
+const FRAME_SAMPLES = 960;  // the voice's packets, 20 ms each
 const FRAME_MS = 20;
-const FIRST_READINGS = 20;  // the latest estimates of when Janus's first packet left (about 5 s of them)
+const FIRST_READINGS = 20;  // the latest estimates of Janus's first packet (about 5 s of them while the voice sounds)
 const CLOCK_ASKS = 12;  // the latest asks of the server's clock, the quickest taken
 const CLOCK_ASK_EVERY_MS = 2000;
 const NTP_UNIX_OFFSET_MS = 2208988800000;  // NTP counts from 1900, Unix time from 1970
+
+// a difference of two 16-bit sequence numbers, or of two 32-bit RTP timestamps, as the nearest signed one
+const wrapped16 = (d) => ((((d + 2 ** 15) % 2 ** 16) + 2 ** 16) % 2 ** 16) - 2 ** 15;
+const wrapped32 = (d) => ((((d + 2 ** 31) % 2 ** 32) + 2 ** 32) % 2 ** 32) - 2 ** 31;
 
 export function webglAvailable() {
   try {
@@ -50,7 +58,9 @@ export class VoiceClock {
     this.rebased = !!serverClock;
     this.report = null;  // { rtp, ntpMs }, in this receiver's RTP numbering
     this.asks = [];  // rebased: { rttMs, offsetMs } of the latest asks of the server's clock
-    this.firsts = [];  // rebased: the latest estimates of when Janus's first packet arrived (sender's NTP ms)
+    this.firsts = [];  // rebased: the latest estimates of the sequence number of Janus's first packet (unwrapped)
+    this.spurts = [];  // rebased: { seq (unwrapped), rtp } of talk spurts' first packets, in order
+    this.lastSeq = null;  // rebased: the newest report's last sequence number, unwrapped
     this.legs = [];  // rebased: the latest round trips to Janus (ms), from the connection's own checks
     this.base = null;  // rebased: the sender's RTP timestamp of that packet
     this.timer = null;
@@ -83,11 +93,22 @@ export class VoiceClock {
   }
 
   onReport(rtp, ntpMs) {
-    if (!this.rebased) {
-      this.report = { rtp, ntpMs };
-      return;
+    this.report = { rtp, ntpMs };
+  }
+
+  // Through Janus: the server's report (the RTP timestamp of its last voice packet and when it left, the way to
+  // Janus, that packet's sequence number) and the latest talk spurts' first packets ([sequence number, RTP
+  // timestamp], oldest first), in the server's numbering
+  onSpurts(rtp, ntpMs, wayMs, lastSeq, spurts) {
+    const last = this.lastSeq == null ? lastSeq + 2 ** 16 : this.lastSeq + wrapped16(lastSeq - this.lastSeq);
+    this.lastSeq = last;
+    for (const [seq, spurtRtp] of spurts) {
+      const at = last - (((lastSeq - seq) % 2 ** 16) + 2 ** 16) % 2 ** 16;  // a spurt starts at or before the last
+      if (!this.spurts.some((p) => p.seq === at)) this.spurts.push({ seq: at, rtp: spurtRtp });
     }
-    this.rebase(rtp, ntpMs);
+    this.spurts.sort((a, b) => a.seq - b.seq);
+    while (this.spurts.length > SPURTS_KEPT) this.spurts.shift();
+    this.rebase(rtp, ntpMs, wayMs);
   }
 
   // How far the server's clock is ahead of this page's: from the quickest of the latest asks (a slow answer, held
@@ -98,15 +119,18 @@ export class VoiceClock {
   }
 
   // Janus numbers this viewer's voice from the first packet it relays: RTP timestamp less that packet's (`base`),
-  // which the page is not told. It counts: the receiver's newest packet is packet number packetsReceived +
-  // packetsLost - 1 of the ones Janus relayed, 20 ms apart, and arrived at lastPacketReceivedTimestamp (the
-  // network's time, not the page's, so a busy page does not move it), on this page's clock: on the server's, that
-  // plus the clocks' offset (serverOffsetMs). Less the way from Janus to here (half the quickest of the connection's
-  // latest round trips, which its ICE checks measure), each reading says when the first packet reached Janus, late
-  // by however late it left (a loaded server sends late, never early): the earliest of the latest readings is the
-  // one to take. The server's report (a packet's RTP timestamp and when it reached Janus: the server takes off its
-  // own way there) then gives the first packet's timestamp on the packets' 960-sample grid, on which it is exact.
-  async rebase(rtp, ntpMs) {
+  // and sequence numbers the same way, which the page is not told. It counts: the receiver's newest packet is
+  // packet number packetsReceived + packetsLost - 1 of the ones Janus relayed, and arrived at
+  // lastPacketReceivedTimestamp (the network's time, not the page's, so a busy page does not move it), on this
+  // page's clock: on the server's, that plus the clocks' offset (serverOffsetMs). Less the way from Janus to here
+  // (half the quickest of the connection's latest round trips, which its ICE checks measure) and the server's way
+  // to Janus (it says), that is when the server sent it. The voice pauses in silence, so which packet the server
+  // sent then comes from the talk spurts it names: within a spurt its packets leave 20 ms apart, and an RTP
+  // timestamp's time is the report's plus the samples between them (the RTP clock is the master clock). The
+  // newest packet's number less the count is the first packet's; each reading is late by however late the packet
+  // left (a loaded server sends late, never early), so the lowest of the latest readings is the one to take, and
+  // exact. Its spurt gives its RTP timestamp.
+  async rebase(rtp, ntpMs, wayMs) {
     const offsetMs = this.serverOffsetMs();
     if (offsetMs == null) return;
     let stats;
@@ -119,17 +143,37 @@ export class VoiceClock {
     for (const r of stats.values()) {
       if (r.type !== "inbound-rtp" || !r.packetsReceived || !r.lastPacketReceivedTimestamp) continue;
       const newest = r.packetsReceived + (r.packetsLost || 0) - 1;
-      const arrivedMs = r.lastPacketReceivedTimestamp + offsetMs + NTP_UNIX_OFFSET_MS;  // the server's NTP clock
-      this.firsts.push(arrivedMs - newest * FRAME_MS);
+      const sentMs = r.lastPacketReceivedTimestamp + offsetMs + NTP_UNIX_OFFSET_MS - legMs - wayMs;
+      const seq = this.packetSentAt(sentMs, rtp, ntpMs);
+      if (seq == null) return;
+      this.firsts.push(seq - newest);
       if (this.firsts.length > FIRST_READINGS) this.firsts.shift();
-      const firstMs = Math.min(...this.firsts) - legMs;
-      const packets = Math.round((firstMs - ntpMs) / FRAME_MS);  // from the reported packet to the first
-      this.base = (((rtp + packets * FRAME_SAMPLES) % 2 ** 32) + 2 ** 32) % 2 ** 32;
+      const first = Math.min(...this.firsts);
+      let spurt = null;
+      for (const p of this.spurts) if (p.seq <= first) spurt = p;
+      if (!spurt) return;  // its spurt is not known (yet, or any longer): the base found before holds
+      this.base = (spurt.rtp + (first - spurt.seq) * FRAME_SAMPLES) % 2 ** 32;
       this.report = { rtp: (((rtp - this.base) % 2 ** 32) + 2 ** 32) % 2 ** 32, ntpMs };
       this.rebasings = (this.rebasings || 0) + 1;
       this.legMs = legMs;
       return;
     }
+  }
+
+  // The sequence number (unwrapped) of the packet the server sent at `sentMs` (its NTP clock), by the spurts: the
+  // last spurt begun by then (half a packet's leeway), and within it the packet nearest that time, at most the
+  // spurt's last (the packet before the next spurt's first)
+  packetSentAt(sentMs, rtp, ntpMs) {
+    const timeOf = (ts) => ntpMs + wrapped32(ts - rtp) * 1000 / OPUS_RATE;
+    let k = -1;
+    for (let i = 0; i < this.spurts.length; i += 1) {
+      if (timeOf(this.spurts[i].rtp) <= sentMs + FRAME_MS / 2) k = i;
+    }
+    if (k < 0) return null;
+    const p = this.spurts[k];
+    let seq = p.seq + Math.max(0, Math.round((sentMs - timeOf(p.rtp)) / FRAME_MS));
+    if (k + 1 < this.spurts.length) seq = Math.min(seq, this.spurts[k + 1].seq - 1);
+    return seq;
   }
 
   // Half the quickest of the latest round trips of the connection's selected candidate pair (its ICE checks, to
@@ -267,7 +311,21 @@ export class BrowserFace {
     const view = new DataView(buffer);
     const kind = view.getUint8(2);
     if (kind === VOICE_CLOCK && buffer.byteLength === HEADER_BYTES) {
-      if (this.clock) this.clock.onReport(view.getUint32(4, true), view.getFloat64(8, true));
+      if (this.clock && !this.clock.rebased) this.clock.onReport(view.getUint32(4, true), view.getFloat64(8, true));
+      this.stats.reports = (this.stats.reports || 0) + 1;
+      return true;
+    }
+    const count = view.getUint8(3);
+    if (kind === VOICE_SPURTS && count >= 1
+        && buffer.byteLength === HEADER_BYTES + SPURTS_HEAD_BYTES + count * SPURT_BYTES) {
+      const spurts = [];
+      for (let i = 0, at = HEADER_BYTES + SPURTS_HEAD_BYTES; i < count; i += 1, at += SPURT_BYTES) {
+        spurts.push([view.getUint16(at, true), view.getUint32(at + 2, true)]);
+      }
+      if (this.clock && this.clock.rebased) {
+        this.clock.onSpurts(view.getUint32(4, true), view.getFloat64(8, true), view.getFloat32(HEADER_BYTES, true),
+                            view.getUint16(HEADER_BYTES + 4, true), spurts);
+      }
       this.stats.reports = (this.stats.reports || 0) + 1;
       return true;
     }
