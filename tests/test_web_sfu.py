@@ -41,7 +41,7 @@ from eca.services.processes.web.browser_face import (
 )
 from eca.services.processes.web.options import WebOptions, WebOptionsError
 from eca.services.processes.web.service import WebService
-from eca.services.processes.web.sfu import RtpStream
+from eca.services.processes.web.sfu import MAX_DATA_BYTES, RtpStream
 from tests.support.browser import (
     browser_available,
     canvas_pixels,
@@ -54,6 +54,7 @@ from tests.support.browser import (
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.janus import Janus, janus_available, janus_server
 from tests.support.netns import Host, Network, hosts, netns_available
+from tests.support.vrm import many_primitives_file
 from tests.support.web_client import SMALL, Client, speak_tone
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -380,6 +381,34 @@ def test_face_frames_flow_again_into_a_mountpoint_janus_made_again(network: Netw
     frames = [m for m in got["messages"] if m["binary"] and base64.b64decode(m["data"])[2] == FRAME]
     assert len(frames) >= 0.6 * FPS * 3, f"{len(frames)} face frames in 4 s at {FPS:g} fps"
     assert got["audio_frames"] >= 100, got["audio_frames"]
+
+
+@needs_janus
+def test_a_face_too_large_for_janus_s_data_goes_as_video_or_is_refused(network: Network, janus: Janus,
+                                                                      tmp_path: Path) -> None:
+    """Janus reads a data port into 1,500 bytes: an avatar whose face frames are larger (the head's primitives five
+    times over) cannot go as face frames. With draw = "browser" `eca web` stops at start with one line saying so;
+    with "auto" it publishes that face as video, the mountpoint without a data section, and says nothing of faces."""
+    big = many_primitives_file(tmp_path, 5)
+    with private_bus_config(agents=["ada"]) as config, BrokerThread(config):
+        done = subprocess.run([sys.executable, "-m", "eca.services.tools.cli", "web", "--config",
+                               str(config.config_path), "--instance", config.instance, "--sfu", janus.url,
+                               "--web-face", str(big), "--web-draw", "browser", "--web-port", "0"],
+                              capture_output=True, text=True, cwd=ROOT, timeout=120)
+        assert done.returncode == 1, (done.returncode, done.stderr[-2000:])  # a service that cannot start
+        refused = [line for line in done.stderr.splitlines() if "cannot start" in line]
+        assert len(refused) == 1 and "1500 bytes" in refused[0] and "ada" in refused[0], done.stderr[-2000:]
+        service = WebService(config, WebOptions(port=0, sfu=janus.url, width=WIDTH, height=HEIGHT, fps=FPS,
+                                                face=str(big)))
+        assert service.face_frames.face("ada").layout.size > MAX_DATA_BYTES
+        with ServiceThread(service):
+            assert service.sfu is not None and service.sfu.faces == () and service.sfu.video
+            mp = service.sfu.mountpoints["ada"]
+            assert mp.video_port and not mp.data_port
+            info = service.sfu_info()
+            assert info is not None and info["faces"] == [] and info["video"] is True
+            got = result_of(watch_from(network["viewer"], janus.url, mp.id, 4.0))["viewers"][0]
+    assert got["pictures"] >= 0.5 * FPS * 2 and not got["messages"], got
 
 
 @needs_janus

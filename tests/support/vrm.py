@@ -184,3 +184,17 @@ def vrm0_file(tmp: Path) -> Path:
     path = tmp / "head0.vrm"
     path.write_bytes(_glb(document, blob))
     return path
+
+
+def many_primitives_file(tmp: Path, copies: int) -> Path:
+    """The default head (a plain glTF, .glb) with its mesh's primitives repeated `copies` times, each copy with its
+    own morph targets' weights to drive: an avatar whose face frames are `copies` times the head's morph weights
+    (a stand-in for an avatar with hundreds of morph targets)."""
+    if not 1 <= copies <= 64:
+        raise ValueError("1..64 copies")
+    doc, blob, _, _ = head_document()
+    mesh = doc.meshes[0]
+    mesh.primitives = [copy.deepcopy(p) for _ in range(copies) for p in mesh.primitives]
+    path = tmp / f"head_x{copies}.glb"
+    path.write_bytes(_glb(_json(doc, blob), blob))
+    return path
