@@ -124,7 +124,7 @@ def test_audio_config_loads_and_rejects_bad_values() -> None:
     from eca.services.processes.audio.config import AudioConfig
 
     cfg = AudioConfig.load()
-    assert cfg.sample_rate == 48_000 and cfg.block_frames == 480 and cfg.device is None
+    assert cfg.sample_rate == 48_000 and cfg.block_frames == 960 and cfg.device is None
     assert cfg.anchor_hz >= 60
     data = load_toml("audio")
     data["player"]["anchor_hz"] = 30.0
