@@ -185,6 +185,27 @@ def test_face_frames_come_at_the_asked_rate(instance: tuple[BusConfig, str]) -> 
     assert bad == 0
 
 
+BAD_SPURTS = """
+    const f = window.eca.drawn.ada; const before = f.stats.bad;
+    const message = (count, bytes, timeMs, wayMs) => { const b = new ArrayBuffer(bytes); const v = new DataView(b);
+      v.setUint8(2, 3); v.setUint8(3, count); v.setFloat64(8, timeMs, true); v.setFloat32(16, wayMs, true);
+      return b; };
+    const pushed = [message(1, 28, 1e12, 5), message(2, 28, 1e12, 5), message(0, 22, 1e12, 5),
+                    message(1, 28, NaN, 5), message(1, 28, 1e12, -1), message(1, 28, 1e12, NaN)].map((b) => f.push(b));
+    return [pushed, f.stats.bad - before];"""
+
+
+def test_the_page_drops_malformed_voice_clocks(instance: tuple[BusConfig, str]) -> None:
+    """A voice clock through Janus (kind 3) that is not whole or says no time is dropped and counted: a count of
+    spurts its length does not hold, no spurt, a time or a way to Janus that is not a number, a negative way. A
+    whole one is taken (and ignored by a page whose voice comes straight from eca)."""
+    _config, url = instance
+    with chromium() as driver:
+        connect_drawing(driver, url + "?mic=0")
+        pushed, bad = driver.execute_script(BAD_SPURTS)
+    assert pushed == [True, False, False, False, False, False] and bad == 5, (pushed, bad)
+
+
 def test_a_browser_without_webgl_gets_the_server_drawn_video(instance: tuple[BusConfig, str]) -> None:
     _config, url = instance
     with chromium(webgl=False) as driver:

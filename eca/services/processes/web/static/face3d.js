@@ -17,7 +17,7 @@ import { VRMHumanoidLoaderPlugin, VRMLoaderPlugin, VRMMetaLoaderPlugin, VRMUtils
 
 const FRAME = 1, VOICE_CLOCK = 2, VOICE_SPURTS = 3;  // message kinds
 const HEADER_BYTES = 16;
-const SPURTS_HEAD_BYTES = 6;  // after the header of the voice's spurts: f32 the way to Janus, u16 the last sequence number
+const SPURTS_HEAD_BYTES = 6;  // after the voice's spurts' header: f32 the way to Janus, u16 the last sequence number
 const SPURT_BYTES = 6;  // u16 sequence number, u32 RTP timestamp
 const SPURTS_KEPT = 256;  // talk spurts the page remembers (through Janus)
 const VOICED = 1;
@@ -177,7 +177,7 @@ export class VoiceClock {
   }
 
   // Half the quickest of the latest round trips of the connection's selected candidate pair (its ICE checks, to
-  // Janus and back), noted from `stats` (the receiver's, which name the transport and its pair); 0 before any is measured
+  // Janus and back), noted from `stats` (the receiver's, which name the transport and its pair); 0 before any
   legFromJanusMs(stats) {
     let pair = null;
     for (const r of stats.values()) {
@@ -317,7 +317,9 @@ export class BrowserFace {
     }
     const count = view.getUint8(3);
     if (kind === VOICE_SPURTS && count >= 1
-        && buffer.byteLength === HEADER_BYTES + SPURTS_HEAD_BYTES + count * SPURT_BYTES) {
+        && buffer.byteLength === HEADER_BYTES + SPURTS_HEAD_BYTES + count * SPURT_BYTES
+        && Number.isFinite(view.getFloat64(8, true)) && view.getFloat32(HEADER_BYTES, true) >= 0
+        && view.getFloat32(HEADER_BYTES, true) < 10000) {  // a time, and a way to Janus of under 10 s
       const spurts = [];
       for (let i = 0, at = HEADER_BYTES + SPURTS_HEAD_BYTES; i < count; i += 1, at += SPURT_BYTES) {
         spurts.push([view.getUint16(at, true), view.getUint32(at + 2, true)]);
