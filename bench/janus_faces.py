@@ -31,6 +31,7 @@ import re
 import statistics
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -157,38 +158,37 @@ def one_count(net: Any, janus: Any, count: int, window_s: float, speak_s: float 
             viewers = Viewers(net["viewer"], janus.url, mountpoints)
             driver: Driver | None = None
             try:
-                connected = viewers.wait_ready()
-                if speak_s > 0:  # each agent's turns, spread over the cycle
-                    driver = Driver(config, agent_voice(speak_s, random.Random(0)), time.monotonic(), cycle_s, 0.0)
-                    driver.__enter__()
-                    for i, agent in enumerate(agents):
-                        driver.add(agent, cycle_s * i / count)
-                time.sleep(SETTLE_S)
-                eca_pids = [proc.pid, *descendants(proc.pid)]
-                watched = eca_pids + janus_pids + viewers.pids
-                before = cpu_of(watched)
-                began = time.monotonic()
-                viewers.say("mark")
-                time.sleep(window_s)
-                after = cpu_of(watched)
-                elapsed = time.monotonic() - began
+                with ExitStack() as speaking:
+                    connected = viewers.wait_ready()
+                    if speak_s > 0:  # each agent's turns, spread over the cycle
+                        driver = speaking.enter_context(Driver(config, agent_voice(speak_s, random.Random(0)),
+                                                               time.monotonic(), cycle_s, 0.0))
+                        for i, agent in enumerate(agents):
+                            driver.add(agent, cycle_s * i / count)
+                    time.sleep(SETTLE_S)
+                    eca_pids = [proc.pid, *descendants(proc.pid)]
+                    watched = eca_pids + janus_pids + viewers.pids
+                    before = cpu_of(watched)
+                    began = time.monotonic()
+                    viewers.say("mark")
+                    time.sleep(window_s)
+                    after = cpu_of(watched)
+                    elapsed = time.monotonic() - began
 
-                def share(pids: list[int]) -> float:
-                    return round(100 * sum(after[p] - before[p] for p in pids if p in after and p in before)
-                                 / elapsed, 1)
+                    def share(pids: list[int]) -> float:
+                        return round(100 * sum(after[p] - before[p] for p in pids if p in after and p in before)
+                                     / elapsed, 1)
 
-                cpu = {"eca": share(eca_pids), "web": share([web_pid]), "janus": share(janus_pids),
-                       "viewers": share(viewers.pids)}
-                labels = {p: eca_label(p, proc.pid) for p in eca_pids}
-                services = {name: share([p for p in eca_pids if labels[p] == name])
-                            for name in sorted(set(labels.values()))}
-                pss = round(sum(pss_mib(p) for p in eca_pids if Path(f"/proc/{p}").exists()), 1)
-                voice, frames = rates(viewers.finish())
-                said = len(driver.log.says) if driver is not None else 0
-                failed = len([e for e in driver.log.speech if e[2] == "speech_failed"]) if driver is not None else 0
+                    cpu = {"eca": share(eca_pids), "web": share([web_pid]), "janus": share(janus_pids),
+                           "viewers": share(viewers.pids)}
+                    labels = {p: eca_label(p, proc.pid) for p in eca_pids}
+                    services = {name: share([p for p in eca_pids if labels[p] == name])
+                                for name in sorted(set(labels.values()))}
+                    pss = round(sum(pss_mib(p) for p in eca_pids if Path(f"/proc/{p}").exists()), 1)
+                    voice, frames = rates(viewers.finish())
+                    said = len(driver.log.says) if driver is not None else 0
+                    failed = len([e for e in driver.log.speech if e[2] == "speech_failed"]) if driver is not None else 0
             finally:
-                if driver is not None:
-                    driver.__exit__(None, None, None)
                 viewers.kill()
     return {"conversations": count, "connected": connected, "cpu": cpu, "services": services, "eca_pss_mib": pss,
             "face_fps_median": round(statistics.median(frames), 1) if frames else None,

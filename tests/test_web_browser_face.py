@@ -268,7 +268,7 @@ const done = arguments[arguments.length - 1];
     ["cp", { type: "candidate-pair", currentRoundTripTime: 2 * LEG_MS / 1000 }],
   ]) };
   const clock = new VoiceClock(receiver, { serverClock: async () => ({ unix_ms: pageNow() + OFFSET_MS }) });
-  await new Promise((r) => setTimeout(r, 400));  // its first asks of the server's clock
+  while (clock.serverOffsetMs() == null) await new Promise((r) => setTimeout(r, 10));  // its first ask answered
   // the page hears from the server only once the first spurt is over (its data channel opened late): reports at
   // each later spurt's first packet and every 12 packets, each naming the latest spurts
   const spurts = [];

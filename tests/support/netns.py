@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import random
 import shutil
 import subprocess
 import sys
@@ -81,6 +82,18 @@ class Network:
         return self.hosts[name]
 
 
+def _free_prefix() -> str:
+    """A /24 of 10.<x>.<y>.0 that no interface here is on: two networks on one prefix (another test worker's) would
+    route each other's packets to the wrong bridge. Drawn from this process's own seeded sequence."""
+    used = subprocess.run(["ip", "-4", "-o", "addr", "show"], capture_output=True, text=True).stdout
+    draw = random.Random(os.getpid() * 1_000_003 + next(_count))
+    for _ in range(1000):
+        prefix = f"10.{draw.randrange(10, 250)}.{draw.randrange(0, 250)}"
+        if f" {prefix}." not in used:
+            return prefix
+    raise RuntimeError("no free 10.x.y.0/24 for a test network")
+
+
 def _no_offloads(ns: str | None, link: str) -> None:
     """Frames one MTU at most on `link` (a delay link forwards frames as they are; see tests/support/delay_link.py)."""
     argv = ["ethtool", "-K", link, "gro", "off", "gso", "off", "tso", "off", "tx", "off", "rx", "off"]
@@ -115,9 +128,7 @@ def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Netwo
     if set(delays) - set(names) or any(not 0.0 <= d <= 5.0 for d in delays.values()):
         raise ValueError(f"delays name hosts of {names}, each 0..5 s: {delays}")
     tag = f"{os.getpid() % 100000}{next(_count)}"
-    subnet = 10 + (os.getpid() + next(_count)) % 200  # a /24 of 10.<x>.<y>.0, unlikely to collide
-    third = (os.getpid() // 200) % 250
-    prefix = f"10.{subnet}.{third}"
+    prefix = _free_prefix()
     bridge = f"ecb{tag}"[:15]
     made_ns: list[str] = []
     made_links: list[str] = []
@@ -133,25 +144,23 @@ def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Netwo
             _ip("netns", "add", ns)
             made_ns.append(ns)
             outside, inside = f"eo{tag}{i}"[:15], f"ei{tag}{i}"[:15]
-            _ip("link", "add", outside, "type", "veth", "peer", "name", inside)
-            made_links.append(outside)
-            if name in delays:
-                # host <-> (a | delay link | b) <-> bridge: the outside end stays on the bridge, so cut() still works
+            if name not in delays:
+                _ip("link", "add", outside, "type", "veth", "peer", "name", inside)
+            else:
+                # two cables through a namespace of their own: outside <-> b | delay link | a <-> inside; the outside
+                # end is on the bridge as for any host, so cut() still works
                 link_ns = f"eca{tag}{name}"[:30] + "dl"
                 _ip("netns", "add", link_ns)
                 made_ns.append(link_ns)
-                a, b = f"ea{tag}{i}"[:14], f"eb{tag}{i}"[:14]
-                _ip("link", "add", a, "type", "veth", "peer", "name", b)
-                _ip("link", "set", a, "netns", link_ns)
-                _ip("link", "set", inside, "netns", link_ns)  # the outside's peer: side b of the link
-                _ip("netns", "exec", link_ns, "ip", "link", "set", inside, "name", b + "x")
-                inside_of_link = b + "x"
-                for end in (a, inside_of_link):
+                a, b = f"ea{tag}{i}"[:15], f"eb{tag}{i}"[:15]
+                _ip("link", "add", outside, "type", "veth", "peer", "name", b, "netns", link_ns)
+                _ip("link", "add", inside, "type", "veth", "peer", "name", a, "netns", link_ns)
+                for end in (a, b):
                     _ip("netns", "exec", link_ns, "ip", "link", "set", end, "up")
                     _no_offloads(link_ns, end)
                 _no_offloads(None, outside)
-                inside = b  # the host's end, still in this namespace: moved below
-                links.append(_delay_link(link_ns, a, inside_of_link, delays[name]))
+                links.append(_delay_link(link_ns, a, b, delays[name]))
+            made_links.append(outside)
             _ip("link", "set", inside, "netns", ns)
             _ip("link", "set", outside, "master", bridge)
             _ip("link", "set", outside, "up")

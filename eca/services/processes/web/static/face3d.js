@@ -145,13 +145,15 @@ export class VoiceClock {
       const newest = r.packetsReceived + (r.packetsLost || 0) - 1;
       const sentMs = r.lastPacketReceivedTimestamp + offsetMs + NTP_UNIX_OFFSET_MS - legMs - wayMs;
       const seq = this.packetSentAt(sentMs, rtp, ntpMs);
-      if (seq == null) return;
+      // a reading that puts the first packet before every spurt known says nothing usable (an early one: the
+      // clocks' offset or a way misjudged under load); kept, it would hold the lowest for the next twenty
+      if (seq == null || !this.spurts.length || seq - newest < this.spurts[0].seq) return;
       this.firsts.push(seq - newest);
       if (this.firsts.length > FIRST_READINGS) this.firsts.shift();
       const first = Math.min(...this.firsts);
       let spurt = null;
       for (const p of this.spurts) if (p.seq <= first) spurt = p;
-      if (!spurt) return;  // its spurt is not known (yet, or any longer): the base found before holds
+      if (!spurt) return;  // its spurt is no longer known: the base found before holds
       this.base = (spurt.rtp + (first - spurt.seq) * FRAME_SAMPLES) % 2 ** 32;
       this.report = { rtp: (((rtp - this.base) % 2 ** 32) + 2 ** 32) % 2 ** 32, ntpMs };
       this.rebasings = (this.rebasings || 0) + 1;
