@@ -12,6 +12,7 @@ from eca.agent.face.actions import Pose
 from eca.agent.face.compositor import DEFAULT_LAYERS, Blend, Compositor, LayerSpec, blend_onto
 from eca.agent.face.flexors import FLEXOR_INDEX, N_FLEXORS
 from eca.agent.face.frame import DONT_CARE, FlexorFrame
+from eca.agent.face.scene import LiveScene
 from eca.agent.face.settling import LN_20, Settler
 
 SMILE, BROW, NOD, LOOK_X = (FLEXOR_INDEX[n] for n in ("smile_l", "brow_l", "nod", "look_x"))
@@ -218,3 +219,83 @@ def test_the_default_stack_puts_emotion_under_head_gaze_mouth_and_blink() -> Non
     assert names.index("base") < names.index("emotion") < names.index("head")
     assert names.index("emotion") < names.index("mouth") and names.index("gaze") < names.index("blink")
     assert names[-1] == "idle"
+
+
+class _FullVectorsOnly:
+    """An action seen only through values_at: what the compositor does with any action from outside."""
+
+    def __init__(self, action: object) -> None:
+        self.action = action
+
+    def values_at(self, t_ns: int) -> np.ndarray:
+        return self.action.values_at(t_ns)  # type: ignore[attr-defined, no-any-return]
+
+
+def _busy_scenes(seed: int) -> list[LiveScene]:
+    """Two live scenes given the same inputs: every layer of the face busy, speech on, eyes sampled."""
+    scenes = [LiveScene(seed=seed), LiveScene(seed=seed)]
+    for scene in scenes:
+        scene.speech_started("r", 0)
+        scene.add_clock_anchor("r", 0, 16_000, 0)
+        positions = list(range(0, 16_000 * 2, 160))
+        scene.add_mouth_keys("r", 16_000, positions, {"say_ah": [0.5 + 0.5 * np.sin(j * 0.3) for j in
+                                                                range(len(positions))]}, False, 0)
+    return scenes
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_layers_that_say_only_what_they_care_about_compose_the_same_face_as_their_full_vectors(seed: int) -> None:
+    sparse, full = _busy_scenes(seed)
+    comp = full.model.compositor
+    for spec in DEFAULT_LAYERS:
+        if not spec.settles and comp.action(spec.name) is not None:
+            comp.set_action(spec.name, _FullVectorsOnly(comp.action(spec.name)))
+    for k in range(1, 240):
+        t = k * 16_666_667
+        for scene in (sparse, full):
+            r = np.random.default_rng([seed, k])  # the same inputs to both
+            if r.random() < 0.02:
+                scene.set_emotion(str(r.choice(["happy", "angry", "surprised", "natural"])), 1.0, 0.3, t)
+            if r.random() < 0.02:
+                scene.move_head(float(r.uniform(-0.5, 0.5)), 0.2, -0.1, float(r.uniform(0, 0.6)), t)
+            if r.random() < 0.02:
+                scene.attend(float(r.uniform(-20, 20)), 4.0, 0.4, t)
+            if r.random() < 0.02:
+                scene.head_gesture(f"g{k}", str(r.choice(["nod", "shake", "tilt"])), t, 6.0, 0.5, 2)
+            if r.random() < 0.02:
+                scene.expression(f"e{k % 2}", t, t + S(0.1), t + S(0.2), t + S(0.4),
+                                 {"brow_l": 0.4, "say_ah": 0.2})
+            if r.random() < 0.7:
+                lid = 1.0 if r.random() < 0.05 else 0.0
+                scene.add_eye_sample(t, float(r.uniform(-15, 15)), float(r.uniform(-8, 8)), lid, "saccade+blink")
+        a, b = sparse.compose(t), full.compose(t)
+        assert np.array_equal(a.frame.values, b.frame.values), f"frame {k}"
+        assert (a.head_yaw_deg, a.left_eye) == (b.head_yaw_deg, b.left_eye)
+
+
+def test_each_face_layer_says_exactly_the_values_its_full_vector_holds() -> None:
+    scene = _busy_scenes(7)[0]
+    scene.head_gesture("g", "nod", S(0.1), 6.0, 1.0, 2)
+    scene.head_gesture("h", "shake", S(0.2), 6.0, 1.0, 1)
+    scene.expression("e", S(0.1), S(0.3), S(0.5), S(0.9), {"brow_l": 0.4, "smile_r": -0.3})
+    scene.add_eye_sample(S(0.1), 5.0, -3.0, 0.4, "saccade+blink")
+    comp = scene.model.compositor
+    checked = 0
+    for t in (S(0.05), S(0.25), S(0.4), S(0.7), S(1.5)):
+        scene.compose(t)
+        for spec in DEFAULT_LAYERS:
+            action = None if spec.settles else comp.action(spec.name)
+            if action is None:
+                continue
+            full = action.values_at(t)
+            cared = action.sparse_at(t)  # type: ignore[attr-defined]
+            want = np.flatnonzero(~np.isnan(full))
+            if cared is None:
+                assert want.size == 0, spec.name
+                continue
+            index, values = cared
+            assert sorted(index.tolist()) == want.tolist(), spec.name
+            assert np.array_equal(full[index], values), spec.name
+            checked += 1
+    assert checked >= 25  # head, attention, gestures, gaze, mouth, blink, expression and idle all said something

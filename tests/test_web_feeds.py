@@ -95,3 +95,51 @@ def test_a_voice_that_pauses_in_silence_sends_only_the_frames_that_sound_stamped
     decoder = av.CodecContext.create("libopus", "r")
     decoded = [f.to_ndarray() for p in packets for f in decoder.decode(p)]
     assert len(decoded) == 5 and all(np.abs(d).max() > 0 for d in decoded)
+
+
+class CountingFeed(VoiceFeed):
+    """A voice feed that counts the spans the track takes from it."""
+
+    def __init__(self) -> None:
+        super().__init__(RATE)
+        self.takes = 0
+
+    def take(self, start_ns: int, count: int) -> np.ndarray:
+        self.takes += 1
+        return super().take(start_ns, count)
+
+
+def test_a_voice_paused_in_silence_sleeps_until_the_feed_sounds_again_instead_of_waking_for_each_frame() -> None:
+    clock = VirtualClock(1_000_000_000)
+    feed = CountingFeed()
+    blocks(feed, 1_000_000_000, 2)  # 0-20 ms sounds
+
+    async def main() -> None:
+        track = VoiceTrack(feed, clock, pause_in_silence=True)
+        first = await track.recv()
+        assert first.pts == 0
+        taken = feed.takes
+        later = asyncio.create_task(track.recv())
+        clock.advance_ns(10_000_000_000)  # ten seconds of silence are due: 500 frames
+        for _ in range(50):
+            await asyncio.sleep(0)
+        assert not later.done()
+        assert feed.takes == taken  # not one silent frame taken, encoded or judged
+        blocks(feed, 11_000_000_000, 2, first_value=7)  # the agent speaks again at 11 s
+        packet = await asyncio.wait_for(later, 5.0)
+        assert packet.pts == 500 * 960  # stamped at its place on the clock: the pause jumped over
+        assert track.skipped == 499
+        assert feed.takes == taken + 1
+
+    asyncio.run(main())
+
+
+def test_a_voice_that_pauses_needs_a_feed_that_says_when_it_sounds() -> None:
+    class Silence:
+        sample_rate = RATE
+
+        def take(self, start_ns: int, count: int) -> np.ndarray:
+            return np.zeros(count, np.int16)
+
+    with pytest.raises(TypeError, match="says when it sounds"):
+        VoiceTrack(Silence(), VirtualClock(0), pause_in_silence=True)

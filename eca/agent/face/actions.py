@@ -27,6 +27,21 @@ class Action(Protocol):
         ...
 
 
+# What a sparse action asks for at a time: (flexor indices, their values), each index once and no NaN among the
+# values; None when it cares about nothing then.
+SparseValues = tuple[np.ndarray, np.ndarray] | None
+
+
+@runtime_checkable
+class SparseAction(Action, Protocol):
+    """An action that can also say only the flexors it cares about: what the compositor asks of the face's own
+    layers at every frame, where a full vector of NaN and a mask per layer cost more than the values do."""
+
+    def sparse_at(self, t_ns: int) -> SparseValues:
+        """values_at(t_ns) at its flexors that are not NaN: the same numbers."""
+        ...
+
+
 def as_pose_vector(values: np.ndarray | Sequence[float], what: str = "pose") -> np.ndarray:
     """A float64 flexor vector, NaN allowed, checked for shape and range."""
     vector = np.array(values, dtype=np.float64)

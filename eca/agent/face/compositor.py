@@ -18,13 +18,13 @@ rate, or none, gives the same values.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
 
-from eca.agent.face.actions import Action, Pose, as_pose_vector
+from eca.agent.face.actions import Action, Pose, SparseValues, as_pose_vector
 from eca.agent.face.flexors import N_FLEXORS
 from eca.agent.face.frame import FLEXOR_MAX, FLEXOR_MIN, FlexorFrame, dont_care_vector
 from eca.agent.face.settling import Settler
@@ -87,6 +87,7 @@ class Compositor:
         self._spec = {spec.name: spec for spec in layers}
         self._poses: dict[str, np.ndarray] = {spec.name: dont_care_vector() for spec in layers if spec.settles}
         self._actions: dict[str, Action | None] = {spec.name: None for spec in layers if not spec.settles}
+        self._sparse: dict[str, Callable[[int], SparseValues]] = {}  # the actions that say only what they care about
         self._settler = Settler(settle_s, t_ns=t_ns)
         self._trajectory_layers = tuple((spec.name, spec.blend) for spec in layers if not spec.settles)
 
@@ -130,6 +131,11 @@ class Compositor:
         if action is not None and not isinstance(action, Action):
             raise TypeError(f"layer {layer!r} needs an action with values_at(t_ns), got {action!r}")
         self._actions[layer] = action
+        sparse_at = getattr(action, "sparse_at", None)
+        if callable(sparse_at):
+            self._sparse[layer] = sparse_at
+        else:
+            self._sparse.pop(layer, None)
 
     def pose(self, layer: str) -> np.ndarray:
         """The constant pose a settled layer holds (NaN = do not care)."""
@@ -157,9 +163,21 @@ class Compositor:
         # cares about, so the composite below each layer never does either, and an added layer simply adds
         # where it cares. Per frame this runs once per layer, where numpy's call overhead is the cost.
         values = self._settler.value_at(t_ns)
+        sparse = self._sparse
         for name, blend in self._trajectory_layers:
             action = self._actions[name]
             if action is None:
+                continue
+            if name in sparse:
+                # the same arithmetic on the flexors the layer cares about, without a NaN vector and masks
+                cared = sparse[name](t_ns)
+                if cared is None:
+                    continue
+                index, value = cared
+                if blend is Blend.ADD:
+                    values[index] += value
+                else:
+                    values[index] = value
                 continue
             layer = np.asarray(action.values_at(t_ns), dtype=np.float64)
             if layer.shape != (N_FLEXORS,):

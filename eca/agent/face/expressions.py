@@ -92,3 +92,10 @@ class Expressions:
         for expression_id in gone:  # times only move forward for a face
             del self._held[expression_id]
         return vector
+
+    def sparse_at(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        if not self._held:  # most frames: nothing held
+            return None
+        vector = self.values_at(t_ns)
+        cares = np.flatnonzero(vector == vector)  # not NaN
+        return (cares, vector[cares]) if cares.size else None

@@ -91,12 +91,20 @@ class HeadGestures:
 
     def values_at(self, t_ns: int) -> np.ndarray:
         vector = dont_care_vector()
+        cared = self.sparse_at(t_ns)
+        if cared is not None:
+            vector[cared[0]] = cared[1]
+        return vector
+
+    def sparse_at(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        moved: dict[int, float] = {}  # flexor -> the sum of the gestures under way on it
         for gesture in self._gestures:
             if gesture.onset_ns <= t_ns < gesture.end_ns:
                 index = _FLEXOR[gesture.lexeme]
-                below = 0.0 if math.isnan(vector[index]) else vector[index]
-                vector[index] = below + gesture.value_at(t_ns)
+                moved[index] = moved.get(index, 0.0) + gesture.value_at(t_ns)
         # Gestures long over can go: times only move forward for a face.
         if len(self._gestures) > 8:
             self._gestures = [g for g in self._gestures if g.end_ns > t_ns]
-        return vector
+        if not moved:
+            return None
+        return np.fromiter(moved.keys(), np.intp, len(moved)), np.fromiter(moved.values(), np.float64, len(moved))

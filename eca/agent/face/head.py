@@ -86,13 +86,28 @@ class HeadMotion:
         velocity = (dh00 * seg.start + dh10 * tangent + dh01 * seg.target) / d
         return position, velocity
 
+    def _position_at(self, t_ns: int) -> np.ndarray:
+        """state_at(t_ns)'s position alone (a new array): what every frame asks."""
+        seg = self._segment
+        elapsed_s = (int(t_ns) - seg.t0_ns) / 1e9
+        if seg.duration_s == 0 or elapsed_s >= seg.duration_s:
+            return seg.target.copy()
+        if elapsed_s <= 0:
+            return seg.start.copy()
+        return self.state_at(t_ns)[0]
+
     def pose_at(self, t_ns: int) -> np.ndarray:
         """(turn, nod, tilt) at t_ns, within [-1, 1] (a fast reversal may overshoot; it is clipped)."""
-        return np.clip(self.state_at(t_ns)[0], FLEXOR_MIN, FLEXOR_MAX)
+        position = self._position_at(t_ns)
+        np.maximum(position, FLEXOR_MIN, out=position)  # np.clip's Python wrapper costs more than both
+        return np.minimum(position, FLEXOR_MAX, out=position)
 
     def values_at(self, t_ns: int) -> np.ndarray:
         vector = dont_care_vector()
         vector[_HEAD_INDEX] = self.pose_at(t_ns)
         return vector
+
+    def sparse_at(self, t_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        return _HEAD_INDEX, self.pose_at(t_ns)
 
 

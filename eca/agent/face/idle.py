@@ -43,6 +43,8 @@ class IdleNoise:
         self.rate_hz = float(rate_hz)
         self.seed = int(seed)
         self._active = amplitude > 0
+        self._active_index = np.flatnonzero(self._active)
+        self._active_amplitude = amplitude[self._active_index]
         self._offset = _PHASE[_STREAMS]
         self._lattice: np.ndarray | None = None  # the integer parts the cached gradients belong to
         self._keys = stream_key(self.seed, _STREAMS)
@@ -52,6 +54,12 @@ class IdleNoise:
         phase = self.rate_hz * seconds(t_ns) + self._offset
         noise = self._perlin(phase)
         return np.where(self._active, self.amplitude * noise, np.nan)
+
+    def sparse_at(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        if not self._active_index.size:
+            return None
+        noise = self._perlin(self.rate_hz * seconds(t_ns) + self._offset)
+        return self._active_index, self._active_amplitude * noise[self._active_index]
 
     def _gradient(self, flexors: np.ndarray, lattice: np.ndarray) -> np.ndarray:
         """uniform01(seed, _STREAMS[flexors], lattice) * 2 - 1, from the kept per-stream keys."""
@@ -65,11 +73,10 @@ class IdleNoise:
             self._g0 = uniform01(self.seed, _STREAMS, lattice) * 2.0 - 1.0
             self._g1 = uniform01(self.seed, _STREAMS, lattice + np.uint64(1)) * 2.0 - 1.0
             self._lattice = i0
-        elif not np.array_equal(i0, self._lattice):
+        elif (moved := np.flatnonzero(i0 != self._lattice)).size:
             # Each flexor's phase has its own offset, so one or another crosses an integer several times a
             # second: only those get new gradients, and one that stepped to the next cell keeps its old g1 as
             # its g0. The hash of (seed, stream) is kept: a gradient is then one splitmix64 of its counter.
-            moved = np.flatnonzero(i0 != self._lattice)
             lattice = i0[moved].astype(np.int64).astype(np.uint64)
             stepped = i0[moved] == self._lattice[moved] + 1.0
             self._g0[moved[stepped]] = self._g1[moved[stepped]]

@@ -7,7 +7,7 @@ The renderer service and the offline renderer drive this; it owns the default la
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -38,14 +38,36 @@ _MOUTH = np.array([FLEXOR_INDEX[name] for name in MOUTH_FLEXORS])
 
 
 class _Held:
-    """A trajectory-layer action that holds whatever vector it was last given (gaze, blink, mouth):
-    those inputs already arrive as per-frame trajectories, so they are shown without settling."""
+    """A trajectory-layer action that holds the values it was last given for its flexors (gaze, blink, mouth;
+    NaN = leave that flexor to the layers below): those inputs already arrive as per-frame trajectories, so
+    they are shown without settling."""
 
-    def __init__(self) -> None:
-        self.vector = dont_care_vector()
+    def __init__(self, index: np.ndarray) -> None:
+        self.index = index
+        self._cared: tuple[np.ndarray, np.ndarray] | None = None
+
+    def hold(self, values: Sequence[float]) -> None:
+        """The values of its flexors from now on (checked by the caller), in `index` order."""
+        cared = [i for i, v in enumerate(values) if v == v]  # not NaN
+        if len(cared) == len(values):
+            self._cared = (self.index, np.array(values, dtype=np.float64))
+        elif cared:
+            self._cared = (self.index[cared], np.array([values[i] for i in cared], dtype=np.float64))
+        else:
+            self._cared = None
+
+    def hold_row(self, values: np.ndarray | None) -> None:
+        """hold() for a row of numbers (none NaN) in `index` order, or None for nothing cared about."""
+        self._cared = None if values is None else (self.index, values)
 
     def values_at(self, t_ns: int) -> np.ndarray:
-        return self.vector.copy()
+        vector = dont_care_vector()
+        if self._cared is not None:
+            vector[self._cared[0]] = self._cared[1]
+        return vector
+
+    def sparse_at(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        return self._cared
 
 
 class FaceModel:
@@ -71,7 +93,7 @@ class FaceModel:
         self.compositor.set_action("gesture", self.gestures)
         self.expressions = Expressions()
         self.compositor.set_action("expression", self.expressions)
-        self._gaze, self._mouth, self._blink = _Held(), _Held(), _Held()
+        self._gaze, self._mouth, self._blink = _Held(_LOOK), _Held(_MOUTH), _Held(_BLINKS)
         self.compositor.set_action("gaze", self._gaze)
         self.compositor.set_action("mouth", self._mouth)
         self.compositor.set_action("blink", self._blink)
@@ -137,18 +159,18 @@ class FaceModel:
     def set_eyes(self, yaw_deg: float | None, pitch_deg: float | None, lid: float | None = None) -> None:
         """Gaze in degrees (yaw to the agent's right, pitch up; None = leave to the layers below) and lid
         closure in [0, 1] for both eyes (None = no blink layer). Angles beyond the eye's range clip."""
-        self._gaze.vector[_LOOK_X] = self._degrees_to_flexor(yaw_deg, self.units.look_x_deg, "gaze yaw")
-        self._gaze.vector[_LOOK_Y] = self._degrees_to_flexor(pitch_deg, self.units.look_y_deg, "gaze pitch")
-        self._eyes_deg = None if yaw_deg is None or pitch_deg is None else (float(yaw_deg), float(pitch_deg))
+        look_x = self._degrees_to_flexor(yaw_deg, self.units.look_x_deg, "gaze yaw")
+        look_y = self._degrees_to_flexor(pitch_deg, self.units.look_y_deg, "gaze pitch")
         if lid is None:
-            self._blink.vector[_BLINKS] = np.nan
-            self._lid = 0.0
+            closure = math.nan
         else:
             closure = check_flexor_value("blink_l", lid)
             if closure < 0:
                 raise ValueError(f"lid closure must lie in [0, 1], got {lid!r}")
-            self._blink.vector[_BLINKS] = closure
-            self._lid = closure
+        self._gaze.hold((look_x, look_y))
+        self._eyes_deg = None if yaw_deg is None or pitch_deg is None else (float(yaw_deg), float(pitch_deg))
+        self._blink.hold((closure, closure))
+        self._lid = 0.0 if lid is None else closure
 
     @staticmethod
     def _degrees_to_flexor(angle_deg: float | None, deg_per_unit: float, what: str) -> float:
@@ -161,14 +183,21 @@ class FaceModel:
     def set_mouth(self, weights: Mapping[str, float] | None) -> None:
         """Mouth-shape weights from lip-sync ({say_ah: 0.6, ...}); shapes not named are closed (0).
         None or {} hands the mouth back to the emotion."""
-        vector = np.full(len(MOUTH_FLEXORS), np.nan)
+        vector = [math.nan] * len(MOUTH_FLEXORS)
         if weights:
-            vector[:] = 0.0
+            vector = [0.0] * len(MOUTH_FLEXORS)
             for name, value in weights.items():
                 if name not in MOUTH_FLEXORS:
                     raise ValueError(f"unknown mouth shape {name!r}; mouth shapes: {', '.join(MOUTH_FLEXORS)}")
                 vector[MOUTH_FLEXORS.index(name)] = check_flexor_value(name, value, "mouth")
-        self._mouth.vector[_MOUTH] = vector
+        self._mouth.hold(vector)
+
+    def set_mouth_row(self, row: np.ndarray | None) -> None:
+        """set_mouth with the weights as a row in MOUTH_FLEXORS order, each already in [0, 1] (a live scene's
+        lip-sync keys are clipped there when they come): what every frame of a speaking face does."""
+        if row is not None and row.shape != (len(MOUTH_FLEXORS),):
+            raise ValueError(f"a row of mouth weights has {len(MOUTH_FLEXORS)} values, got shape {row.shape}")
+        self._mouth.hold_row(row)
 
     def frame_at(self, t_ns: int) -> FlexorFrame:
         return self.compositor.frame_at(t_ns)

@@ -338,6 +338,11 @@ class LiveScene:
 
     def mouth_at(self, t_ns: int) -> dict[str, float] | None:
         """Mouth-shape weights at t_ns, or None when no utterance is heard then."""
+        row = self.mouth_row_at(t_ns)
+        return None if row is None else {name: float(v) for name, v in zip(MOUTH_FLEXORS, row, strict=True)}
+
+    def mouth_row_at(self, t_ns: int) -> np.ndarray | None:
+        """mouth_at's weights as a row in MOUTH_FLEXORS order (each in [0, 1]), or None."""
         best: tuple[int, float, _Utterance] | None = None
         for utt in self._utterances.values():
             sample = utt.playing_at(t_ns)
@@ -348,15 +353,14 @@ class LiveScene:
                 best = (started, sample, utt)
         if best is None:
             return None
-        row = best[2].weights_at(best[1])
-        return {name: float(v) for name, v in zip(MOUTH_FLEXORS, row, strict=True)}
+        return best[2].weights_at(best[1])
 
     def compose(self, t_ns: int) -> ComposedFace:
         """The composed face at display time t_ns (agent/face/composed.py), with the role in force."""
         t = int(t_ns)
         yaw, pitch, lid = self.eyes_at(t)
         self.model.set_eyes(yaw, pitch, lid)
-        self.model.set_mouth(self.mouth_at(t))
+        self.model.set_mouth_row(self.mouth_row_at(t))
         return self.model.compose(t, role=self.role)
 
     def frame_at(self, t_ns: int) -> FlexorFrame:

@@ -43,6 +43,8 @@ class Settler:
         self._target = start.copy()
         self._settle_s = self.default_settle_s.copy()
         self._last_change_ns = int(t_ns)
+        self._divisor = np.where(self._settle_s == 0, 1.0, self._settle_s)  # the settle times, 1 where 0
+        self._gap = np.zeros(N_FLEXORS)  # start - target; 0 where the settle time is 0 (at the target at once)
 
     @property
     def targets(self) -> np.ndarray:
@@ -51,10 +53,8 @@ class Settler:
     def value_at(self, t_ns: int) -> np.ndarray:
         """Settled values at t_ns; before a flexor's last change it reads that change's start value."""
         elapsed_s = np.maximum(int(t_ns) - self._t0_ns, 0) / 1e9
-        # A flexor with no settle time is at its target: exp(-inf) = 0, without dividing by zero.
-        exponent = np.full(N_FLEXORS, -np.inf)
-        np.divide(-LN_20 * elapsed_s, self._settle_s, out=exponent, where=self._settle_s > 0)
-        return self._target + (self._start - self._target) * np.exp(exponent)
+        # A flexor with no settle time is at its target: its gap is 0 (and its divisor 1, not 0).
+        return self._target + self._gap * np.exp(-LN_20 * elapsed_s / self._divisor)
 
     def retarget(self, target: np.ndarray, t_ns: int, settle_s: np.ndarray | float | None = None) -> None:
         """New targets from t_ns; only flexors whose target changes start a new transition.
@@ -76,3 +76,6 @@ class Settler:
         self._t0_ns[changed] = int(t_ns)
         self._settle_s[changed] = settle[changed]
         self._last_change_ns = int(t_ns)
+        at_once = self._settle_s == 0
+        self._divisor = np.where(at_once, 1.0, self._settle_s)
+        self._gap = np.where(at_once, 0.0, self._start - self._target)

@@ -75,6 +75,7 @@ class VoiceFeed:
         self._blocks: deque[tuple[int, np.ndarray]] = deque()  # (dac time of the first sample, int16 samples)
         self._held = 0
         self.last_block_ns: int | None = None  # the newest block's start: where the voice is now
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = []  # tracks waiting for sound
 
     def add(self, dac_time_ns: int, samples: np.ndarray, sample_rate: int) -> None:
         """From the bus loop: one block of the voice (int16 mono)."""
@@ -87,6 +88,31 @@ class VoiceFeed:
                 _, old = self._blocks.popleft()
                 self._held -= len(old)
             self.last_block_ns = dac_time_ns
+            waiters, self._waiters = self._waiters, []
+        for loop, event in waiters:
+            loop.call_soon_threadsafe(event.set)
+
+    async def wait_for_sound(self, after_ns: int) -> int:
+        """On the event loop: the master-clock time from which the voice next has samples at or after `after_ns`
+        (`after_ns` itself while a block covers it); waits until a block brings some. Only sounding voice comes
+        in blocks (silence is a gap between them), so a track that skips silent frames sleeps through a pause
+        instead of waking for each of its frames."""
+        loop = asyncio.get_running_loop()
+        rate = self.sample_rate
+        while True:
+            with self._lock:
+                best: int | None = None
+                for first_ns, samples in self._blocks:
+                    if first_ns + len(samples) * 1_000_000_000 // rate <= after_ns:
+                        continue
+                    if first_ns <= after_ns:
+                        return after_ns
+                    best = first_ns if best is None else min(best, first_ns)
+                if best is not None:
+                    return best
+                event = asyncio.Event()
+                self._waiters.append((loop, event))
+            await event.wait()
 
     def sounding(self, t_ns: int, window_ns: int = 20_000_000, floor: int = 64) -> bool:
         """Whether the voice is heard around master-clock time `t_ns` (a sample louder than `floor` within

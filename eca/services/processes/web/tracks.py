@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import fractions
 from collections.abc import Callable
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import av
 import numpy as np
@@ -33,6 +33,13 @@ class Samples(Protocol):
     sample_rate: int
 
     def take(self, start_ns: int, count: int) -> np.ndarray: ...
+
+
+@runtime_checkable
+class PausingSamples(Samples, Protocol):
+    """Samples that also say when they next sound (a VoiceFeed): what a voice that pauses in silence reads."""
+
+    async def wait_for_sound(self, after_ns: int) -> int: ...
 
 
 class FaceTrack(MediaStreamTrack):
@@ -114,16 +121,23 @@ class VoiceTrack(MediaStreamTrack):
 
     `pause_in_silence`: a frame of pure silence is not sent at all (the voice's RTP timestamps jump over it, as
     with Opus' discontinuous transmission; a browser's jitter buffer plays the pause as silence), so a
-    listening agent costs its connection no encoding, encryption nor packets. The track then encodes its own
+    listening agent costs its connection no encoding, encryption nor packets, and no wake-ups either: the
+    track sleeps until its feed sounds again (VoiceFeed.wait_for_sound). The track then encodes its own
     packets (mono Opus) and stamps each with its frame's place on the master clock. For a page that draws the
     face itself: its frames follow the voice's clock, which the jump keeps; a server-drawn face's browser lines
     video up with a continuous voice."""
 
     kind = "audio"
 
-    def __init__(self, feed: Samples, clock: Clock, pause_in_silence: bool = False) -> None:
+    def __init__(self, feed: Samples | PausingSamples, clock: Clock, pause_in_silence: bool = False) -> None:
         super().__init__()
         self.feed, self.clock = feed, clock
+        # a paused voice sleeps until the feed next sounds instead of waking for every silent frame
+        self._pausing: PausingSamples | None = None
+        if pause_in_silence:
+            if not isinstance(feed, PausingSamples):
+                raise TypeError(f"a voice that pauses in silence reads a feed that says when it sounds, not {feed!r}")
+            self._pausing = feed
         self.rate = feed.sample_rate
         self.samples_per_frame = round(self.rate * AUDIO_FRAME_S)
         self._start_ns: int | None = None
@@ -143,6 +157,14 @@ class VoiceTrack(MediaStreamTrack):
         while True:
             k = self._frames
             start_ns = self.frame_start_ns(k)
+            if self._pausing is not None:
+                sound_ns = await self._pausing.wait_for_sound(start_ns)
+                # the frame holding the first sample that sounds; the frames before it are silent, never sent
+                first = (sound_ns - self._start_ns) * self.rate // (self.samples_per_frame * 1_000_000_000)
+                if first > k:
+                    self.skipped += first - k
+                    self._frames = first
+                    continue
             wait_ns = start_ns - self.clock.now_ns()
             if wait_ns > 0:
                 await asyncio.sleep(wait_ns / 1e9)  # pacing to the master clock, not synchronisation
