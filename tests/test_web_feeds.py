@@ -143,3 +143,22 @@ def test_a_voice_that_pauses_needs_a_feed_that_says_when_it_sounds() -> None:
 
     with pytest.raises(TypeError, match="says when it sounds"):
         VoiceTrack(Silence(), VirtualClock(0), pause_in_silence=True)
+
+
+def test_the_web_service_s_event_loop_is_uvloop_s_and_runs_what_it_is_given() -> None:
+    import uvloop
+
+    from eca.services.processes.web.event_loop import EventLoopThread
+
+    thread = EventLoopThread().start()
+    try:
+        assert isinstance(thread.loop, uvloop.Loop)
+
+        async def answer() -> int:
+            await asyncio.sleep(0.001)
+            return 42
+
+        assert thread.call(answer(), timeout_s=5.0) == 42
+    finally:
+        thread.stop()
+    assert thread.loop.is_closed()
