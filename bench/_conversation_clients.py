@@ -20,6 +20,8 @@ otherwise. The server decodes it and runs its voice-activity detector on it as o
     python bench/_conversation_clients.py --url URL --draw browser|server --mic WAV --epoch-ns NS
                                           [--cycle-s 8] [--user-at-s 0] [--fps 30] [--width 640] [--height 480]
 
+The visitors run on the event loop the server's web service runs on (uvloop where it is installed).
+
 Commands: {"op": "hello"}, {"op": "add", "visitors": [{"index", "phase_s"}, ...]}, {"op": "window", "t0", "t1",
 "gap_ms", "silence_bytes", "split_packets"}, {"op": "close"}. Closing stdin closes every visitor and exits.
 """
@@ -535,7 +537,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
     args = parser.parse_args(argv)
-    asyncio.run(serve(args))
+    # the same event loop as the server's web service (web/event_loop.py): the visitors stand for browsers, whose
+    # network stacks are not Python's, so the machine's CPU goes to the server's side as far as it can
+    from eca.services.processes.web.event_loop import new_event_loop
+
+    with asyncio.Runner(loop_factory=new_event_loop) as runner:
+        runner.run(serve(args))
     return 0
 
 

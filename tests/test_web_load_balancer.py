@@ -30,6 +30,7 @@ from aiohttp import web
 from yarl import URL
 
 from eca.services.processes.avatar.loader import DEFAULT_HEAD
+from eca.services.processes.runtime import wait_until
 from eca.services.processes.web.conversations import Conversations
 from eca.services.processes.web.event_loop import EventLoopThread
 from eca.services.processes.web.health import FREE_HEADER, READY_HEADER, health_handler, health_of
@@ -255,7 +256,9 @@ def test_haproxy_drains_a_full_host_and_replays_only_a_busy_conversation() -> No
             assert made == (201, {"host": "b"}, "b")  # a said busy; HAProxy asked b, and moved the visitor there
             assert (await ask(returning, "POST", lb.url + "offer"))[1]["host"] == "b"
         assert a.seen.count("POST /conversation") == 1 and a.seen.count("POST /offer") == 1
-        assert any("eca_new/b" in line and "/+1 " in line for line in lb.log.lines)  # one retry, redispatched
+        # one retry, redispatched: HAProxy logs a request once it has answered it, so the line may come a moment later
+        assert await loop.run_in_executor(None, wait_until, lambda: any(
+            "eca_new/b" in line and "/+1 " in line for line in lb.log.lines), 5.0), lb.log.lines[-5:]
         # b stops being ready (a restart): DOWN after two failed checks; no host in rotation then
         b.conversations = Conversations(15.0)
         await loop.run_in_executor(None, lb.wait_for_states, {"a": "NOLB", "b": "DOWN"}, 5.0)
@@ -437,7 +440,8 @@ def test_a_visitor_sent_to_a_full_host_is_served_by_another(farm: Farm) -> None:
     visitor, status, made = farm.arrive(pinned="h1")
     assert visitor is not None and visitor.host in ("h2", "h3"), (status, made)
     assert farm.frames(visitor, 3) >= 3
-    assert any("eca_new/" + visitor.host in line and "/+1 " in line for line in farm.lb.log.lines)
+    assert wait_until(lambda: any("eca_new/" + visitor.host in line and "/+1 " in line for line in farm.lb.log.lines),
+                      5.0), farm.lb.log.lines[-5:]  # HAProxy logs a request once it has answered it
     assert farm.run(health(farm.hosts["h1"]))[1]["viewers"] == 1  # h1 kept its own visitor, and no more
     assert not any("conversation v-" in line for line in farm.hosts["h1"].log.lines[before:])
 
