@@ -455,6 +455,38 @@ def test_the_page_in_a_real_browser_watches_the_face_through_janus(web: tuple[Bu
     assert rgb.std() > 20, "a blank picture"  # the face on its background: many colours
 
 
+@needs_janus
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_the_page_watches_through_janus_although_its_first_requests_to_janus_fail(
+        web: tuple[BusConfig, WebService]) -> None:
+    """A request to Janus's API that fails on the way (fetch's network error, as when Janus closes a keep-alive
+    connection just as the page reuses it) is sent again: with the page's first two requests to Janus (the session,
+    the handle) and its first long poll failing so, the page still watches the agent through Janus."""
+    _, service = web
+    assert service.sfu is not None
+    janus_url = service.sfu.janus.url
+    with chromium() as driver:
+        driver.get(service.url + "?mic=0")
+        driver.execute_script("""
+            const janus = arguments[0]; const real = window.fetch.bind(window);
+            window.failedToJanus = { post: 0, get: 0 };
+            window.fetch = (url, init) => {
+              const kind = init && init.method === "POST" ? "post" : "get";
+              if (String(url).startsWith(janus) && window.failedToJanus[kind] < (kind === "post" ? 2 : 1)) {
+                window.failedToJanus[kind] += 1;
+                return Promise.reject(new TypeError("Failed to fetch"));
+              }
+              return real(url, init);
+            };""", janus_url)
+        driver.find_element("id", "connect").click()
+        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
+                 lambda s: s == "connected")
+        assert driver.execute_script("return window.failedToJanus") == {"post": 2, "get": 1}
+        assert driver.execute_script("return (window.eca.janus || []).length") == 1
+        stats = wait_for_frames(driver, 10, 30.0)
+    assert (stats["frameWidth"], stats["frameHeight"]) == (WIDTH, HEIGHT)
+
+
 # What the page knows of the packets its voice played: five times over a second, the RTP timestamp of the one played
 # last as Janus renumbered it and when it played (the synchronization source); the page's estimate of Janus's first
 # packet; and the jitter buffer's own delay over that second (getStats, before and after), in ms.

@@ -11,9 +11,24 @@
 
 const transaction = () => Math.random().toString(36).slice(2, 14);
 
+// A request that never reached Janus (fetch's network error: a keep-alive connection Janus closed as the request
+// went out, a moment without a route) is sent again, three times at most, after 0.25, 0.5 and 1 s; an answer, even
+// an error, is final. A "create" or "attach" that did reach Janus and whose answer was lost leaves a session Janus
+// drops by itself (its session timeout).
+const RETRY_MS = [250, 500, 1000];
+
 async function janusPost(url, body) {
-  const response = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" },
-                                      body: JSON.stringify({ ...body, transaction: transaction() }) });
+  const init = { method: "POST", headers: { "Content-Type": "application/json" },
+                 body: JSON.stringify({ ...body, transaction: transaction() }) };
+  let response = null;
+  for (let attempt = 0; response === null; attempt += 1) {
+    try {
+      response = await fetch(url, init);
+    } catch (error) {
+      if (!(error instanceof TypeError) || attempt >= RETRY_MS.length) throw error;
+      await new Promise((resolve) => setTimeout(resolve, RETRY_MS[attempt]));
+    }
+  }
   const answer = await response.json();
   if (answer.janus === "error") throw new Error(`Janus: ${answer.error ? answer.error.reason : "an error"}`);
   const data = answer.plugindata && answer.plugindata.data;
