@@ -195,8 +195,9 @@ def test_pictures_come_at_the_rate_with_the_mouth_open_where_the_audio_is_loud()
     audio_at = [(t, f) for t, f in seen if isinstance(f, TTSAudioRawFrame)]
     pictures = [(t, f) for t, f in seen if isinstance(f, OutputImageRawFrame)]
     start = audio_at[0][0]
-    span = [t for t, _ in pictures if start + 0.4e9 <= t < start + 2.0e9]
-    assert 0.9 * 30 * 1.6 <= len(span) <= 1.1 * 30 * 1.6, f"{len(span)} pictures in 1.6 s at 30 fps"
+    # counted over most of the voice (2.4 s): a picture a loaded machine drops weighs less in a longer span
+    span = [t for t, _ in pictures if start + 0.4e9 <= t < start + 2.3e9]
+    assert 0.9 * 30 * 1.9 <= len(span) <= 1.1 * 30 * 1.9, f"{len(span)} pictures in 1.9 s at 30 fps"
     assert all(f.size == (320, 240) and f.format == "RGB" and len(f.image) == 320 * 240 * 3 for _, f in pictures)
 
     # Each picture shows the moment it was composed for (frame_ns), which is when it was pushed, give or
