@@ -34,7 +34,9 @@ Per step, after `--settle-s`, a window of `--hold-s`:
   the connection stays up. The helper's event-loop lag is shown beside (a late client loop delays what it
   receives);
 - the supervisor's restarts, the web service's viewers closed, speech interrupted or failed, and every
-  service's longest heartbeat silence.
+  service's longest heartbeat silence;
+- the web service's own count (GET /health's `voice`, before and after the window) of the voice frames it handed
+  over more than 20 and 60 ms after their time: a gap the visitor saw that the server counted too is the server's.
 A step passes when all of it holds for every visitor; the figure is the largest N that passed. The server's
 CPU and memory per added conversation are the slopes of a line fitted over the passing steps (N = 0, the
 baseline, measured in the same run, among them; over every step measured when fewer than two passed: a
@@ -365,6 +367,7 @@ class Instance:
     max_conversations: int
     max_viewers: int
     balancer_pid: int | None = None  # with several web workers: the HAProxy in front of them (counted as server)
+    worker_urls: tuple[str, ...] = ()  # each web worker's own address (its GET /health)
 
 
 @contextmanager
@@ -426,7 +429,7 @@ def eca_up(draw: str, args: argparse.Namespace) -> Iterator[Instance]:
                 lb = stack.enter_context(balancer(servers, check_inter_ms=1000))
                 url, balancer_pid = lb.url, lb.process.pid
             yield Instance(config, proc, reader, url, int(pid.group(1)), max_conversations, max_viewers,
-                           balancer_pid)
+                           balancer_pid, tuple(urls))
 
 
 def post_conversation(url: str) -> tuple[int, Any]:
@@ -443,6 +446,25 @@ def post_conversation(url: str) -> tuple[int, Any]:
             return exc.code, json.loads(body)
         except json.JSONDecodeError:
             return exc.code, body.decode("utf-8", "replace")
+
+
+def server_voice_timing(inst: Instance) -> dict[str, float]:
+    """How late the web workers have handed their voice frames over so far (GET /health's `voice`, summed over the
+    workers; the latest is the largest)."""
+    import urllib.error
+    import urllib.request
+
+    total = {"frames": 0.0, "late_20ms": 0.0, "late_60ms": 0.0, "max_late_ms": 0.0}
+    for url in inst.worker_urls:
+        try:
+            with urllib.request.urlopen(url + "health", timeout=10) as response:
+                voice = json.loads(response.read())["voice"]
+        except urllib.error.HTTPError as exc:  # 503: full or not ready, the same JSON
+            voice = json.loads(exc.read())["voice"]
+        for key in ("frames", "late_20ms", "late_60ms"):
+            total[key] += voice[key]
+        total["max_late_ms"] = max(total["max_late_ms"], voice["max_late_ms"])
+    return total
 
 
 # --- one step ---------------------------------------------------------------------------------------------------
@@ -472,6 +494,8 @@ class Step:
     agent_turns: tuple[int, int] = (0, 0)  # (whole, said early enough to be judged)
     user_turns: tuple[int, int] = (0, 0)  # (heard, expected at least)
     loop_lag_ms: float = 0.0
+    # the web service's own count over the window: voice frames it handed over more than 20 / 60 ms after their time
+    server_voice: dict[str, float] = field(default_factory=dict)
     connect_s: float = 0.0
     passed: bool = False
 
@@ -508,6 +532,7 @@ def measure(step: Step, inst: Instance, hs: list[Helper], driver: Driver, visito
             args: argparse.Namespace, user_s: float, restarts_before: int) -> None:
     """The window of one step: the server's and the clients' CPU and memory, and every visitor's voice and face."""
     cpu0, _ = server_sample(inst)
+    voice0 = server_voice_timing(inst)
     helpers0 = [h.cpu_s() for h in hs]
     busy0 = machine_busy()
     bench0 = os.times()
@@ -518,10 +543,13 @@ def measure(step: Step, inst: Instance, hs: list[Helper], driver: Driver, visito
         mem_samples.append(server_sample(inst)[1])
     t1 = time.monotonic()
     cpu1, mem1 = server_sample(inst)
+    voice1 = server_voice_timing(inst)
     helpers1 = [h.cpu_s() for h in hs]
     busy1 = machine_busy()
     bench1 = os.times()
     span = t1 - t0
+    step.server_voice = {key: voice1[key] - voice0[key] for key in ("frames", "late_20ms", "late_60ms")}
+    step.server_voice["max_late_ms_so_far"] = voice1["max_late_ms"]
     step.server_cpu_by = {k: round(100 * (cpu1[k] - cpu0[k]) / span, 1) for k in cpu1 if k in cpu0}
     step.server_cpu_pct = round(sum(step.server_cpu_by.values()), 1)
     step.pss_mb = round(sum(m["pss"] for m in mem1.values()) / 1024, 1)
@@ -767,6 +795,10 @@ def figures(label: str, draw: str, done: list[Step], details: dict[str, Any], in
                 f"{s.user_turns[1]}); voice gaps {s.voice_gaps} ({s.voice_gaps_client_stalled} while the client "
                 f"stalled), longest {s.max_voice_gap_ms:.0f} ms ({s.max_gap_client_on_time_ms:.0f} ms with the client "
                 f"on time); client loop lag max {s.loop_lag_ms:.0f} ms")
+        if s.server_voice.get("frames"):
+            v = s.server_voice
+            note += (f"; the server handed {v['late_20ms']:.0f} of {v['frames']:.0f} voice frames over more than 20 ms "
+                     f"late, {v['late_60ms']:.0f} more than 60 ms")
         if s.problems:
             note += "; " + "; ".join(f"{k} x{v} (e.g. {s.examples[k]})" for k, v in s.problems.items())
         report.add(f"{label}: N={s.n}", "ok" if s.passed else "FAILED", "all hold", None, "", note)

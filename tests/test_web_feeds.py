@@ -10,7 +10,7 @@ import pytest
 
 from eca.agent.clock import VirtualClock
 from eca.services.processes.web.feeds import VoiceFeed
-from eca.services.processes.web.tracks import VoiceTrack
+from eca.services.processes.web.tracks import VoiceTiming, VoiceTrack
 
 RATE = 48_000
 BLOCK = 480  # 10 ms
@@ -162,3 +162,23 @@ def test_the_web_service_s_event_loop_is_uvloop_s_and_runs_what_it_is_given() ->
     finally:
         thread.stop()
     assert thread.loop.is_closed()
+
+
+def test_a_voice_track_counts_how_late_it_hands_each_frame_over() -> None:
+    clock = VirtualClock(1_000_000_000)
+    feed = VoiceFeed(RATE)
+    blocks(feed, 1_000_000_000, 10)  # 100 ms sounding
+    timing = VoiceTiming()
+
+    async def main() -> None:
+        track = VoiceTrack(feed, clock, pause_in_silence=True, timing=timing)
+        await track.recv()  # frame 0 on time
+        clock.advance_ns(30_000_000)  # frame 1 (due at 20 ms) is taken at 30 ms: 10 ms late
+        await track.recv()
+        clock.advance_ns(50_000_000)  # frame 2 (due at 40 ms) at 80 ms: 40 ms late
+        await track.recv()
+        clock.advance_ns(20_000_000)  # frame 3 (due at 60 ms) at 100 ms: 40 ms late
+        await track.recv()
+
+    asyncio.run(main())
+    assert (timing.frames, timing.late_20ms, timing.late_60ms, timing.max_late_ns) == (4, 2, 0, 40_000_000)

@@ -34,6 +34,7 @@ from eca.services.processes.runtime import wait_until
 from eca.services.processes.web.conversations import Conversations
 from eca.services.processes.web.event_loop import EventLoopThread
 from eca.services.processes.web.health import FREE_HEADER, READY_HEADER, health_handler, health_of
+from eca.services.processes.web.tracks import VoiceTiming
 from tests.support.haproxy import (
     Balancer,
     ConfigError,
@@ -54,8 +55,9 @@ CHECK_MS = 300  # the checks' interval in these tests (the shipped sample's comm
 # --- /health on its own --------------------------------------------------------------------------------------
 
 
-def viewer_places(max_viewers: int, watching: int) -> SimpleNamespace:
-    return SimpleNamespace(max_viewers=max_viewers, open=dict.fromkeys(range(watching)))
+def viewer_places(max_viewers: int, watching: int, timing: VoiceTiming | None = None) -> SimpleNamespace:
+    return SimpleNamespace(max_viewers=max_viewers, open=dict.fromkeys(range(watching)),
+                           voice_timing=timing or VoiceTiming())
 
 
 def test_health_counts_room_as_post_conversation_would() -> None:
@@ -83,10 +85,13 @@ def test_health_counts_room_as_post_conversation_would() -> None:
 
 def test_health_endpoint_answers_json_and_headers_and_ignores_input() -> None:
     conversations = Conversations(15.0)
+    timing = VoiceTiming()
+    for late_ms in (1, 5, 25, 70, 3):  # five voice frames: two later than 20 ms, one of them later than 60
+        timing.record(late_ms * 1_000_000)
 
     async def main() -> list[tuple[int, dict[str, Any], dict[str, str]]]:
         app = web.Application()
-        app.router.add_get("/health", health_handler(viewer_places(16, 1), conversations))
+        app.router.add_get("/health", health_handler(viewer_places(16, 1, timing), conversations))
         runner = web.AppRunner(app)
         await runner.setup()
         port = free_port()
@@ -109,7 +114,9 @@ def test_health_endpoint_answers_json_and_headers_and_ignores_input() -> None:
     starting, ready, full = asyncio.run(main())
     assert starting[0] == 503 and starting[1]["ready"] is False and starting[2][READY_HEADER] == "no"
     assert ready[0] == 200 and ready[1] == {"ready": True, "free_conversations": 2, "max_conversations": 2,
-                                            "viewers": 1, "instance": ready[1]["instance"]}
+                                            "viewers": 1, "instance": ready[1]["instance"],
+                                            "voice": {"frames": 5, "late_20ms": 2, "late_60ms": 1,
+                                                      "max_late_ms": 70.0}}
     assert ready[1]["instance"].startswith("127.0.0.1:") and ready[2][FREE_HEADER] == "2"
     assert ready[2][READY_HEADER] == "yes" and ready[2]["Cache-Control"] == "no-store"
     assert full[0] == 503 and full[1]["ready"] is True and full[1]["free_conversations"] == 0

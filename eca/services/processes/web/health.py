@@ -1,6 +1,6 @@
 """The web service's health, for a load balancer in front of several eca hosts: `GET /health`.
 
-The answer is JSON, `{"ready", "free_conversations", "max_conversations", "viewers", "instance"}`:
+The answer is JSON, `{"ready", "free_conversations", "max_conversations", "viewers", "instance", "voice"}`:
 - 200 when the service is ready and has room for one more visitor;
 - 503 with the same JSON when it is full or not ready (with `--per-visitor`: no agents list from the dialogue
   service yet, so `POST /conversation` would be refused too).
@@ -9,7 +9,10 @@ Room is what `POST /conversation` and `POST /offer` would grant now: with a conv
 the instance's free conversations (`[conversations] max` less the agents created, and those being created; counted
 by web/conversations.py as `begin` counts them) and the free viewer places (`[web] max_viewers`); without, the
 free viewer places alone (every page watches the instance's agents). `viewers` is the pages connected now;
-`instance` the address and port the request came in on (which host of several answered).
+`instance` the address and port the request came in on (which host of several answered); `voice` how late the
+viewers' voice frames have left since the service started, against their time on the master clock (`frames`,
+`late_20ms`, `late_60ms`, `max_late_ms`): a service that hands its voice over late is overloaded, whatever the
+network does after (web/tracks.py VoiceTiming).
 
 Headers say the same for checks that read no body: `X-Eca-Ready` (`yes` / `no`) and `X-Eca-Free-Conversations`.
 eca/configs/haproxy.cfg tells a full host (ready, 503) from a dead or starting one by `X-Eca-Ready`: a full host is
@@ -24,20 +27,25 @@ from __future__ import annotations
 
 from collections.abc import Awaitable, Callable, Sized
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from aiohttp import web
 
 from eca.services.processes.web.conversations import Conversations
+
+if TYPE_CHECKING:  # the tracks' module brings av and aiortc; a health answer reads only counts
+    from eca.services.processes.web.tracks import VoiceTiming
 
 READY_HEADER = "X-Eca-Ready"
 FREE_HEADER = "X-Eca-Free-Conversations"
 
 
 class ViewerPlaces(Protocol):
-    """What the health endpoint reads of the viewers (web/viewers.py Viewers): their number and limit."""
+    """What the health endpoint reads of the viewers (web/viewers.py Viewers): their number and limit, and how late
+    their voices leave."""
 
     max_viewers: int
+    voice_timing: VoiceTiming
 
     @property
     def open(self) -> Sized: ...
@@ -73,9 +81,12 @@ def health_handler(viewers: ViewerPlaces,
 
     async def health(request: web.Request) -> web.Response:
         now = health_of(viewers, conversations)
+        timing = viewers.voice_timing
         body = {"ready": now.ready, "free_conversations": now.free_conversations,
                 "max_conversations": now.max_conversations, "viewers": now.viewers,
-                "instance": _instance(request)}
+                "instance": _instance(request),
+                "voice": {"frames": timing.frames, "late_20ms": timing.late_20ms, "late_60ms": timing.late_60ms,
+                          "max_late_ms": round(timing.max_late_ns / 1e6, 1)}}
         headers = {READY_HEADER: "yes" if now.ready else "no", FREE_HEADER: str(now.free_conversations),
                    "Cache-Control": "no-store"}  # a cached answer would hide a host that filled up or died
         return web.json_response(body, status=now.status, headers=headers)

@@ -116,6 +116,26 @@ class OpusFrames:
         return packet
 
 
+class VoiceTiming:
+    """How late the voice tracks of a service hand their frames over, against each frame's time on the master clock:
+    the frames, those later than 20 and 60 ms, and the latest (its health says so: a load balancer, an operator, a
+    bench can tell an overloaded service from a slow network). On the event loop's thread only."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.late_20ms = 0
+        self.late_60ms = 0
+        self.max_late_ns = 0
+
+    def record(self, late_ns: int) -> None:
+        self.frames += 1
+        if late_ns > 20_000_000:
+            self.late_20ms += 1
+            if late_ns > 60_000_000:
+                self.late_60ms += 1
+        self.max_late_ns = max(self.max_late_ns, late_ns)
+
+
 class VoiceTrack(MediaStreamTrack):
     """One agent's voice in 20 ms frames, each sent when its first sample reaches the output.
 
@@ -129,9 +149,11 @@ class VoiceTrack(MediaStreamTrack):
 
     kind = "audio"
 
-    def __init__(self, feed: Samples | PausingSamples, clock: Clock, pause_in_silence: bool = False) -> None:
+    def __init__(self, feed: Samples | PausingSamples, clock: Clock, pause_in_silence: bool = False,
+                 timing: VoiceTiming | None = None) -> None:
         super().__init__()
         self.feed, self.clock = feed, clock
+        self.timing = timing  # where each frame's lateness is counted
         # a paused voice sleeps until the feed next sounds instead of waking for every silent frame
         self._pausing: PausingSamples | None = None
         if pause_in_silence:
@@ -170,15 +192,20 @@ class VoiceTrack(MediaStreamTrack):
                 await asyncio.sleep(wait_ns / 1e9)  # pacing to the master clock, not synchronisation
             samples = self.feed.take(start_ns, self.samples_per_frame)
             self._frames += 1
+            late_ns = self.clock.now_ns() - start_ns
             if self._opus is None:
                 frame = AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16", layout="mono")
                 frame.sample_rate = self.rate
                 frame.pts = k * self.samples_per_frame
                 frame.time_base = fractions.Fraction(1, self.rate)
+                if self.timing is not None:
+                    self.timing.record(late_ns)
                 return frame
             if not samples.any():
                 self.skipped += 1
                 continue
             packet = self._opus.encode(samples, k * self.samples_per_frame)
             if packet is not None:
+                if self.timing is not None:
+                    self.timing.record(late_ns)
                 return packet

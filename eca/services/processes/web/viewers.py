@@ -31,7 +31,7 @@ from eca.services.processes.web.face_frames import next_due_ns
 from eca.services.processes.web.feeds import FrameFeed, VoiceFeed
 from eca.services.processes.web.microphone import MicBlock, Microphone
 from eca.services.processes.web.options import VadSettings
-from eca.services.processes.web.tracks import FaceTrack, VoiceTrack
+from eca.services.processes.web.tracks import FaceTrack, VoiceTiming, VoiceTrack
 
 log = logging.getLogger("web")
 
@@ -107,6 +107,7 @@ class Viewers:
         self.silent_timeout_s = silent_timeout_s
         self.open: dict[int, Viewer] = {}
         self._numbers = itertools.count(1)
+        self.voice_timing = VoiceTiming()  # every viewer's voice: how late its frames leave (GET /health)
 
     @property
     def full(self) -> bool:
@@ -153,7 +154,8 @@ class Viewers:
                 # a page drawing this agent's face follows the voice's clock, not a continuous stream: its voice
                 # pauses in silence
                 track = (click_track(backend.clock, voice) if request.calibration
-                         else VoiceTrack(voice, backend.clock, pause_in_silence=agent in request.drawn_here))
+                         else VoiceTrack(voice, backend.clock, pause_in_silence=agent in request.drawn_here,
+                                         timing=self.voice_timing))
             transceiver.sender.replaceTrack(track)
             if kind == "audio" and agent in request.drawn_here:
                 viewer.voice_senders[agent] = transceiver.sender
