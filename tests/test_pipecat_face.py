@@ -195,9 +195,12 @@ def test_pictures_come_at_the_rate_with_the_mouth_open_where_the_audio_is_loud()
     audio_at = [(t, f) for t, f in seen if isinstance(f, TTSAudioRawFrame)]
     pictures = [(t, f) for t, f in seen if isinstance(f, OutputImageRawFrame)]
     start = audio_at[0][0]
-    # counted over most of the voice (2.4 s): a picture a loaded machine drops weighs less in a longer span
+    # over most of the voice (2.4 s): the pictures come at the rate (their median spacing is a frame's, which a wrong
+    # pace shows and a few pictures a loaded machine draws late or drops do not), and none stalls for long
     span = [t for t, _ in pictures if start + 0.4e9 <= t < start + 2.3e9]
-    assert 0.9 * 30 * 1.9 <= len(span) <= 1.1 * 30 * 1.9, f"{len(span)} pictures in 1.9 s at 30 fps"
+    spacing_ms = np.diff(span) / 1e6
+    assert abs(np.median(spacing_ms) - 1000 / 30) <= 0.1 * 1000 / 30, f"median spacing {np.median(spacing_ms):.1f} ms"
+    assert 0.75 * 30 * 1.9 <= len(span) <= 1.1 * 30 * 1.9, f"{len(span)} pictures in 1.9 s at 30 fps"
     assert all(f.size == (320, 240) and f.format == "RGB" and len(f.image) == 320 * 240 * 3 for _, f in pictures)
 
     # Each picture shows the moment it was composed for (frame_ns), which is when it was pushed, give or
