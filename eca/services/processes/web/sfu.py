@@ -434,7 +434,10 @@ class SfuPublisher:
         with video keeps it continuous (a browser lines the video up with it)."""
         assert mp.audio is not None
         pause = mp.agent in self.faces and not self.video
-        track = VoiceTrack(self.backend.voice(mp.agent), self.backend.clock, pause_in_silence=pause)
+        # one track per agent whatever the viewers: it looks at every frame's time in a pause, as the page's count
+        # of Janus's packets was worked out against (sleeping through pauses saves a conversation per viewer)
+        track = VoiceTrack(self.backend.voice(mp.agent), self.backend.clock, pause_in_silence=pause,
+                           sleep_in_pauses=False)
         encoder = OpusEncoder()
         slot = self.backend.face_slot(mp.agent) if mp.agent in self.faces else None
         frame_ts = round(AUDIO_RATE * AUDIO_FRAME_S)

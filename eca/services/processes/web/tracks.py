@@ -150,13 +150,14 @@ class VoiceTrack(MediaStreamTrack):
     kind = "audio"
 
     def __init__(self, feed: Samples | PausingSamples, clock: Clock, pause_in_silence: bool = False,
-                 timing: VoiceTiming | None = None) -> None:
+                 timing: VoiceTiming | None = None, sleep_in_pauses: bool = True) -> None:
         super().__init__()
         self.feed, self.clock = feed, clock
         self.timing = timing  # where each frame's lateness is counted
-        # a paused voice sleeps until the feed next sounds instead of waking for every silent frame
+        # a paused voice sleeps until the feed next sounds instead of waking for every silent frame (what a
+        # conversation per viewer saves); `sleep_in_pauses` False keeps it looking at each frame's time
         self._pausing: PausingSamples | None = None
-        if pause_in_silence:
+        if pause_in_silence and sleep_in_pauses:
             if not isinstance(feed, PausingSamples):
                 raise TypeError(f"a voice that pauses in silence reads a feed that says when it sounds, not {feed!r}")
             self._pausing = feed
