@@ -92,18 +92,21 @@ class VoiceFeed:
         for loop, event in waiters:
             loop.call_soon_threadsafe(event.set)
 
+    def _end_ns(self, first_ns: int, samples: np.ndarray) -> int:
+        """When a block that starts at `first_ns` ends (master clock)."""
+        return first_ns + len(samples) * 1_000_000_000 // self.sample_rate
+
     async def wait_for_sound(self, after_ns: int) -> int:
         """On the event loop: the master-clock time from which the voice next has samples at or after `after_ns`
         (`after_ns` itself while a block covers it); waits until a block brings some. Only sounding voice comes
         in blocks (silence is a gap between them), so a track that skips silent frames sleeps through a pause
         instead of waking for each of its frames."""
         loop = asyncio.get_running_loop()
-        rate = self.sample_rate
         while True:
             with self._lock:
                 best: int | None = None
                 for first_ns, samples in self._blocks:
-                    if first_ns + len(samples) * 1_000_000_000 // rate <= after_ns:
+                    if self._end_ns(first_ns, samples) <= after_ns:
                         continue
                     if first_ns <= after_ns:
                         return after_ns
@@ -123,7 +126,7 @@ class VoiceFeed:
             for first_ns, samples in self._blocks:
                 if first_ns >= hi_ns:
                     break
-                end_ns = first_ns + len(samples) * 1_000_000_000 // rate
+                end_ns = self._end_ns(first_ns, samples)
                 if end_ns <= lo_ns:
                     continue
                 a = max(0, (lo_ns - first_ns) * rate // 1_000_000_000)
@@ -141,7 +144,7 @@ class VoiceFeed:
         with self._lock:
             while self._blocks:
                 first_ns, samples = self._blocks[0]
-                if first_ns + len(samples) * 1_000_000_000 // rate > start_ns:
+                if self._end_ns(first_ns, samples) > start_ns:
                     break
                 self._blocks.popleft()
                 self._held -= len(samples)

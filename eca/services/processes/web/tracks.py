@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import fractions
 from collections.abc import Callable
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypeVar, runtime_checkable
 
 import av
 import numpy as np
@@ -25,6 +25,7 @@ from eca.agent.clock import Clock
 from eca.services.processes.web.encoding import VIDEO_RATE, EncodedStream
 
 AUDIO_FRAME_S = 0.020  # Opus' packet time: one frame per packet
+T = TypeVar("T")
 
 
 class Samples(Protocol):
@@ -199,14 +200,16 @@ class VoiceTrack(MediaStreamTrack):
                 frame.sample_rate = self.rate
                 frame.pts = k * self.samples_per_frame
                 frame.time_base = fractions.Fraction(1, self.rate)
-                if self.timing is not None:
-                    self.timing.record(late_ns)
-                return frame
+                return self._sent(frame, late_ns)
             if not samples.any():
                 self.skipped += 1
                 continue
             packet = self._opus.encode(samples, k * self.samples_per_frame)
             if packet is not None:
-                if self.timing is not None:
-                    self.timing.record(late_ns)
-                return packet
+                return self._sent(packet, late_ns)
+
+    def _sent(self, frame: T, late_ns: int) -> T:
+        """`frame`, handed over `late_ns` after its time (counted in `timing`)."""
+        if self.timing is not None:
+            self.timing.record(late_ns)
+        return frame
