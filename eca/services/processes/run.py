@@ -8,7 +8,7 @@ import sys
 
 from eca.protocol.endpoints import BusConfigError, load_bus_config
 from eca.services.processes.heap import bound_heap, freeze_startup_objects
-from eca.services.processes.runtime import setup_logging
+from eca.services.processes.runtime import one_maths_thread, setup_logging
 from eca.services.processes.web.options import MAX_WORKERS, worker_of  # names only: no web stack
 
 # name -> "module:class"; a module is imported only when its service is started.
@@ -40,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     if service_key != "broker" and service_key not in SERVICES:
         parser.error(f"unknown service {args.name!r}; known: broker, {', '.join(SERVICES)}, web-2 ... "
                      f"web-{MAX_WORKERS}")
+    one_maths_thread()  # before any service module loads numpy
     bound_heap()  # before the bus: a flood's large messages must not stay resident afterwards
     setup_logging(args.name)
     try:
