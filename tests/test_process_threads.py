@@ -13,7 +13,7 @@ import pytest
 from eca.services.tools.child_processes import subprocess_env
 
 # Threads of a fresh interpreter before numpy loads and after products large enough for OpenBLAS to share out
-# (a 600 x 600 product; the web service's retargeting crosses the threshold with some 20 agents).
+# (a 600 x 600 product; the web service's posing of its faces crosses the threshold from 22 agents on).
 PROBE = """
 import os
 {prepare}

@@ -69,11 +69,11 @@ def one_maths_thread() -> None:
     """Keep numpy's matrix products on the thread that calls them, in a service process about to import numpy.
 
     numpy's OpenBLAS starts a worker per core the first time a product is large enough, and a worker spins
-    between jobs instead of sleeping when they come often: a service multiplying every frame slot (the web
-    service retargets all its agents' faces in one product, which with some 20 conversations crosses OpenBLAS'
-    threshold) then burns most of a core in a spinning worker and takes it from the voice and the others
-    (bench/conversations.py: the web service at 129 % of a core with 24 conversations, 80 of it one OpenBLAS
-    thread). A service's products are small and real-time: one thread is all they need. Called before numpy is
+    between jobs instead of sleeping when they come often: a service multiplying every frame slot then burns a core
+    in a spinning worker and takes it from the voice and the others. The web service poses all its agents' faces in
+    one product (AvatarDriver.drive_many), which crosses OpenBLAS' threshold from 22 agents on
+    (bench/conversations.py: the web service at 129 % of a core with 24 conversations, 80 of it that thread; 53 %
+    without it). A service's products are small and real-time: one thread is all they need. Called before numpy is
     loaded (the library reads its setting when it loads); an operator's own setting wins."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
