@@ -4,13 +4,18 @@ gone from it. And the [conversations] table of the config is checked."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
+import msgpack
 import pytest
+import zmq
 
+from eca.protocol.bus import Subscriber
 from eca.protocol.client import AgentClient
+from eca.protocol.codec import decode
 from eca.protocol.endpoints import BusConfig, BusConfigError
-from eca.protocol.messages import AgentsState, CreateAgent, RemoveAgent
+from eca.protocol.messages import ALL_AGENTS, AgentsState, CreateAgent, RemoveAgent
 from eca.services.processes.dialogue import DialogueService
 from eca.services.processes.state_snapshot import StateSnapshot, snapshot_path
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
@@ -47,6 +52,40 @@ def test_a_dialogue_service_restarted_with_the_broker_keeps_the_created_agents(c
             v1.wait_applied(v1.set_role("silence"))  # served by the new instance
             send(v1, RemoveAgent(agent="v1", request_id="r1"))
         assert service.created == {} and "v1" not in service.agents
+
+
+def test_the_snapshot_holds_each_state_as_the_bus_carried_it(config: BusConfig) -> None:
+    # the snapshot keeps the bytes each state was published as (not a copy encoded again per batch): a new broker
+    # and a successor get exactly what subscribers saw
+    ctx = zmq.Context()
+    with BrokerThread(config), ServiceThread(DialogueService(config)):
+        sub = Subscriber(ctx, config, ["state."])
+        try:
+            sub.wait_ready()
+            with AgentClient(config, agent="v1") as v1:
+                send(v1, CreateAgent(agent="v1", request_id="c1"))
+                v1.wait_applied(v1.set_emotion("annoyed", 0.7))
+                v1.wait_applied(v1.set_role("silence"))
+                v1.wait_applied(v1.set_emotion("surprised", 0.4))
+            carried: set[bytes] = set()
+            deadline = time.monotonic() + 10.0
+            while True:
+                carried.update(payload for _, payload in sub.read_frames(1000))
+                raw = msgpack.unpackb(snapshot_path(config).read_bytes(), raw=False)
+                # v1's states and the list of agents: all published after this subscriber was ready
+                later = [m for m in raw["messages"] if decode(m).agent in ("v1", ALL_AGENTS)]
+                if set(later) <= carried or time.monotonic() > deadline:
+                    break
+                sub.socket.poll(100)
+        finally:
+            sub.close()
+            ctx.term()
+    assert len(later) >= 4  # emotion, role and more of v1, and the list
+    missing = [m for m in later if m not in carried]
+    assert not missing, f"{len(missing)} of {len(later)} snapshot states are not what the bus carried"
+    saved, _, problem = StateSnapshot(snapshot_path(config)).load()
+    emotion = next(m for m in saved if m.agent == "v1" and m.TYPE == "emotion")
+    assert problem is None and emotion.name == "surprised"  # type: ignore[attr-defined]
 
 
 @pytest.mark.parametrize(("table", "says"), [

@@ -171,7 +171,9 @@ class DialogueService(Service):
         self._changed: dict[str, Message] = {}
         self._outbox: list[tuple[Message, str | None]] = []
         self._acks: list[Ack] = []
-        self._published: dict[str, Message] = {}  # topic -> this service's state as last published
+        # topic -> this service's state as last published, encoded: what the snapshot writes and a new broker gets
+        # again, byte for byte, without encoding every state once more for each batch that changes one
+        self._published: dict[str, bytes] = {}
         self._ended_before: dict[str, list[str]] = {}  # from the snapshot: requests a predecessor ended
         self._acked: OrderedDict[tuple[str, str, str], None] = OrderedDict()  # (agent, command, request id)
         once = self._once
@@ -229,7 +231,7 @@ class DialogueService(Service):
         for topic, msg in self._changed.items():
             frame, payload, stamped = self.pub.prepare(msg)
             prepared.append((frame, payload))
-            self._published[topic] = stamped
+            self._published[topic] = payload
             if msg.TYPE not in ("speech", AgentsState.TYPE):
                 setattr(self.agents[msg.agent], msg.TYPE, stamped)
         self._changed.clear()
@@ -256,8 +258,8 @@ class DialogueService(Service):
         """A new broker's cache is empty: publish every state again, byte for byte as first published (so
         subscribers that still have it see a repeat, and the broker orders it by its original t_ns)."""
         assert self.pub is not None
-        for topic, msg in self._published.items():
-            self.pub.send_raw(topic.encode(), encode(msg))
+        for topic, payload in self._published.items():
+            self.pub.send_raw(topic.encode(), payload)
         self.log.info("published the current state again (%d topics) for the new broker's cache",
                       len(self._published))
 
@@ -332,8 +334,9 @@ class DialogueService(Service):
             for msg in adopted.values():
                 if msg.TYPE in OWN_STATE_TYPES:
                     # the cache of a new broker may lack what the snapshot had: publish it again as it was
-                    self._published[f"state.{agent}.{msg.TYPE}"] = msg
-                    self.pub.send_raw(f"state.{agent}.{msg.TYPE}".encode(), encode(msg))
+                    topic, payload = f"state.{agent}.{msg.TYPE}", encode(msg)
+                    self._published[topic] = payload
+                    self.pub.send_raw(topic.encode(), payload)
             speech = adopted.get("speech")
             if isinstance(speech, SpeechState):
                 self._adopt(state, speech)
@@ -356,8 +359,8 @@ class DialogueService(Service):
         listed = self._adopted_agents
         if listed is not None and _same_body(listed, self._agents_state()):
             # as the predecessor published it, after the agents' own states
-            self._published[AGENTS_TOPIC] = listed
-            self.pub.send_raw(AGENTS_TOPIC.encode(), encode(listed))
+            self._published[AGENTS_TOPIC] = encode(listed)
+            self.pub.send_raw(AGENTS_TOPIC.encode(), self._published[AGENTS_TOPIC])
         else:
             self._publish_agents()
         # From now on our own state echoes would come back on state.: we know them already. The audio

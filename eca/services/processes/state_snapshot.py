@@ -20,7 +20,7 @@ from pathlib import Path
 
 import msgpack
 
-from eca.protocol.codec import ProtocolError, decode, encode
+from eca.protocol.codec import ProtocolError, decode
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import Message
 
@@ -38,8 +38,9 @@ class StateSnapshot:
         self.path = path
         self._tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
-    def save(self, messages: Iterable[Message], ended: dict[str, list[str]]) -> None:
-        data = msgpack.packb({"messages": [encode(m) for m in messages], "ended": ended}, use_bin_type=True)
+    def save(self, encoded: Iterable[bytes], ended: dict[str, list[str]]) -> None:
+        """Write the state: its messages as published (encoded by the codec) and the ended request ids per agent."""
+        data = msgpack.packb({"messages": list(encoded), "ended": ended}, use_bin_type=True)
         with open(self._tmp, "wb") as fh:
             fh.write(data)
         os.replace(self._tmp, self.path)
