@@ -444,9 +444,15 @@ class WebService(Service):
             requests = list(self._watching.values())
         if not requests:
             return None
-        video = tuple(a for a in self.agent_ids
-                      if self._no_gl is None and any(a in r.agents and a not in r.drawn_here for r in requests))
-        by_pages = tuple(a for a in self.agent_ids if any(a in r.drawn_here for r in requests))
+        # once per wake of the bus loop: one pass over the pages' requests, not over every agent for every page
+        wanted_video: set[str] = set()
+        wanted_by_pages: set[str] = set()
+        for r in requests:
+            wanted_by_pages.update(r.drawn_here)
+            if self._no_gl is None:
+                wanted_video.update(a for a in r.agents if a not in r.drawn_here)
+        video = tuple(a for a in self.agent_ids if a in wanted_video)
+        by_pages = tuple(a for a in self.agent_ids if a in wanted_by_pages)
         return DrawPlan(video, max(r.width for r in requests), max(r.height for r in requests),
                         max(r.fps for r in requests), by_pages)
 
