@@ -132,6 +132,16 @@ def test_mouth_closes_at_the_played_end_and_after_a_reset() -> None:
     assert sc.frame_at(2 * S + 20 * MS).get("say_ah") == 0.0
 
 
+def test_voiced_at_says_whether_the_mouth_follows_an_utterance() -> None:
+    sc = _speaking_scene()
+    times = [2 * S + k * MS for k in range(-5, 90, 3)]
+    said = [sc.voiced_at(t) for t in times]
+    assert said == [sc.mouth_row_at(t) is not None for t in times]
+    assert True in said and False in said
+    sc.add_mouth_keys("u1", 16_000, [], {}, reset=True, t_ns=2 * S + 12 * MS)  # closed from then on
+    assert sc.voiced_at(2 * S + 11 * MS) and not sc.voiced_at(2 * S + 20 * MS)
+
+
 def test_speech_started_times_the_utterance_until_anchors_arrive() -> None:
     sc = scene()
     sc.speech_started("u2", dac_time_ns=1 * S)  # heard of before its keys

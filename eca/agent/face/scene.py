@@ -355,6 +355,10 @@ class LiveScene:
             return None
         return best[2].weights_at(best[1])
 
+    def voiced_at(self, t_ns: int) -> bool:
+        """Whether an utterance is heard at t_ns (mouth_row_at is not None), without working out its weights."""
+        return any(utt.playing_at(t_ns) is not None for utt in self._utterances.values())
+
     def compose(self, t_ns: int) -> ComposedFace:
         """The composed face at display time t_ns (agent/face/composed.py), with the role in force."""
         t = int(t_ns)

@@ -110,7 +110,7 @@ class FaceFrames:
             agents = [views[i].agent for i in rows]
             # the voice sounds then: an utterance of the lip-sync plays at t (its keys and clock anchors come ahead
             # of the sound), or the voice's own samples there are loud (they come only some 40 ms ahead)
-            voiced = [views[i].scene.mouth_row_at(t_ns) is not None or sounding(agent, t_ns)
+            voiced = [views[i].scene.voiced_at(t_ns) or sounding(agent, t_ns)
                       for i, agent in zip(rows, agents, strict=True)]
             frames = self.face(agents[0]).pack_many(batch, rows, [self.slots[a] for a in agents], self.seq, time_ms,
                                                     voiced, mark=t_ns % 1_000_000_000 == 0)
