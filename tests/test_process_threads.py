@@ -28,7 +28,8 @@ print("THREADS", before, len(os.listdir("/proc/self/task")))
 
 def threads(prepare: str) -> tuple[int, int]:
     env = subprocess_env()
-    env.pop("OPENBLAS_NUM_THREADS", None)
+    for name in ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS"):  # what OpenBLAS reads, in its order
+        env.pop(name, None)
     done = subprocess.run([sys.executable, "-c", PROBE.format(prepare=prepare)], capture_output=True, text=True,
                           env=env, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
