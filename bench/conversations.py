@@ -827,6 +827,13 @@ def figures(label: str, draw: str, done: list[Step], details: dict[str, Any], in
         report.add(f"{label}: server CPU per added conversation", round(cpu[0], 2), target_cpu,
                    cpu[0] <= TARGET_CPU_PCT if draw == "browser" else None, "% of a core",
                    f"line {basis_note}; at N=0 {cpu[1]:.1f} %")
+        # the same line for each process: which one a conversation costs (and which grows faster than a line)
+        names = sorted({k for s in basis for k in s.server_cpu_by})
+        slopes = {k: f[0] for k in names if (f := fit([(s.connected, s.server_cpu_by.get(k, 0.0)) for s in basis]))}
+        if slopes:
+            ranked = sorted(slopes.items(), key=lambda kv: -kv[1])
+            report.add(f"{label}: server CPU per added conversation, by process", round(ranked[0][1], 2), "-", None,
+                       "% of a core", "the largest; " + ", ".join(f"{k} {v:.2f}" for k, v in ranked))
     if pss is not None:
         report.add(f"{label}: server PSS per added conversation", round(pss[0], 2), target_mb,
                    pss[0] <= TARGET_MB if draw == "browser" else None, "MB", f"line {basis_note}; at N=0 "
