@@ -144,6 +144,23 @@ def web_drawn(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
             yield config, service
 
 
+def sfu_frames(driver: Any, service: WebService, count: int, timeout_s: float) -> dict[str, Any]:
+    """wait_for_frames for a page watching through Janus; when the pictures do not come, the error says what eca
+    sent into Janus and encoded over a second (counters that stand still: eca stopped; moving: Janus or the page)."""
+    try:
+        return wait_for_frames(driver, count, timeout_s)
+    except TimeoutError as exc:
+        def sent() -> dict[str, Any]:
+            assert service.sfu is not None
+            streams = {f"{k[0]} {k[1]}x{k[2]}": {"encoded": st.encoded, "keyframes": st.keyframes,
+                                                   "stopped": st.stopped}
+                       for k, st in list(service.encoded.streams.items())}
+            return {"sfu": service.sfu.stats(), "streams": streams, "plan": repr(service._plan)}
+        before = sent()
+        time.sleep(1.0)  # a second of counting what eca sends, for the message
+        raise AssertionError(f"{exc}; eca then: {before}; a second later: {sent()}") from None
+
+
 @contextmanager
 def audio_and_dialogue(config: BusConfig) -> Iterator[tuple[Publisher, Publisher]]:
     """Publishers as the audio and dialogue services (voice blocks, the emotion's state), ready, the agent calm."""
@@ -442,7 +459,7 @@ def test_the_page_in_a_real_browser_watches_the_face_through_janus(web: tuple[Bu
         wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
                  lambda s: s == "connected")
         assert driver.execute_script("return (window.eca.janus || []).length") == 1  # watched through Janus
-        stats = wait_for_frames(driver, 20, 30.0)
+        stats = sfu_frames(driver, service, 20, 30.0)
         pixels = np.array(driver.execute_script("""
             const v = document.querySelector('#faces video'); const c = document.createElement('canvas');
             c.width = v.videoWidth; c.height = v.videoHeight; const g = c.getContext('2d'); g.drawImage(v, 0, 0);
@@ -483,7 +500,7 @@ def test_the_page_watches_through_janus_although_its_first_requests_to_janus_fai
                  lambda s: s == "connected")
         assert driver.execute_script("return window.failedToJanus") == {"post": 2, "get": 1}
         assert driver.execute_script("return (window.eca.janus || []).length") == 1
-        stats = wait_for_frames(driver, 10, 30.0)
+        stats = sfu_frames(driver, service, 10, 30.0)
     assert (stats["frameWidth"], stats["frameHeight"]) == (WIDTH, HEIGHT)
 
 
@@ -645,7 +662,7 @@ def test_with_draw_auto_through_janus_each_page_takes_only_what_it_shows(
     with chromium() as driver:
         driver.get(service.url + "?mic=0&draw=server")
         driver.find_element("id", "connect").click()
-        stats = wait_for_frames(driver, 10, 30.0)
+        stats = sfu_frames(driver, service, 10, 30.0)
         shown_kinds = driver.execute_async_script(INBOUND_KINDS)
         drawn_here = driver.execute_script("return Object.keys(window.eca.drawn).length")
     assert drawn_kinds == ["audio"], drawn_kinds  # the voice; the face frames come on the data channel
