@@ -18,10 +18,10 @@ import sys
 import threading
 import time
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 import pytest
@@ -144,11 +144,37 @@ def web_drawn(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
             yield config, service
 
 
-def sfu_frames(driver: Any, service: WebService, count: int, timeout_s: float) -> dict[str, Any]:
-    """wait_for_frames for a page watching through Janus; when the pictures do not come, the error says what eca
-    sent into Janus and encoded over a second (counters that stand still: eca stopped; moving: Janus or the page)."""
+T = TypeVar("T")
+
+# The page's connections to Janus as the page sees them: state, and the selected candidate pair's traffic.
+JANUS_PCS = """
+const done = arguments[arguments.length - 1];
+(async () => {
+  const out = [];
+  for (const watch of window.eca.janus || []) {
+    const pc = watch.pc;
+    if (!pc) { out.push(null); continue; }
+    const pair = {};
+    (await pc.getStats()).forEach((r) => {
+      if (r.type === "candidate-pair" && r.nominated) {
+        pair[r.id] = {state: r.state, bytesReceived: r.bytesReceived, bytesSent: r.bytesSent,
+                      sinceLastPacketMs: r.lastPacketReceivedTimestamp ? Math.round(performance.timeOrigin
+                        + performance.now() - r.lastPacketReceivedTimestamp) : null};
+      }
+    });
+    out.push({connection: pc.connectionState, ice: pc.iceConnectionState, nominated: pair});
+  }
+  return out;
+})().then(done, (e) => done(String(e)));
+"""
+
+
+def through_janus(driver: Any, service: WebService, wait: Callable[[], T]) -> T:
+    """`wait()` for what a page watching through Janus should get; when it times out, the error says what eca sent
+    into Janus and encoded over a second (counters that stand still: eca stopped; moving: Janus or the page) and
+    how the page's connections to Janus stand."""
     try:
-        return wait_for_frames(driver, count, timeout_s)
+        return wait()
     except TimeoutError as exc:
         def sent() -> dict[str, Any]:
             assert service.sfu is not None
@@ -158,7 +184,13 @@ def sfu_frames(driver: Any, service: WebService, count: int, timeout_s: float) -
             return {"sfu": service.sfu.stats(), "streams": streams, "plan": repr(service._plan)}
         before = sent()
         time.sleep(1.0)  # a second of counting what eca sends, for the message
-        raise AssertionError(f"{exc}; eca then: {before}; a second later: {sent()}") from None
+        raise AssertionError(f"{exc}; eca then: {before}; a second later: {sent()}; the page's connections to "
+                             f"Janus: {driver.execute_async_script(JANUS_PCS)}") from None
+
+
+def sfu_frames(driver: Any, service: WebService, count: int, timeout_s: float) -> dict[str, Any]:
+    """wait_for_frames for a page watching through Janus (through_janus says why when they do not come)."""
+    return through_janus(driver, service, lambda: wait_for_frames(driver, count, timeout_s))
 
 
 @contextmanager
@@ -655,8 +687,9 @@ def test_with_draw_auto_through_janus_each_page_takes_only_what_it_shows(
     with chromium() as driver:
         driver.get(service.url + "?mic=0")
         driver.find_element("id", "connect").click()
-        wait_for(driver, "return window.eca.drawn.ada ? window.eca.drawn.ada.stats.received : 0", 30.0,
-                 "the page drawing ada from face frames through Janus", lambda n: n >= 10)
+        through_janus(driver, service, lambda: wait_for(
+            driver, "return window.eca.drawn.ada ? window.eca.drawn.ada.stats.received : 0", 30.0,
+            "the page drawing ada from face frames through Janus", lambda n: n >= 10))
         drawn_kinds = driver.execute_async_script(INBOUND_KINDS)
         pixels = canvas_pixels(driver)
     with chromium() as driver:
