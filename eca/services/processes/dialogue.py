@@ -359,8 +359,8 @@ class DialogueService(Service):
         listed = self._adopted_agents
         if listed is not None and _same_body(listed, self._agents_state()):
             # as the predecessor published it, after the agents' own states
-            self._published[AGENTS_TOPIC] = encode(listed)
-            self.pub.send_raw(AGENTS_TOPIC.encode(), self._published[AGENTS_TOPIC])
+            payload = self._published[AGENTS_TOPIC] = encode(listed)
+            self.pub.send_raw(AGENTS_TOPIC.encode(), payload)
         else:
             self._publish_agents()
         # From now on our own state echoes would come back on state.: we know them already. The audio
