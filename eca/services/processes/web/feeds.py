@@ -122,18 +122,25 @@ class VoiceFeed:
         `window_ns` of it), without letting any block go: a browser-drawn mouth follows it."""
         rate = self.sample_rate
         lo_ns, hi_ns = t_ns - window_ns // 2, t_ns + window_ns // 2
-        with self._lock:
-            for first_ns, samples in self._blocks:
-                if first_ns >= hi_ns:
-                    break
-                end_ns = self._end_ns(first_ns, samples)
-                if end_ns <= lo_ns:
-                    continue
-                a = max(0, (lo_ns - first_ns) * rate // 1_000_000_000)
-                b = min(len(samples), (hi_ns - first_ns) * rate // 1_000_000_000 + 1)
-                if a < b and int(np.abs(samples[a:b].astype(np.int32)).max()) > floor:
-                    return True
+        for first_ns, samples in self._held_blocks():
+            if first_ns >= hi_ns:
+                break
+            end_ns = self._end_ns(first_ns, samples)
+            if end_ns <= lo_ns:
+                continue
+            a = max(0, (lo_ns - first_ns) * rate // 1_000_000_000)
+            b = min(len(samples), (hi_ns - first_ns) * rate // 1_000_000_000 + 1)
+            if a < b and int(np.abs(samples[a:b].astype(np.int32)).max()) > floor:
+                return True
         return False
+
+    def _held_blocks(self) -> tuple[tuple[int, np.ndarray], ...]:
+        """The blocks held now, as they are (a block's samples are never changed once added). The lock is held
+        only to copy the list: the bus loop and the event loop share this feed, and a thread that took the lock
+        and then lost the interpreter's lock in numpy would hold the other one up for a switch interval or more
+        (a voice frame sent late)."""
+        with self._lock:
+            return tuple(self._blocks)
 
     def take(self, start_ns: int, count: int) -> np.ndarray:
         """The `count` samples from master-clock time `start_ns` on (int16): what the blocks hold there,
@@ -148,12 +155,13 @@ class VoiceFeed:
                     break
                 self._blocks.popleft()
                 self._held -= len(samples)
-            for first_ns, samples in self._blocks:
-                if first_ns >= end_ns:
-                    break
-                # positions in samples from start_ns, rounded to the nearest sample
-                offset = round((first_ns - start_ns) * rate / 1e9)
-                lo, hi = max(0, offset), min(count, offset + len(samples))
-                if lo < hi:
-                    out[lo:hi] = samples[lo - offset:hi - offset]
+            blocks = tuple(self._blocks)  # copied under the lock, read outside it (_held_blocks says why)
+        for first_ns, samples in blocks:
+            if first_ns >= end_ns:
+                break
+            # positions in samples from start_ns, rounded to the nearest sample
+            offset = round((first_ns - start_ns) * rate / 1e9)
+            lo, hi = max(0, offset), min(count, offset + len(samples))
+            if lo < hi:
+                out[lo:hi] = samples[lo - offset:hi - offset]
         return out
