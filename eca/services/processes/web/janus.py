@@ -65,6 +65,23 @@ def check_server(url: str, timeout_s: float = 5.0) -> dict[str, Any]:
     return body
 
 
+async def _whole_answer(response: aiohttp.ClientResponse) -> bytes | None:
+    """The answer's body to its end, or None past MAX_ANSWER_BYTES. Janus answers chunked (libmicrohttpd): a body may
+    come in several chunks, and the chunk that ends it in a TCP segment of its own. One read takes only what has come,
+    which cut an answer short (not JSON: taken for a Janus lost), or left its end unread, so the connection was not
+    kept for the next request (a new one costs a round trip more, and the way to Janus was taken as twice as long)."""
+    parts: list[bytes] = []
+    size = 0
+    while True:
+        part = await response.content.readany()
+        if not part:
+            return b"".join(parts)
+        size += len(part)
+        if size > MAX_ANSWER_BYTES:
+            return None
+        parts.append(part)
+
+
 class JanusClient:
     """One Janus session with one Streaming handle."""
 
@@ -88,10 +105,12 @@ class JanusClient:
         try:
             sent = time.monotonic()
             async with self._http.post(self.url + path, json={**body, "transaction": secrets.token_hex(8)}) as r:
-                raw = await r.content.read(MAX_ANSWER_BYTES)
+                raw = await _whole_answer(r)
             self.round_trips.append(time.monotonic() - sent)
         except (aiohttp.ClientError, TimeoutError, OSError) as exc:
             raise JanusError(f"no answer from Janus at {self.url} ({type(exc).__name__}: {exc})") from None
+        if raw is None:
+            raise JanusError(f"Janus at {self.url} answered more than {MAX_ANSWER_BYTES} bytes: not Janus's answer")
         try:
             answer = json.loads(raw)
         except ValueError:
