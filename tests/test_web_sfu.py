@@ -52,7 +52,7 @@ from tests.support.browser import (
     wait_for_frames,
 )
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
-from tests.support.janus import Janus, janus_available, janus_server
+from tests.support.janus import Janus, janus_available, janus_server, running_logs
 from tests.support.netns import Host, Network, hosts, netns_available
 from tests.support.vrm import many_primitives_file
 from tests.support.web_client import SMALL, Client, speak_tone
@@ -185,7 +185,8 @@ def through_janus(driver: Any, service: WebService, wait: Callable[[], T]) -> T:
         before = sent()
         time.sleep(1.0)  # a second of counting what eca sends, for the message
         raise AssertionError(f"{exc}; eca then: {before}; a second later: {sent()}; the page's connections to "
-                             f"Janus: {driver.execute_async_script(JANUS_PCS)}") from None
+                             f"Janus: {driver.execute_async_script(JANUS_PCS)}; Janus's log:\n"
+                             f"{running_logs()}") from None
 
 
 def sfu_frames(driver: Any, service: WebService, count: int, timeout_s: float) -> dict[str, Any]:
@@ -629,7 +630,8 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
             assert wait_until(lambda: driver.execute_async_script(VOICE_PACKETS) >= before + 25, 15.0), \
                 (f"the voice did not come again: the page has {driver.execute_async_script(VOICE_PACKETS)} packets "
                  f"({before} before); eca sent {voice.packets} ({sent} frames before), the newest "
-                 f"{(service.clock.now_ns() - (voice.last_ns or 0)) / 1e6:.0f} ms ago")
+                 f"{(service.clock.now_ns() - (voice.last_ns or 0)) / 1e6:.0f} ms ago; the page's connection to "
+                 f"Janus: {driver.execute_async_script(JANUS_PCS)}; Janus's log:\n{running_logs()}")
             windows = []
             for _ in range(6):  # a window in which the browser plays steadily (a loaded machine stretches some)
                 played, base, buffered_ms, report = driver.execute_async_script(PLAYED)

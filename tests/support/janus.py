@@ -19,6 +19,7 @@ import asyncio
 import base64
 import json
 import os
+import re
 import secrets
 import shutil
 import socket
@@ -35,6 +36,7 @@ from typing import Any
 import aiohttp
 
 JANUS = "/usr/bin/janus"
+RUNNING: list[Janus] = []  # the private Janus instances running in this process, newest last (their logs for failures)
 LIBS = "/usr/lib/x86_64-linux-gnu/janus"
 START_TIMEOUT_S = 20.0
 
@@ -96,11 +98,25 @@ class Janus:
         self.stop()
         self.start()
 
+    def recent_log(self, last: int = 30) -> str:
+        """The last `last` lines of Janus's log (sessions, ICE, DTLS, media: debug level 4), colour codes taken out:
+        what a test's failure message shows of Janus."""
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(re.sub(r"\x1b\[[0-9;]*m", "", line) for line in lines[-last:])
+
     def log_tail(self, chars: int = 2000) -> str:
         try:
             return self.log_path.read_text(errors="replace")[-chars:]
         except OSError:
             return ""
+
+
+def running_logs(last: int = 30) -> str:
+    """The recent log of every private Janus running in this process (Janus.recent_log), for a failure's message."""
+    return "\n".join(f"--- Janus at {j.url}:\n{j.recent_log(last)}" for j in RUNNING) or "(no Janus running)"
 
 
 def janus_info(url: str, timeout_s: float = 1.0) -> dict[str, Any] | None:
@@ -129,7 +145,7 @@ def render_config(folder: Path, address: str, http_port: int, rtp_range: tuple[i
 	transports_folder = "{LIBS}/transports"
 	events_folder = "{LIBS}/events"
 	loggers_folder = "{LIBS}/loggers"
-	debug_level = 3
+	debug_level = 4
 	session_timeout = 60
 	hide_dependencies = true
 	protected_folders = ["/bin", "/boot", "/dev", "/etc", "/lib", "/proc", "/sbin", "/sys", "/usr", "/var"]
@@ -206,9 +222,11 @@ def janus_server(host: Any = None, address: str | None = None) -> Iterator[Janus
                       [shutil.which("janus") or JANUS, "-F", str(folder), "-C", str(folder / "janus.jcfg")], host,
                       log_path=folder / "janus.log")
         janus.start()
+        RUNNING.append(janus)
         try:
             yield janus
         finally:
+            RUNNING.remove(janus)
             janus.stop()
     finally:
         shutil.rmtree(folder, ignore_errors=True)
