@@ -643,6 +643,9 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
                 const f = window.eca.drawn.ada; f.present();
                 return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs];""")
         leg_ms = driver.execute_script("return window.eca.drawn.ada.clock.legMs")
+        clock_state = driver.execute_script("""const c = window.eca.drawn.ada.clock;
+            return {base: c.base, firsts: c.firsts, spurts: c.spurts.slice(-10), asks: c.asks, legs: c.legs,
+                    watchedSinceMs: c.watchedSinceMs};""")
         pixels = canvas_pixels(driver)
         driver.save_screenshot(str(tmp_path / "drawn_through_janus.png"))
     # each packet played, in eca's numbering by the page's estimate, and so when eca sent it: played as long after as
@@ -653,7 +656,7 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
     wall_offset_ms = (time.time_ns() - service.clock.now_ns()) / 1e6
     held = [played_ms - (stream.origin_ns + ((rtp + base - stream.ts_offset) % 2**32) * 1_000_000_000 // stream.rate)
             / 1e6 - wall_offset_ms for rtp, played_ms in played]
-    assert abs(statistics.median(held) - trip_ms - buffered_ms) < 10.0, (held, trip_ms, buffered_ms)
+    assert abs(statistics.median(held) - trip_ms - buffered_ms) < 10.0, (held, trip_ms, buffered_ms, clock_state)
     # the page's voice clock: when eca sent what plays (the report's time is the send time, not the arrival at Janus)
     for rtp, _ in played:
         page_ms = report["ntpMs"] + ((rtp - report["rtp"] + 2**31) % 2**32 - 2**31) * 1000 / stream.rate

@@ -124,6 +124,7 @@ async function connectThroughJanus(sfu, agents) {
     // one it is shown (Janus then sends nothing else)
     const mids = sfu.mids;
     const media = !mids ? null : here ? [mids.audio, mids.data] : [mids.audio, mids.video];
+    const watchedSinceMs = performance.timeOrigin + performance.now();  // no voice Janus relays here left before
     const pc = await watch.start((event) => {
       if (here && event.track.kind !== "audio") return;  // a face drawn here needs only the voice
       if (event.track.kind === "audio") receiver = event.receiver;
@@ -146,7 +147,8 @@ async function connectThroughJanus(sfu, agents) {
       const url = token ? `${description.url}?token=${encodeURIComponent(token)}` : description.url;
       receiver = receiver || pc.getReceivers().find((r) => r.track.kind === "audio");
       const serverClock = async () => (await fetch(withToken("/clock"), { cache: "no-store" })).json();
-      const face = new face3d.BrowserFace(canvas, { ...description, url }, { token, receiver, serverClock });
+      const face = new face3d.BrowserFace(canvas, { ...description, url },
+                                          { token, receiver, serverClock, watchedSinceMs });
       await face.load();
       eca.drawn[agent] = face;
     }

@@ -31,6 +31,9 @@ const FIRST_READINGS = 20;  // the latest estimates of Janus's first packet (abo
 const CLOCK_ASKS = 12;  // the latest asks of the server's clock, the quickest taken
 const CLOCK_ASK_EVERY_MS = 2000;
 const NTP_UNIX_OFFSET_MS = 2208988800000;  // NTP counts from 1900, Unix time from 1970
+// how much earlier than the page asked Janus for the voice its first packet may have left the server (clocks'
+// offset and ways misjudged): a reading that puts it earlier is impossible, Janus relays nothing it got before
+const WATCHED_LEEWAY_MS = 500;
 
 // a difference of two 16-bit sequence numbers, or of two 32-bit RTP timestamps, as the nearest signed one
 const wrapped16 = (d) => ((((d + 2 ** 15) % 2 ** 16) + 2 ** 16) % 2 ** 16) - 2 ** 15;
@@ -52,10 +55,12 @@ export function webglAvailable() {
 // so what plays now is the report's time plus the samples between them.
 export class VoiceClock {
   // `serverClock` (a function answering the server's wall clock, Unix ms): the voice comes through Janus, whose RTP
-  // timestamps start from the first packet it relayed here
-  constructor(receiver, { serverClock = null } = {}) {
+  // timestamps start from the first packet it relayed here; `watchedSinceMs` (this page's clock, ms since 1970): when
+  // the page asked Janus for it (no packet Janus relays here left the server much before)
+  constructor(receiver, { serverClock = null, watchedSinceMs = null } = {}) {
     this.receiver = receiver;
     this.rebased = !!serverClock;
+    this.watchedSinceMs = watchedSinceMs;
     this.report = null;  // { rtp, ntpMs }, in this receiver's RTP numbering
     this.asks = [];  // rebased: { rttMs, offsetMs } of the latest asks of the server's clock
     this.firsts = [];  // rebased: the latest estimates of the sequence number of Janus's first packet (unwrapped)
@@ -148,6 +153,11 @@ export class VoiceClock {
       // a reading that puts the first packet before every spurt known says nothing usable (an early one: the
       // clocks' offset or a way misjudged under load); kept, it would hold the lowest for the next twenty
       if (seq == null || !this.spurts.length || seq - newest < this.spurts[0].seq) return;
+      // nor one that puts it before the page watched: an early reading at a spurt's first packet lands on the last
+      // packet of the spurt before, whose RTP timestamp is a whole pause earlier (its sequence number is only one)
+      const watchedMs = this.watchedSinceMs == null ? null
+        : this.watchedSinceMs + offsetMs + NTP_UNIX_OFFSET_MS - WATCHED_LEEWAY_MS;
+      if (watchedMs != null && this.sentMsOf(seq - newest, rtp, ntpMs) < watchedMs) return;
       this.firsts.push(seq - newest);
       if (this.firsts.length > FIRST_READINGS) this.firsts.shift();
       const first = Math.min(...this.firsts);
@@ -160,6 +170,15 @@ export class VoiceClock {
       this.legMs = legMs;
       return;
     }
+  }
+
+  // When the server sent packet `seq` (unwrapped; its NTP clock, ms), by the spurts it names: the RTP timestamp of
+  // its spurt's first plus the packets between them; -Infinity before every spurt known
+  sentMsOf(seq, rtp, ntpMs) {
+    let spurt = null;
+    for (const p of this.spurts) if (p.seq <= seq) spurt = p;
+    if (!spurt) return -Infinity;
+    return ntpMs + wrapped32(spurt.rtp + (seq - spurt.seq) * FRAME_SAMPLES - rtp) * 1000 / OPUS_RATE;
   }
 
   // The sequence number (unwrapped) of the packet the server sent at `sentMs` (its NTP clock), by the spurts: the
@@ -249,11 +268,12 @@ function findNodes(gltf) {
 
 export class BrowserFace {
   // `serverClock`: the voice comes through Janus (VoiceClock)
-  constructor(canvas, description, { token = null, receiver = null, background = 0xf3efe8, serverClock = null } = {}) {
+  constructor(canvas, description, { token = null, receiver = null, background = 0xf3efe8, serverClock = null,
+                                     watchedSinceMs = null } = {}) {
     this.canvas = canvas;
     this.d = description;
     this.token = token;
-    this.clock = receiver ? new VoiceClock(receiver, { serverClock }) : null;
+    this.clock = receiver ? new VoiceClock(receiver, { serverClock, watchedSinceMs }) : null;
     this.frames = [];  // { seq, flags, timeMs, weights: Uint8Array, quats: Int16Array, arrivedMs }
     this.stats = { received: 0, bad: 0, presented: 0, lastSeq: null, firstArrival: null, lastArrival: null,
                    syncedMs: null, voiced: false };
