@@ -98,14 +98,21 @@ class Janus:
         self.stop()
         self.start()
 
-    def recent_log(self, last: int = 30) -> str:
-        """The last `last` lines of Janus's log (sessions, ICE, DTLS, media: debug level 4), colour codes taken out:
-        what a test's failure message shows of Janus."""
+    def recent_log(self, last: int = 60) -> str:
+        """The last `last` lines of Janus's log (sessions, ICE, DTLS, media: debug level 4), colour codes taken out and
+        each run of a repeated line said once with its count: what a test's failure message shows of Janus."""
         try:
-            lines = self.log_path.read_text(errors="replace").splitlines()
+            text = self.log_path.read_text(errors="replace")
         except OSError:
             return ""
-        return "\n".join(re.sub(r"\x1b\[[0-9;]*m", "", line) for line in lines[-last:])
+        runs: list[list[Any]] = []  # [line, times]
+        for line in text.splitlines():
+            line = re.sub(r"\x1b\[[0-9;]*m", "", line)
+            if runs and runs[-1][0] == line:
+                runs[-1][1] += 1
+            else:
+                runs.append([line, 1])
+        return "\n".join(line if times == 1 else f"{line} (x{times})" for line, times in runs[-last:])
 
     def log_tail(self, chars: int = 2000) -> str:
         try:
@@ -114,7 +121,7 @@ class Janus:
             return ""
 
 
-def running_logs(last: int = 30) -> str:
+def running_logs(last: int = 60) -> str:
     """The recent log of every private Janus running in this process (Janus.recent_log), for a failure's message."""
     return "\n".join(f"--- Janus at {j.url}:\n{j.recent_log(last)}" for j in RUNNING) or "(no Janus running)"
 
