@@ -241,6 +241,18 @@ def test_an_unknown_software_gl_is_refused() -> None:
         pass
 
 
+# An audio receiver as the page's voice clock reads it, of the voice Janus relays from `packets[firstRelayed]` on: the
+# script sets `newest` (the packet that arrived last) and `arrived` (when, on the page's clock) before each report
+FAKE_RECEIVER = """
+  let newest = packets[firstRelayed], arrived = 0;
+  const receiver = { getSynchronizationSources: () => [], getStats: async () => new Map([
+    ["in", { type: "inbound-rtp", packetsReceived: newest.seq - packets[firstRelayed].seq + 1, packetsLost: 0,
+             lastPacketReceivedTimestamp: arrived }],
+    ["tr", { type: "transport", selectedCandidatePairId: "cp" }],
+    ["cp", { type: "candidate-pair", currentRoundTripTime: 2 * LEG_MS / 1000 }],
+  ]) };
+"""
+
 JANUS_NUMBERING = """
 const done = arguments[arguments.length - 1];
 (async () => {
@@ -260,13 +272,7 @@ const done = arguments[arguments.length - 1];
   const firstRelayed = 3;  // Janus relayed from the fourth packet of the first spurt on
   let lateness = 1;
   const late = () => { lateness = (lateness * 75) % 65537; return lateness % 7 === 0 ? 1 : 5 + lateness % 40; };
-  let newest = packets[firstRelayed], arrived = 0;
-  const receiver = { getSynchronizationSources: () => [], getStats: async () => new Map([
-    ["in", { type: "inbound-rtp", packetsReceived: newest.seq - packets[firstRelayed].seq + 1, packetsLost: 0,
-             lastPacketReceivedTimestamp: arrived }],
-    ["tr", { type: "transport", selectedCandidatePairId: "cp" }],
-    ["cp", { type: "candidate-pair", currentRoundTripTime: 2 * LEG_MS / 1000 }],
-  ]) };
+""" + FAKE_RECEIVER + """
   const clock = new VoiceClock(receiver, { serverClock: async () => ({ unix_ms: pageNow() + OFFSET_MS }) });
   while (clock.serverOffsetMs() == null) await new Promise((r) => setTimeout(r, 10));  // its first ask answered
   // the page hears from the server only once the first spurt is over (its data channel opened late): reports at
@@ -305,13 +311,7 @@ const watched = arguments[0], done = arguments[arguments.length - 1];
   const firstRelayed = 10;  // the second spurt's first packet
   // the page asked Janus for the voice 200 ms before that packet left (on the page's clock)
   const watchedSinceMs = packets[firstRelayed].sentMs - NTP - OFFSET_MS - 200;
-  let newest = packets[firstRelayed], arrived = 0;
-  const receiver = { getSynchronizationSources: () => [], getStats: async () => new Map([
-    ["in", { type: "inbound-rtp", packetsReceived: newest.seq - packets[firstRelayed].seq + 1, packetsLost: 0,
-             lastPacketReceivedTimestamp: arrived }],
-    ["tr", { type: "transport", selectedCandidatePairId: "cp" }],
-    ["cp", { type: "candidate-pair", currentRoundTripTime: 2 * LEG_MS / 1000 }],
-  ]) };
+""" + FAKE_RECEIVER + """
   const clock = new VoiceClock(receiver, { serverClock: async () => ({ unix_ms: pageNow() + OFFSET_MS }),
                                            watchedSinceMs: watched ? watchedSinceMs : null });
   while (clock.serverOffsetMs() == null) await new Promise((r) => setTimeout(r, 10));
