@@ -505,6 +505,36 @@ def test_the_page_in_a_real_browser_watches_the_face_through_janus(web: tuple[Bu
     assert rgb.std() > 20, "a blank picture"  # the face on its background: many colours
 
 
+def janus_session_alive(url: str, session: int) -> bool:
+    """Whether Janus still has `session` (a keepalive on it answers success, not "no such session")."""
+    body = json.dumps({"janus": "keepalive", "transaction": "alive"}).encode()
+    request = urllib.request.Request(f"{url}/{session}", data=body, headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(request, timeout=5.0) as response:
+        answer = json.loads(response.read())
+    return bool(answer.get("janus") == "ack")
+
+
+@needs_janus
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_a_page_that_goes_away_has_janus_drop_its_viewer_at_once(web: tuple[BusConfig, WebService],
+                                                                 janus: Janus) -> None:
+    """A page watching through Janus that goes away (another page in its tab here; a closed tab, a reload) tells Janus
+    to drop its viewer as it goes: its session is gone within seconds, where Janus would relay to it until the session
+    timed out (60 s), and count it among the mountpoint's viewers until then."""
+    _, service = web
+    with chromium() as driver:
+        driver.get(service.url + "?mic=0")
+        driver.find_element("id", "connect").click()
+        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
+                 lambda s: s == "connected")
+        sfu_frames(driver, service, 5, 30.0)
+        session = int(driver.execute_script("return window.eca.janus[0].session"))
+        assert janus_session_alive(janus.url, session)
+        driver.get("about:blank")
+        assert wait_until(lambda: not janus_session_alive(janus.url, session), 5.0), \
+            f"Janus still has the session of a page that went away: {running_logs()}"
+
+
 @needs_janus
 @pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
 def test_the_page_watches_through_janus_although_its_first_requests_to_janus_fail(

@@ -259,6 +259,9 @@ async function disconnect() {
   showStats();
 }
 
+// a page that goes away while watching through Janus has Janus drop its viewers at once (JanusWatch.leave)
+window.addEventListener("pagehide", () => { for (const watch of eca.janus || []) watch.leave(); });
+
 async function pollStats() {
   const pc = eca.pc;
   if (!pc || pc.connectionState !== "connected") return;

@@ -121,6 +121,17 @@ export class JanusWatch {
     if (event.janus === "hangup" && this.onhangup) this.onhangup(event.reason);
   }
 
+  // The page is going away (its tab closed, a reload, another page): Janus is told to drop this viewer now, in a
+  // request the browser still sends once the page is gone (keepalive; a text body, which Janus reads as JSON and which
+  // needs no CORS preflight), instead of relaying to a page that is not there until the session times out (60 s)
+  leave() {
+    if (this.closed || !this.session) return;
+    this.closed = true;
+    fetch(`${this.url}/${this.session}`, { method: "POST", keepalive: true,
+                                            body: JSON.stringify({ janus: "destroy", transaction: transaction() }) })
+      .catch(() => {});
+  }
+
   async close() {
     this.closed = true;
     if (this.pc) this.pc.close();
