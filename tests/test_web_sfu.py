@@ -169,6 +169,12 @@ const done = arguments[arguments.length - 1];
 """
 
 
+def connect_through_janus(driver: Any) -> None:
+    """The page (loaded) connects, and its connection to Janus comes up."""
+    driver.find_element("id", "connect").click()
+    wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus", lambda s: s == "connected")
+
+
 def through_janus(driver: Any, service: WebService, wait: Callable[[], T]) -> T:
     """`wait()` for what a page watching through Janus should get; when it times out, the error says what eca sent
     into Janus and encoded over a second (counters that stand still: eca stopped; moving: Janus or the page) and
@@ -488,9 +494,7 @@ def test_the_page_in_a_real_browser_watches_the_face_through_janus(web: tuple[Bu
     _, service = web
     with chromium() as driver:
         driver.get(service.url + "?mic=0")
-        driver.find_element("id", "connect").click()
-        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
-                 lambda s: s == "connected")
+        connect_through_janus(driver)
         assert driver.execute_script("return (window.eca.janus || []).length") == 1  # watched through Janus
         stats = sfu_frames(driver, service, 20, 30.0)
         pixels = np.array(driver.execute_script("""
@@ -524,9 +528,7 @@ def test_a_page_that_goes_away_has_janus_drop_its_viewer_at_once(web: tuple[BusC
     _, service = web
     with chromium() as driver:
         driver.get(service.url + "?mic=0")
-        driver.find_element("id", "connect").click()
-        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
-                 lambda s: s == "connected")
+        connect_through_janus(driver)
         sfu_frames(driver, service, 5, 30.0)
         session = int(driver.execute_script("return window.eca.janus[0].session"))
         assert janus_session_alive(janus.url, session)
@@ -558,9 +560,7 @@ def test_the_page_watches_through_janus_although_its_first_requests_to_janus_fai
               }
               return real(url, init);
             };""", janus_url)
-        driver.find_element("id", "connect").click()
-        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
-                 lambda s: s == "connected")
+        connect_through_janus(driver)
         assert driver.execute_script("return window.failedToJanus") == {"post": 2, "get": 1}
         assert driver.execute_script("return (window.eca.janus || []).length") == 1
         stats = sfu_frames(driver, service, 10, 30.0)
@@ -639,9 +639,7 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
     voice clock says when eca sent what plays. The page's estimate of its way from Janus (ms) is returned."""
     with audio_and_dialogue(config) as (audio, _), chromium() as driver:
         driver.get(service.url + "?mic=0")
-        driver.find_element("id", "connect").click()
-        wait_for(driver, "return window.eca.state", 30.0, "the page connecting through Janus",
-                 lambda state: state == "connected")
+        connect_through_janus(driver)
         wait_for(driver, "return window.eca.drawn.ada ? window.eca.drawn.ada.stats.received : 0", 30.0,
                  "the page drawing ada from face frames through Janus", lambda n: n >= 10)
         assert driver.execute_script("return (window.eca.janus || []).length") == 1
