@@ -147,6 +147,8 @@ def web_drawn(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
 T = TypeVar("T")
 
 # The page's connections to Janus as the page sees them: state, and the selected candidate pair's traffic.
+# The page's connections to Janus as the page sees them: state, and every candidate pair's (its two ends, whether
+# nominated or selected, its traffic and when its last packet came)
 JANUS_PCS = """
 const done = arguments[arguments.length - 1];
 (async () => {
@@ -154,15 +156,20 @@ const done = arguments[arguments.length - 1];
   for (const watch of window.eca.janus || []) {
     const pc = watch.pc;
     if (!pc) { out.push(null); continue; }
-    const pair = {};
-    (await pc.getStats()).forEach((r) => {
-      if (r.type === "candidate-pair" && r.nominated) {
-        pair[r.id] = {state: r.state, bytesReceived: r.bytesReceived, bytesSent: r.bytesSent,
-                      sinceLastPacketMs: r.lastPacketReceivedTimestamp ? Math.round(performance.timeOrigin
-                        + performance.now() - r.lastPacketReceivedTimestamp) : null};
-      }
+    const stats = await pc.getStats();
+    const end = (id) => { const c = stats.get(id); return c ? `${c.candidateType} ${c.address}:${c.port}` : id; };
+    let selected = null;
+    stats.forEach((r) => { if (r.type === "transport") selected = r.selectedCandidatePairId; });
+    const pairs = [];
+    stats.forEach((r) => {
+      if (r.type !== "candidate-pair") return;
+      pairs.push({local: end(r.localCandidateId), remote: end(r.remoteCandidateId), state: r.state,
+                  nominated: r.nominated, selected: r.id === selected, bytesReceived: r.bytesReceived,
+                  bytesSent: r.bytesSent, requestsSent: r.requestsSent, responsesReceived: r.responsesReceived,
+                  sinceLastPacketMs: r.lastPacketReceivedTimestamp ? Math.round(performance.timeOrigin
+                    + performance.now() - r.lastPacketReceivedTimestamp) : null});
     });
-    out.push({connection: pc.connectionState, ice: pc.iceConnectionState, nominated: pair});
+    out.push({connection: pc.connectionState, ice: pc.iceConnectionState, pairs});
   }
   return out;
 })().then(done, (e) => done(String(e)));

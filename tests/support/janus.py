@@ -36,6 +36,11 @@ from typing import Any
 import aiohttp
 
 JANUS = "/usr/bin/janus"
+# what Janus logs for every message, request or SDP line at debug level 5: left out of a failure's message, so that the
+# sessions, ICE pairs and states stay in its last lines
+LOG_NOISE = re.compile(r"SCTP data to send|Using open channel|Message sent on channel|Got a Janus API request|"
+                       r"Transport task pool|returning up to|Got a keep-alive|There's a message for|"
+                       r"Sending event to transport|Pushing event|^\s*[a-z]=|^\s*$")
 RUNNING: list[Janus] = []  # the private Janus instances running in this process, newest last (their logs for failures)
 LIBS = "/usr/lib/x86_64-linux-gnu/janus"
 START_TIMEOUT_S = 20.0
@@ -99,8 +104,8 @@ class Janus:
         self.start()
 
     def recent_log(self, last: int = 60) -> str:
-        """The last `last` lines of Janus's log (sessions, ICE, DTLS, media: debug level 4), colour codes taken out and
-        each run of a repeated line said once with its count: what a test's failure message shows of Janus."""
+        """The last `last` lines of Janus's log (sessions, ICE pairs and states, DTLS, media: debug level 5), colour
+        codes taken out and each run of a repeated line said once with its count: what a failure's message shows."""
         try:
             text = self.log_path.read_text(errors="replace")
         except OSError:
@@ -108,6 +113,8 @@ class Janus:
         runs: list[list[Any]] = []  # [line, times]
         for line in text.splitlines():
             line = re.sub(r"\x1b\[[0-9;]*m", "", line)
+            if LOG_NOISE.search(line):
+                continue
             if runs and runs[-1][0] == line:
                 runs[-1][1] += 1
             else:
@@ -121,7 +128,7 @@ class Janus:
             return ""
 
 
-def running_logs(last: int = 60) -> str:
+def running_logs(last: int = 150) -> str:
     """The recent log of every private Janus running in this process (Janus.recent_log), for a failure's message."""
     return "\n".join(f"--- Janus at {j.url}:\n{j.recent_log(last)}" for j in RUNNING) or "(no Janus running)"
 
@@ -152,7 +159,7 @@ def render_config(folder: Path, address: str, http_port: int, rtp_range: tuple[i
 	transports_folder = "{LIBS}/transports"
 	events_folder = "{LIBS}/events"
 	loggers_folder = "{LIBS}/loggers"
-	debug_level = 4
+	debug_level = 5
 	session_timeout = 60
 	hide_dependencies = true
 	protected_folders = ["/bin", "/boot", "/dev", "/etc", "/lib", "/proc", "/sbin", "/sys", "/usr", "/var"]
