@@ -53,7 +53,7 @@ from tests.support.browser import (
 )
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.janus import Janus, janus_available, janus_server, running_logs
-from tests.support.netns import Host, Network, hosts, netns_available
+from tests.support.netns import NETWORKS_GROUP, Host, Network, hosts, netns_available
 from tests.support.vrm import many_primitives_file
 from tests.support.web_client import SMALL, Client, speak_tone
 
@@ -66,6 +66,7 @@ def _skip_reason() -> str | None:
     return netns_available() or janus_available()
 
 
+pytestmark = pytest.mark.xdist_group(NETWORKS_GROUP)
 needs_janus = pytest.mark.skipif(_skip_reason() is not None, reason=str(_skip_reason()))
 
 
@@ -176,6 +177,17 @@ const done = arguments[arguments.length - 1];
 """
 
 
+# The voice clock of each face the page draws (static/face3d.js VoiceClock), through Janus: how it reads Janus's
+# numbering of the voice
+VOICE_CLOCKS = """
+return Object.fromEntries(Object.entries(window.eca.drawn || {}).map(([agent, face]) => {
+  const c = face.clock;
+  return [agent, c && {base: c.base, rebasings: c.rebasings || 0, firsts: c.firsts, dropped: c.dropped,
+                       spurts: c.spurts.slice(-5), report: c.report, asks: c.asks.length, legs: c.legs,
+                       watchedSinceMs: c.watchedSinceMs}];
+}));"""
+
+
 def connect_through_janus(driver: Any) -> None:
     """The page (loaded) connects, and its connection to Janus comes up."""
     driver.find_element("id", "connect").click()
@@ -198,8 +210,8 @@ def through_janus(driver: Any, service: WebService, wait: Callable[[], T]) -> T:
         before = sent()
         time.sleep(1.0)  # a second of counting what eca sends, for the message
         raise AssertionError(f"{exc}; eca then: {before}; a second later: {sent()}; the page's connections to "
-                             f"Janus: {driver.execute_async_script(JANUS_PCS)}; Janus's log:\n"
-                             f"{running_logs()}") from None
+                             f"Janus: {driver.execute_async_script(JANUS_PCS)}; the voice clocks of the faces it "
+                             f"draws: {driver.execute_script(VOICE_CLOCKS)}; Janus's log:\n{running_logs()}") from None
 
 
 def sfu_frames(driver: Any, service: WebService, count: int, timeout_s: float) -> dict[str, Any]:
@@ -652,8 +664,9 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
         assert driver.execute_script("return (window.eca.janus || []).length") == 1
         assert driver.execute_script("return document.querySelector('#faces video')") is None
         with talking(audio):
-            wait_for(driver, "return window.eca.drawn.ada.clock.rebasings || 0", 20.0,
-                     "the page working out Janus's numbering of the voice", lambda n: n >= 3)
+            through_janus(driver, service, lambda: wait_for(
+                driver, "return window.eca.drawn.ada.clock.rebasings || 0", 20.0,
+                "the page working out Janus's numbering of the voice", lambda n: n >= 3))
         # a pause in the voice (what is tested): eca sends nothing into Janus for a second, then the voice again
         voice = service.sfu.mountpoints["ada"].audio if service.sfu else None
         assert voice is not None and voice.last_ns is not None

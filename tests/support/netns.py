@@ -115,6 +115,13 @@ def _delay_link(ns: str, a: str, b: str, delay_s: float) -> subprocess.Popen[str
     return proc
 
 
+# The xdist group of every test module that makes networks here (`pytest -n 2 --dist loadgroup`, the Makefile's): they
+# run on one worker, one after another. A browser in the root namespace offers WebRTC candidates on every bridge there,
+# and a connection whose pair was on another worker's test network stopped dead when that network was removed (a page
+# watching through Janus got a few packets, then nothing)
+NETWORKS_GROUP = "test-networks"
+
+
 @contextmanager
 def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Network]:
     """One namespace per name on a private bridge; all removed afterwards.

@@ -68,6 +68,7 @@ export class VoiceClock {
     this.lastSeq = null;  // rebased: the newest report's last sequence number, unwrapped
     this.legs = [];  // rebased: the latest round trips to Janus (ms), from the connection's own checks
     this.base = null;  // rebased: the sender's RTP timestamp of that packet
+    this.dropped = { beforeSpurts: 0, beforeWatched: 0 };  // rebased: readings left out, and why (for diagnosis)
     this.timer = null;
     if (serverClock) {
       const ask = async () => {
@@ -152,12 +153,18 @@ export class VoiceClock {
       const seq = this.packetSentAt(sentMs, rtp, ntpMs);
       // a reading that puts the first packet before every spurt known says nothing usable (an early one: the
       // clocks' offset or a way misjudged under load); kept, it would hold the lowest for the next twenty
-      if (seq == null || !this.spurts.length || seq - newest < this.spurts[0].seq) return;
+      if (seq == null || !this.spurts.length || seq - newest < this.spurts[0].seq) {
+        this.dropped.beforeSpurts += 1;
+        return;
+      }
       // nor one that puts it before the page watched: an early reading at a spurt's first packet lands on the last
       // packet of the spurt before, whose RTP timestamp is a whole pause earlier (its sequence number is only one)
       const watchedMs = this.watchedSinceMs == null ? null
         : this.watchedSinceMs + offsetMs + NTP_UNIX_OFFSET_MS - WATCHED_LEEWAY_MS;
-      if (watchedMs != null && this.sentMsOf(seq - newest, rtp, ntpMs) < watchedMs) return;
+      if (watchedMs != null && this.sentMsOf(seq - newest, rtp, ntpMs) < watchedMs) {
+        this.dropped.beforeWatched += 1;
+        return;
+      }
       this.firsts.push(seq - newest);
       if (this.firsts.length > FIRST_READINGS) this.firsts.shift();
       const first = Math.min(...this.firsts);
