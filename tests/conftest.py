@@ -1,4 +1,5 @@
-"""Suite-wide set-up: the shared `bus` fixture, and the renderer's compiled code for the tests that draw."""
+"""Suite-wide set-up: the shared `bus` fixture, the renderer's compiled code for the tests that draw, and no WebRTC
+candidates on another test worker's networks (tests/support/netns.py only_own_networks)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,13 @@ import pytest
 
 from eca.protocol.endpoints import BusConfig
 from tests.support.bus import BrokerThread, private_bus_config
+from tests.support.netns import only_own_networks
 
 _compiled = False
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    only_own_networks()
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:

@@ -21,9 +21,9 @@ from pathlib import Path
 import pytest
 
 from tests.support.bus import eca_command, running
-from tests.support.netns import NETWORKS_GROUP, hosts, netns_available
+from tests.support.netns import hosts, netns_available
 
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group(NETWORKS_GROUP)]
+pytestmark = pytest.mark.slow
 
 CUT_S = 5.0  # the partition's length (the one fixed wait: it is the stimulus)
 NS = 1_000_000_000

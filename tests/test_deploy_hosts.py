@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from tests.support.bus import eca_command, running
-from tests.support.netns import NETWORKS_GROUP, hosts, netns_available
+from tests.support.netns import hosts, netns_available
 
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group(NETWORKS_GROUP)]
+pytestmark = pytest.mark.slow
 
 
 def view(url: str, token: str, out: str, signals: str) -> int:

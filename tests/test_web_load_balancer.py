@@ -45,10 +45,9 @@ from tests.support.haproxy import (
     haproxy_available,
     render_config,
 )
-from tests.support.netns import NETWORKS_GROUP, hosts, netns_available
+from tests.support.netns import hosts, netns_available
 from tests.support.web_client import FaceClient
 
-pytestmark = pytest.mark.xdist_group(NETWORKS_GROUP)
 needs_haproxy = pytest.mark.skipif(haproxy_available() is not None, reason=str(haproxy_available()))
 CHECK_MS = 300  # the checks' interval in these tests (the shipped sample's comment suggests 1 s)
 

@@ -53,7 +53,7 @@ from tests.support.browser import (
 )
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 from tests.support.janus import Janus, janus_available, janus_server, running_logs
-from tests.support.netns import NETWORKS_GROUP, Host, Network, hosts, netns_available
+from tests.support.netns import Host, Network, hosts, netns_available
 from tests.support.vrm import many_primitives_file
 from tests.support.web_client import SMALL, Client, speak_tone
 
@@ -66,7 +66,6 @@ def _skip_reason() -> str | None:
     return netns_available() or janus_available()
 
 
-pytestmark = pytest.mark.xdist_group(NETWORKS_GROUP)
 needs_janus = pytest.mark.skipif(_skip_reason() is not None, reason=str(_skip_reason()))
 
 

@@ -115,11 +115,36 @@ def _delay_link(ns: str, a: str, b: str, delay_s: float) -> subprocess.Popen[str
     return proc
 
 
-# The xdist group of every test module that makes networks here (`pytest -n 2 --dist loadgroup`, the Makefile's): they
-# run on one worker, one after another. A browser in the root namespace offers WebRTC candidates on every bridge there,
-# and a connection whose pair was on another worker's test network stopped dead when that network was removed (a page
-# watching through Janus got a few packets, then nothing)
-NETWORKS_GROUP = "test-networks"
+BRIDGE_PREFIX = "ecb"  # every test network's bridge in the root namespace is named so
+OWN_BRIDGES: set[str] = set()  # the bridges this process made (its networks' own)
+
+
+def others_bridge_addresses() -> set[str]:
+    """The addresses of the test networks' bridges that another process made (another test worker's, which it removes
+    when its test ends): see only_own_networks."""
+    import ifaddr
+
+    return {str(ip.ip if isinstance(ip.ip, str) else ip.ip[0]) for adapter in ifaddr.get_adapters()
+            if adapter.name.startswith(BRIDGE_PREFIX) and adapter.name not in OWN_BRIDGES for ip in adapter.ips}
+
+
+def only_own_networks() -> None:
+    """aioice (the WebRTC of the test process's own peers: test clients, services run in threads) offers no candidate
+    on another test worker's network, which that worker removes when its test ends, under any connection whose pair
+    was there. Its own networks, and every other interface, it still offers. (A browser in the root namespace offers
+    every bridge: Chromium's --force-webrtc-ip-handling-policy left them in.)"""
+    import aioice.ice
+
+    gather = aioice.ice.get_host_addresses
+    if getattr(gather, "only_own_networks", False):
+        return
+
+    def host_addresses(use_ipv4: bool, use_ipv6: bool) -> list[str]:
+        others = others_bridge_addresses()
+        return [address for address in gather(use_ipv4, use_ipv6) if address not in others]
+
+    host_addresses.only_own_networks = True  # type: ignore[attr-defined]
+    aioice.ice.get_host_addresses = host_addresses
 
 
 @contextmanager
@@ -136,7 +161,8 @@ def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Netwo
         raise ValueError(f"delays name hosts of {names}, each 0..5 s: {delays}")
     tag = f"{os.getpid() % 100000}{next(_count)}"
     prefix = _free_prefix()
-    bridge = f"ecb{tag}"[:15]
+    bridge = f"{BRIDGE_PREFIX}{tag}"[:15]
+    OWN_BRIDGES.add(bridge)
     made_ns: list[str] = []
     made_links: list[str] = []
     links: list[subprocess.Popen[str]] = []
