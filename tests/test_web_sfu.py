@@ -146,7 +146,6 @@ def web_drawn(janus: Janus) -> Iterator[tuple[BusConfig, WebService]]:
 
 T = TypeVar("T")
 
-# The page's connections to Janus as the page sees them: state, and the selected candidate pair's traffic.
 # The page's connections to Janus as the page sees them: state, and every candidate pair's (its two ends, whether
 # nominated or selected, its traffic and when its last packet came)
 JANUS_PCS = """
@@ -690,9 +689,7 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
                 const f = window.eca.drawn.ada; f.present();
                 return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs];""")
         leg_ms = driver.execute_script("return window.eca.drawn.ada.clock.legMs")
-        clock_state = driver.execute_script("""const c = window.eca.drawn.ada.clock;
-            return {base: c.base, firsts: c.firsts, spurts: c.spurts.slice(-10), asks: c.asks, legs: c.legs,
-                    watchedSinceMs: c.watchedSinceMs};""")
+        clock_state = driver.execute_script(VOICE_CLOCKS)
         pixels = canvas_pixels(driver)
         driver.save_screenshot(str(tmp_path / "drawn_through_janus.png"))
     # each packet played, in eca's numbering by the page's estimate, and so when eca sent it: played as long after as

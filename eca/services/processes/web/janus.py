@@ -72,14 +72,12 @@ async def _whole_answer(response: aiohttp.ClientResponse) -> bytes | None:
     kept for the next request (a new one costs a round trip more, and the way to Janus was taken as twice as long)."""
     parts: list[bytes] = []
     size = 0
-    while True:
-        part = await response.content.readany()
-        if not part:
-            return b"".join(parts)
+    async for part in response.content.iter_any():
         size += len(part)
         if size > MAX_ANSWER_BYTES:
             return None
         parts.append(part)
+    return b"".join(parts)
 
 
 class JanusClient:

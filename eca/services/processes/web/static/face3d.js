@@ -168,8 +168,7 @@ export class VoiceClock {
       this.firsts.push(seq - newest);
       if (this.firsts.length > FIRST_READINGS) this.firsts.shift();
       const first = Math.min(...this.firsts);
-      let spurt = null;
-      for (const p of this.spurts) if (p.seq <= first) spurt = p;
+      const spurt = this.spurtOf(first);
       if (!spurt) return;  // its spurt is no longer known: the base found before holds
       this.base = (spurt.rtp + (first - spurt.seq) * FRAME_SAMPLES) % 2 ** 32;
       this.report = { rtp: (((rtp - this.base) % 2 ** 32) + 2 ** 32) % 2 ** 32, ntpMs };
@@ -179,11 +178,17 @@ export class VoiceClock {
     }
   }
 
+  // The talk spurt packet `seq` (unwrapped) belongs to: the last begun at or before it; null before every one known
+  spurtOf(seq) {
+    let spurt = null;
+    for (const p of this.spurts) if (p.seq <= seq) spurt = p;
+    return spurt;
+  }
+
   // When the server sent packet `seq` (unwrapped; its NTP clock, ms), by the spurts it names: the RTP timestamp of
   // its spurt's first plus the packets between them; -Infinity before every spurt known
   sentMsOf(seq, rtp, ntpMs) {
-    let spurt = null;
-    for (const p of this.spurts) if (p.seq <= seq) spurt = p;
+    const spurt = this.spurtOf(seq);
     if (!spurt) return -Infinity;
     return ntpMs + wrapped32(spurt.rtp + (seq - spurt.seq) * FRAME_SAMPLES - rtp) * 1000 / OPUS_RATE;
   }
