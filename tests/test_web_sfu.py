@@ -684,7 +684,11 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
                 windows.append(played)
                 if steady(played):
                     break
-            assert steady(played), f"the browser's playout never steady in {len(windows)} windows of 1 s: {windows}"
+            assert steady(played), (
+                f"the browser's playout never steady in {len(windows)} windows of 1 s: {windows}; the page has "
+                f"{driver.execute_async_script(VOICE_PACKETS)} packets ({before} before the pause); eca sent "
+                f"{voice.packets}, the newest {(service.clock.now_ns() - (voice.last_ns or 0)) / 1e6:.0f} ms ago; the "
+                f"page's connection to Janus: {driver.execute_async_script(JANUS_PCS)}; Janus's log:\n{running_logs()}")
             heard_ms, newest_ms = driver.execute_script("""
                 const f = window.eca.drawn.ada; f.present();
                 return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs];""")

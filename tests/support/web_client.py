@@ -12,7 +12,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 import soundfile as sf
-from aiortc import RTCPeerConnection, RTCSessionDescription
+from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
 
 SMALL = {"width": 160, "height": 120, "fps": 15.0}
 
@@ -21,10 +21,11 @@ class Client:
     """One peer connection receiving the agents' faces and voices (and sending a microphone, if given)."""
 
     def __init__(self, base: str, agents: list[str], mic: Any = None, token: str | None = None,
-                 video: dict[str, float] | None = None) -> None:
+                 video: dict[str, float] | None = None, configuration: RTCConfiguration | None = None) -> None:
         self.base, self.agents, self.mic, self.token = base, agents, mic, token
         self.video = video or SMALL
-        self.pc = RTCPeerConnection()
+        # `configuration`: the page's STUN/TURN servers and policy (none: aiortc's own default)
+        self.pc = RTCPeerConnection(configuration)
         self.tracks: dict[tuple[str, str], Any] = {}
 
     async def offer_body(self) -> dict[str, Any]:
@@ -103,8 +104,10 @@ class FaceClient(Client):
     """A page that draws its agents itself, in Python: their voices as audio tracks and their face frames on the
     "eca-face" data channel (kept with their arrival times), and the answer's face descriptions."""
 
-    def __init__(self, base: str, agents: list[str], token: str | None = None, fps: float = 15.0) -> None:
-        super().__init__(base, agents, token=token, video={"width": 160, "height": 120, "fps": fps})
+    def __init__(self, base: str, agents: list[str], token: str | None = None, fps: float = 15.0,
+                 configuration: RTCConfiguration | None = None) -> None:
+        super().__init__(base, agents, token=token, video={"width": 160, "height": 120, "fps": fps},
+                         configuration=configuration)
         self.messages: list[tuple[float, bytes]] = []
         self.channel = self.pc.createDataChannel("eca-face", ordered=False, maxRetransmits=0)
         self.channel.on("message", lambda m: self.messages.append((time.monotonic(), m)))

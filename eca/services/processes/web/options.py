@@ -16,6 +16,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from eca.protocol.endpoints import is_loopback
+from eca.services.processes.web.ice import IceSettings, IceSettingsError, ice_from_table
 
 MAX_TOKEN_CHARS = 256
 MAX_SFU_URL_CHARS = 2000
@@ -81,6 +82,9 @@ class WebOptions:
     # and `eca up` starts them all; a load balancer in front spreads the visitors (docs/web.md, "Web workers")
     workers: int = 1
     worker: int = 1  # which worker this process is (1: the service "web"; i > 1: "web-i"), set by `eca up`
+    # how this service's WebRTC peers and its pages find a way to each other: STUN/TURN servers, the interfaces
+    # offered ([web.ice], web/ice.py); none by default: host addresses only, no outside server asked
+    ice: IceSettings = field(default_factory=IceSettings)
 
     def check(self) -> WebOptions:
         if not 0 <= self.port < 65536:
@@ -112,6 +116,12 @@ class WebOptions:
         if self.sfu is not None:
             self._check_sfu()
         self.vad.check()
+        if not isinstance(self.ice, IceSettings):
+            raise WebOptionsError(f"web ice must be a table of ICE settings, got {self.ice!r}")
+        try:
+            self.ice.check("web ice")
+        except IceSettingsError as exc:
+            raise WebOptionsError(str(exc)) from None
         return self
 
     def _check_workers(self) -> None:
@@ -191,6 +201,11 @@ def options_from_table(table: dict[str, Any], where: str = "[web]") -> WebOption
             if not isinstance(value, dict):
                 raise WebOptionsError(f"{where}: 'vad' must be a table")
             values["vad"] = _vad_from(value, f"{where}.vad")
+        elif key == "ice":
+            try:
+                values["ice"] = ice_from_table(value, f"{where}.ice")
+            except IceSettingsError as exc:
+                raise WebOptionsError(str(exc)) from None
         elif key == "agents":
             values["agents"] = tuple(str(a) for a in value)
         elif key == "token_file":

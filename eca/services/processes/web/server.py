@@ -176,6 +176,8 @@ def make_app(backend: Backend, viewers: Viewers, options: WebOptions, agents: tu
                                   "max_height": options.max_height, "max_fps": options.max_fps,
                                   "draw": options.draw, "drawable": drawable(),
                                   "per_visitor": conversations is not None,
+                                  # STUN/TURN servers for the page's peers, TURN credentials minted now (web/ice.py)
+                                  "ice_servers": options.ice.for_page(),
                                   # with an SFU: where pages watch each agent through Janus (web/sfu.py)
                                   "sfu": sfu_info()})
 

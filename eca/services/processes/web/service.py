@@ -47,6 +47,7 @@ from eca.services.processes.web.encoding import EncodedStreams
 from eca.services.processes.web.event_loop import EventLoopThread
 from eca.services.processes.web.face_frames import FaceFrames
 from eca.services.processes.web.feeds import FrameFeed, Picture, VoiceFeed
+from eca.services.processes.web.ice_gathering import check_interfaces
 from eca.services.processes.web.janus import JanusError, check_server
 from eca.services.processes.web.options import WebOptions, WebOptionsError, add_arguments, options_from
 from eca.services.processes.web.server import make_app
@@ -127,6 +128,10 @@ class WebService(Service):
         self._events: EventLoopThread | None = None
         self._runner: web.AppRunner | None = None
         self.viewers: Viewers | None = None
+        try:  # fail fast too: [web.ice] interfaces that name nothing here leave no address to offer
+            self._missing_interfaces = check_interfaces(self.options.ice)
+        except ValueError as exc:
+            raise WebOptionsError(str(exc)) from None
         self.sfu: SfuPublisher | None = None  # with [web] sfu: the faces published into Janus (web/sfu.py)
         if self.options.sfu is not None:
             try:  # fail fast: a Janus that does not answer now is a wrong URL far more often than a late one
@@ -311,8 +316,10 @@ class WebService(Service):
 
     def setup(self) -> None:
         logging.getLogger("aioice").setLevel(logging.WARNING)  # every ICE check at INFO drowns the service's lines
+        for name in self._missing_interfaces:
+            self.log.warning("[web.ice] interfaces: %s is not on this host; its addresses are not offered", name)
         self.viewers = Viewers(self, self.options.max_viewers, self.options.vad, self.options.connect_timeout_s,
-                               self.options.silent_timeout_s)
+                               self.options.silent_timeout_s, self.options.ice)
         if self.options.draw != "server":
             self.face_frames.prepare()
         if self.gl_at_start:

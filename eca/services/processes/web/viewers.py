@@ -29,6 +29,8 @@ from eca.services.processes.web.calibration import click_track, flash_track
 from eca.services.processes.web.encoding import EncodedStreams
 from eca.services.processes.web.face_frames import next_due_ns
 from eca.services.processes.web.feeds import FrameFeed, VoiceFeed
+from eca.services.processes.web.ice import IceSettings
+from eca.services.processes.web.ice_gathering import configuration, gathering
 from eca.services.processes.web.microphone import MicBlock, Microphone
 from eca.services.processes.web.options import VadSettings
 from eca.services.processes.web.tracks import FaceTrack, VoiceTiming, VoiceTrack
@@ -99,8 +101,9 @@ class Viewer:
 
 class Viewers:
     def __init__(self, backend: Backend, max_viewers: int, vad: VadSettings, connect_timeout_s: float = 15.0,
-                 silent_timeout_s: float = 10.0) -> None:
+                 silent_timeout_s: float = 10.0, ice: IceSettings | None = None) -> None:
         self.backend = backend
+        self.ice = ice or IceSettings()  # STUN/TURN servers and the interfaces offered (web/ice.py)
         self.max_viewers = max_viewers
         self.vad = vad
         self.connect_timeout_s = connect_timeout_s
@@ -117,13 +120,14 @@ class Viewers:
         """Open a viewer for an offer; its answer's SDP. ValueError (with a sentence for the page) when the
         offer cannot be answered; nothing is left open then."""
         number = next(self._numbers)
-        viewer = Viewer(number, RTCPeerConnection(), request)
+        viewer = Viewer(number, RTCPeerConnection(configuration(self.ice)), request)
         self.open[number] = viewer
         try:
             _offer_vp8_only(viewer.pc, sum(kind == "video" for _, _, kind in request.streams))
             await viewer.pc.setRemoteDescription(RTCSessionDescription(sdp=offer_sdp, type="offer"))
             self._attach(viewer)
-            await viewer.pc.setLocalDescription(await viewer.pc.createAnswer())
+            with gathering(self.ice):  # the answer's candidates are gathered here
+                await viewer.pc.setLocalDescription(await viewer.pc.createAnswer())
         except Exception as exc:  # aiortc's SDP parser raises many types on a malformed offer
             await self.close(viewer)
             raise ValueError(f"the offer could not be answered: {_plain(exc)}") from None

@@ -91,15 +91,22 @@ function onFaceFrame(event) {
   else eca.unplaced = (eca.unplaced || 0) + 1;  // before its face has loaded, or not a face of this page
 }
 
+// The offer goes whole (no trickle), so it waits for the candidates: until gathering completes, or GATHER_LIMIT_MS at
+// most. A STUN or TURN server that one of the browser's networks cannot reach (a VPN, a second card) holds
+// gathering up for tens of seconds; what was gathered by then is offered.
+const GATHER_LIMIT_MS = 3000;
+
 async function gatheringDone(pc) {
   if (pc.iceGatheringState === "complete") return;
   await new Promise((resolve) => {
-    const check = () => { if (pc.iceGatheringState === "complete") { pc.removeEventListener("icegatheringstatechange", check); resolve(); } };
+    const done = () => { pc.removeEventListener("icegatheringstatechange", check); clearTimeout(timer); resolve(); };
+    const check = () => { if (pc.iceGatheringState === "complete") done(); };
+    const timer = setTimeout(done, GATHER_LIMIT_MS);
     pc.addEventListener("icegatheringstatechange", check);
   });
 }
 
-async function connectThroughJanus(sfu, agents) {
+async function connectThroughJanus(sfu, agents, iceServers) {
   const { JanusWatch } = await import("./janus_watch.js");
   eca.agents = agents;
   eca.janus = [];
@@ -115,7 +122,7 @@ async function connectThroughJanus(sfu, agents) {
   for (const agent of agents) {
     const mountpoint = sfu.mountpoints[agent];
     if (mountpoint == null) throw new Error(`the SFU carries no mountpoint for ${agent}`);
-    const watch = new JanusWatch(sfu.url, mountpoint);
+    const watch = new JanusWatch(sfu.url, mountpoint, iceServers);
     eca.janus.push(watch);
     const here = drawHere.includes(agent);
     const element = faceFor(agent, here);
@@ -161,7 +168,9 @@ async function connect() {
   // drawn left to right in the instance's order, the seats its agents look at each other by
   const seat = (a) => (config.agents.indexOf(a) < 0 ? config.agents.length : config.agents.indexOf(a));
   let agents = (params.get("agents") || config.agents[0]).split(",").filter(Boolean).sort((a, b) => seat(a) - seat(b));
-  if (config.sfu && params.get("sfu") !== "0") return connectThroughJanus(config.sfu, agents);
+  // STUN/TURN servers the operator named ([web.ice]; none: host candidates only), TURN credentials minted for this page
+  const iceServers = config.ice_servers || [];
+  if (config.sfu && params.get("sfu") !== "0") return connectThroughJanus(config.sfu, agents, iceServers);
   eca.key = null;
   if (config.per_visitor) {
     // a conversation of this page's own: an agent made for it, which only this page (its key) watches and commands
@@ -187,7 +196,7 @@ async function connect() {
   if (config.draw === "browser" && drawHere.length !== agents.length) {
     throw new Error("this server sends no video (draw = browser) and this browser has no WebGL");
   }
-  const pc = new RTCPeerConnection();
+  const pc = new RTCPeerConnection({ iceServers });
   eca.pc = pc;
   eca.agents = agents;
   if (drawHere.length) {

@@ -37,9 +37,11 @@ async function janusPost(url, body) {
 }
 
 export class JanusWatch {
-  constructor(url, mountpoint) {
+  // `iceServers`: STUN/TURN servers for the page's side of the connection (RTCPeerConnection's iceServers)
+  constructor(url, mountpoint, iceServers = []) {
     this.url = url.replace(/\/+$/, "");
     this.mountpoint = mountpoint;
+    this.iceServers = iceServers;
     this.pc = null;
     this.session = null;
     this.handle = null;
@@ -61,7 +63,7 @@ export class JanusWatch {
     const watch = { request: "watch", id: this.mountpoint, ...(media ? { media } : {}) };
     await janusPost(this.handleUrl, { janus: "message", body: watch });
     const offer = await this.nextOffer(timeoutMs);
-    const pc = new RTCPeerConnection();
+    const pc = new RTCPeerConnection({ iceServers: this.iceServers });
     this.pc = pc;
     pc.ontrack = onTrack;
     pc.onicecandidate = (event) => {
