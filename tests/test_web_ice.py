@@ -63,7 +63,7 @@ def relayed_web(network: Network, turn: TurnServer, tmp_path: Path) -> Iterator[
     # the service offers its address on the test network only: the TURN host has no route to the machine's others
     # (coturn's relay socket that fails to send to one spoils the allocation's next channel bindings: 438, then 400)
     ice = ice_from_table({"servers": [turn.url], "secret_file": str(secret), "credential_ttl_s": 3600.0,
-                          "interfaces": [network.bridge]})
+                          "interfaces": [network.root_address]})
     with private_bus_config() as config, BrokerThread(config):
         service = WebService(config, WebOptions(port=0, fps=15.0, face="head", draw="browser", ice=ice))
         with ServiceThread(service):
@@ -169,7 +169,7 @@ def test_a_credential_minted_from_another_secret_gets_no_relay(turn: TurnServer)
 
 @pytest.fixture
 def two_webs(network: Network) -> Iterator[tuple[WebService, WebService]]:
-    held = IceSettings(interfaces=(network.bridge,))
+    held = IceSettings(interfaces=(network.root_address,))
     with private_bus_config() as config, BrokerThread(config):
         free = WebService(config, WebOptions(port=0, face="head", draw="browser"))
         kept = WebService(config, WebOptions(port=0, face="head", draw="browser", ice=held))

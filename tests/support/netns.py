@@ -1,11 +1,18 @@
 """Network namespaces as hosts, for tests of eca across machines (as root; CI runs as root).
 
 `hosts("dm", "model", "web")` makes one namespace per name, each with its own address on a private /24, all
-linked through a bridge in the root namespace (which has an address on it too, so the test itself reaches every
-host). Loopback is up in each. A "host" runs a command with `host.popen(argv)` / `host.run(argv)`; `host.cut()`
-and `host.heal()` take its link down and up (a partition, as `ip link set dev down` does to a real cable).
-Everything is removed on exit, whatever happened. Names carry the pid and a counter, so parallel test workers
-never collide.
+linked through a bridge. Loopback is up in each. A "host" runs a command with `host.popen(argv)` /
+`host.run(argv)`; `host.cut()` and `host.heal()` take its link down and up (a partition, as `ip link set dev down`
+does to a real cable). Everything is removed on exit, whatever happened.
+
+The bridges are not in the root namespace but in a router namespace of this process's own ("ecr<pid>", made at its
+first network and removed when it exits), joined to the root namespace by one link ("ecu<pid>", address
+10.<b>.0.1): the test itself reaches every host through it, and each host has a route back to it. So the root
+namespace, where the test's browsers and WebRTC peers gather their candidates, sees one link per test process for
+the whole session, not a bridge made and removed with every test: a browser that had paired on another worker's
+bridge lost its connection when that worker's test ended (Chromium offers a candidate on each link of the root
+namespace, and may send from it; caught in a page's pair list). Each process draws its block 10.<b>.0.0/16 under
+a file lock, so parallel test workers never share one; its networks are 10.<b>.<n>.0/24.
 
 A filesystem `ipc://` endpoint is reachable from every namespace (one filesystem): cross-host links in a test
 must be `tcp://` to these addresses, or the test passes through the filesystem without noticing.
@@ -13,15 +20,17 @@ must be `tcp://` to these addresses, or the test passes through the filesystem w
 
 from __future__ import annotations
 
+import atexit
+import fcntl
 import itertools
 import os
-import random
 import shutil
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +62,8 @@ def _ip(*args: str) -> None:
 class Host:
     name: str  # the namespace
     address: str  # its address on the bridge's /24
-    veth_outside: str  # its cable's end in the root namespace (cut/heal take it down/up)
+    veth_outside: str  # its cable's end on the bridge, in the router namespace (cut/heal take it down/up)
+    router: str = ""  # the router namespace the bridge is in
 
     def argv(self, argv: Sequence[str]) -> list[str]:
         return ["ip", "netns", "exec", self.name, *argv]
@@ -66,32 +76,116 @@ class Host:
 
     def cut(self) -> None:
         """Partition this host from every other (its link goes down; sockets stay open on both sides)."""
-        _ip("link", "set", "dev", self.veth_outside, "down")
+        _ip("-n", self.router, "link", "set", "dev", self.veth_outside, "down")
 
     def heal(self) -> None:
-        _ip("link", "set", "dev", self.veth_outside, "up")
+        _ip("-n", self.router, "link", "set", "dev", self.veth_outside, "up")
 
 
 @dataclass
 class Network:
     hosts: dict[str, Host]
-    bridge: str
-    root_address: str  # the root namespace's (the test's own) address on the bridge
+    bridge: str  # in the router namespace
+    root_address: str  # the root namespace's (the test's own) address, as the hosts reach it (through the router)
+    router: str = ""
 
     def __getitem__(self, name: str) -> Host:
         return self.hosts[name]
 
 
-def _free_prefix() -> str:
-    """A /24 of 10.<x>.<y>.0 that no interface here is on: two networks on one prefix (another test worker's) would
-    route each other's packets to the wrong bridge. Drawn from this process's own seeded sequence."""
+ROUTER_PREFIX = "ecr"  # each test process's router namespace: ecr<pid>
+UPLINK_PREFIX = "ecu"  # its link in the root namespace: ecu<pid>
+OWN_LINKS: set[str] = set()  # the root namespace's links this process made (its uplink)
+_LOCK_FILE = Path("/tmp/eca-test-networks.lock")
+
+
+@dataclass
+class _Router:
+    ns: str
+    uplink: str
+    block: int  # this process's networks are 10.<block>.<n>.0/24, n = 1..254; the uplink is 10.<block>.0.0/30
+    in_use: set[int] = field(default_factory=set)
+
+    @property
+    def root_address(self) -> str:
+        return f"10.{self.block}.0.1"
+
+    def take(self) -> int:
+        free = next((n for n in range(1, 255) if n not in self.in_use), None)
+        if free is None:
+            raise RuntimeError("254 test networks at once in one process")
+        self.in_use.add(free)
+        return free
+
+
+_router: _Router | None = None
+_router_guard = threading.Lock()
+
+
+def _router_here() -> _Router:
+    """This process's router namespace, made at its first network."""
+    global _router
+    with _router_guard:
+        if _router is None:
+            _router = _make_router()
+        return _router
+
+
+@contextmanager
+def _allocation_lock() -> Iterator[None]:
+    with open(_LOCK_FILE, "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        yield
+
+
+def _make_router() -> _Router:
+    pid = os.getpid()
+    ns, uplink, inside = f"{ROUTER_PREFIX}{pid}", f"{UPLINK_PREFIX}{pid}"[:15], "uplink"
+    with _allocation_lock():
+        _remove_stale_routers()
+        block = _free_block()
+        _ip("netns", "add", ns)
+        try:
+            _ip("link", "add", uplink, "type", "veth", "peer", "name", inside, "netns", ns)
+            _ip("addr", "add", f"10.{block}.0.1/30", "dev", uplink)
+            _ip("link", "set", uplink, "up")
+            _ip("-n", ns, "addr", "add", f"10.{block}.0.2/30", "dev", inside)
+            _ip("-n", ns, "link", "set", inside, "up")
+            _ip("-n", ns, "link", "set", "lo", "up")
+            _ip("route", "add", f"10.{block}.0.0/16", "via", f"10.{block}.0.2", "dev", uplink)
+            forward = subprocess.run(["ip", "netns", "exec", ns, "sysctl", "-q", "-w", "net.ipv4.ip_forward=1"],
+                                     capture_output=True, text=True)
+            if forward.returncode != 0:
+                raise RuntimeError(f"forwarding in {ns}: {forward.stderr.strip()}")
+        except BaseException:
+            subprocess.run(["ip", "netns", "delete", ns], capture_output=True)  # its end of the uplink goes too
+            raise
+    OWN_LINKS.add(uplink)
+    atexit.register(subprocess.run, ["ip", "netns", "delete", ns], capture_output=True)
+    return _Router(ns, uplink, block)
+
+
+def _remove_stale_routers() -> None:
+    """The router namespaces of test processes that are gone (killed before their exit handler ran)."""
+    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout.split()
+    for name in listed:
+        if name.startswith(ROUTER_PREFIX) and name[len(ROUTER_PREFIX):].isdigit():
+            try:
+                os.kill(int(name[len(ROUTER_PREFIX):]), 0)
+            except ProcessLookupError:
+                subprocess.run(["ip", "netns", "delete", name], capture_output=True)
+            except PermissionError:
+                pass  # alive
+
+
+def _free_block() -> int:
+    """A 10.<b>.0.0/16 that no address or route here uses (another test process's block among them)."""
     used = subprocess.run(["ip", "-4", "-o", "addr", "show"], capture_output=True, text=True).stdout
-    draw = random.Random(os.getpid() * 1_000_003 + next(_count))
-    for _ in range(1000):
-        prefix = f"10.{draw.randrange(10, 250)}.{draw.randrange(0, 250)}"
-        if f" {prefix}." not in used:
-            return prefix
-    raise RuntimeError("no free 10.x.y.0/24 for a test network")
+    used += subprocess.run(["ip", "-4", "route", "show"], capture_output=True, text=True).stdout
+    for block in range(20, 250):
+        if f"10.{block}." not in used:
+            return block
+    raise RuntimeError("no free 10.b.0.0/16 for this process's test networks")
 
 
 def _no_offloads(ns: str | None, link: str) -> None:
@@ -115,24 +209,20 @@ def _delay_link(ns: str, a: str, b: str, delay_s: float) -> subprocess.Popen[str
     return proc
 
 
-BRIDGE_PREFIX = "ecb"  # every test network's bridge in the root namespace is named so
-OWN_BRIDGES: set[str] = set()  # the bridges this process made (its networks' own)
-
-
-def others_bridge_addresses() -> set[str]:
-    """The addresses of the test networks' bridges that another process made (another test worker's, which it removes
-    when its test ends): see only_own_networks."""
+def others_link_addresses() -> set[str]:
+    """The addresses of the root namespace's links to other test processes' routers (another test worker's, which
+    goes when that worker ends): see only_own_networks."""
     import ifaddr
 
     return {str(ip.ip if isinstance(ip.ip, str) else ip.ip[0]) for adapter in ifaddr.get_adapters()
-            if adapter.name.startswith(BRIDGE_PREFIX) and adapter.name not in OWN_BRIDGES for ip in adapter.ips}
+            if adapter.name.startswith(UPLINK_PREFIX) and adapter.name not in OWN_LINKS for ip in adapter.ips}
 
 
 def only_own_networks() -> None:
     """aioice (the WebRTC of the test process's own peers: test clients, services run in threads) offers no candidate
-    on another test worker's network, which that worker removes when its test ends, under any connection whose pair
-    was there. Its own networks, and every other interface, it still offers. (A browser in the root namespace offers
-    every bridge: Chromium's --force-webrtc-ip-handling-policy left them in.)"""
+    on another test process's link to its networks, which goes when that process ends, under any connection whose
+    pair was there. Its own link, and every other interface, it still offers. (A browser in the root namespace
+    offers every link: Chromium's --force-webrtc-ip-handling-policy left them in.)"""
     import aioice.ice
 
     gather = aioice.ice.get_host_addresses
@@ -140,7 +230,7 @@ def only_own_networks() -> None:
         return
 
     def host_addresses(use_ipv4: bool, use_ipv6: bool) -> list[str]:
-        others = others_bridge_addresses()
+        others = others_link_addresses()
         return [address for address in gather(use_ipv4, use_ipv6) if address not in others]
 
     host_addresses.only_own_networks = True  # type: ignore[attr-defined]
@@ -160,17 +250,19 @@ def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Netwo
     if set(delays) - set(names) or any(not 0.0 <= d <= 5.0 for d in delays.values()):
         raise ValueError(f"delays name hosts of {names}, each 0..5 s: {delays}")
     tag = f"{os.getpid() % 100000}{next(_count)}"
-    prefix = _free_prefix()
-    bridge = f"{BRIDGE_PREFIX}{tag}"[:15]
-    OWN_BRIDGES.add(bridge)
+    router = _router_here()
+    number = router.take()
+    prefix = f"10.{router.block}.{number}"
+    bridge = f"br{number}"
+    r = router.ns
     made_ns: list[str] = []
-    made_links: list[str] = []
+    made_links: list[str] = []  # in the router namespace
     links: list[subprocess.Popen[str]] = []
     try:
-        _ip("link", "add", bridge, "type", "bridge")
+        _ip("-n", r, "link", "add", bridge, "type", "bridge")
         made_links.append(bridge)
-        _ip("addr", "add", f"{prefix}.1/24", "dev", bridge)
-        _ip("link", "set", bridge, "up")
+        _ip("-n", r, "addr", "add", f"{prefix}.1/24", "dev", bridge)
+        _ip("-n", r, "link", "set", bridge, "up")
         out: dict[str, Host] = {}
         for i, name in enumerate(names, start=2):
             ns = f"eca{tag}{name}"[:32]
@@ -178,7 +270,7 @@ def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Netwo
             made_ns.append(ns)
             outside, inside = f"eo{tag}{i}"[:15], f"ei{tag}{i}"[:15]
             if name not in delays:
-                _ip("link", "add", outside, "type", "veth", "peer", "name", inside)
+                _ip("-n", r, "link", "add", outside, "type", "veth", "peer", "name", inside, "netns", ns)
             else:
                 # two cables through a namespace of their own: outside <-> b | delay link | a <-> inside; the outside
                 # end is on the bridge as for any host, so cut() still works
@@ -186,29 +278,32 @@ def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Netwo
                 _ip("netns", "add", link_ns)
                 made_ns.append(link_ns)
                 a, b = f"ea{tag}{i}"[:15], f"eb{tag}{i}"[:15]
-                _ip("link", "add", outside, "type", "veth", "peer", "name", b, "netns", link_ns)
-                _ip("link", "add", inside, "type", "veth", "peer", "name", a, "netns", link_ns)
+                _ip("-n", r, "link", "add", outside, "type", "veth", "peer", "name", b, "netns", link_ns)
+                _ip("-n", link_ns, "link", "add", a, "type", "veth", "peer", "name", inside, "netns", ns)
                 for end in (a, b):
-                    _ip("netns", "exec", link_ns, "ip", "link", "set", end, "up")
+                    _ip("-n", link_ns, "link", "set", end, "up")
                     _no_offloads(link_ns, end)
-                _no_offloads(None, outside)
+                _no_offloads(r, outside)
                 links.append(_delay_link(link_ns, a, b, delays[name]))
             made_links.append(outside)
-            _ip("link", "set", inside, "netns", ns)
-            _ip("link", "set", outside, "master", bridge)
-            _ip("link", "set", outside, "up")
-            _ip("netns", "exec", ns, "ip", "addr", "add", f"{prefix}.{i}/24", "dev", inside)
-            _ip("netns", "exec", ns, "ip", "link", "set", inside, "up")
+            _ip("-n", r, "link", "set", outside, "master", bridge)
+            _ip("-n", r, "link", "set", outside, "up")
+            _ip("-n", ns, "addr", "add", f"{prefix}.{i}/24", "dev", inside)
+            _ip("-n", ns, "link", "set", inside, "up")
+            # back to the test (and this process's other networks) through the router; no default route: nothing
+            # in a host reaches past this machine's test networks
+            _ip("-n", ns, "route", "add", f"10.{router.block}.0.0/16", "via", f"{prefix}.1")
             if name in delays:
                 _no_offloads(ns, inside)
-            _ip("netns", "exec", ns, "ip", "link", "set", "lo", "up")
-            out[name] = Host(ns, f"{prefix}.{i}", outside)
-        yield Network(out, bridge, f"{prefix}.1")
+            _ip("-n", ns, "link", "set", "lo", "up")
+            out[name] = Host(ns, f"{prefix}.{i}", outside, r)
+        yield Network(out, bridge, router.root_address, r)
     finally:
         for proc in links:
             proc.kill()
             proc.communicate()
         for link in reversed(made_links):
-            subprocess.run(["ip", "link", "delete", link], capture_output=True)
+            subprocess.run(["ip", "-n", r, "link", "delete", link], capture_output=True)
         for ns in made_ns:
             subprocess.run(["ip", "netns", "delete", ns], capture_output=True)
+        router.in_use.discard(number)
