@@ -1,5 +1,6 @@
-"""Suite-wide set-up: the shared `bus` fixture, the renderer's compiled code for the tests that draw, and no WebRTC
-candidates on another test worker's networks (tests/support/netns.py only_own_networks)."""
+"""Suite-wide set-up: the shared `bus` fixture, the renderer's compiled code for the tests that draw, no WebRTC
+candidates on another test worker's networks (tests/support/netns.py only_own_networks), and the workers' test
+networks removed once they have all ended."""
 
 from __future__ import annotations
 
@@ -9,13 +10,18 @@ import pytest
 
 from eca.protocol.endpoints import BusConfig
 from tests.support.bus import BrokerThread, private_bus_config
-from tests.support.netns import only_own_networks
+from tests.support.netns import netns_available, only_own_networks, remove_stale_routers
 
 _compiled = False
 
 
 def pytest_configure(config: pytest.Config) -> None:
     only_own_networks()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if not hasattr(config, "workerinput") and netns_available() is None:  # the controller, after its workers
+        remove_stale_routers()
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:

@@ -352,6 +352,45 @@ def test_an_early_reading_at_a_spurt_s_first_packet_does_not_put_janus_s_first_a
     assert (truth - control[0]) % 2**32 == 51 * 960, control  # the control: a pause and a packet (51 frames) early
 
 
+SERVER_CLOCK_WHILE_BUSY = """
+const done = arguments[arguments.length - 1];
+(async () => {
+  const face3d = await import("./static/face3d.js");
+  // the page's script is held up 60 ms just after each ask leaves (as software WebGL drawing holds it): the answer
+  // is there in a few milliseconds, its callback runs when the 60 ms are over
+  const busy = (ask) => () => { const answer = ask(); const end = performance.now() + 60;
+                                while (performance.now() < end) { /* the page drawing */ } return answer; };
+  const offsets = [];
+  for (const ask of [() => face3d.askServerClock("./clock"),
+                     async () => (await fetch("./clock", { cache: "no-store" })).json()]) {
+    const clock = new face3d.VoiceClock(null, { serverClock: busy(ask) });
+    while (clock.asks.length < 4) await new Promise((r) => setTimeout(r, 20));  // its first four asks
+    offsets.push(clock.serverOffsetMs());
+    clock.stop();
+  }
+  done(offsets);
+})().catch((e) => done(String(e)));
+"""
+
+
+@pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
+def test_the_page_reads_the_server_s_clock_right_while_its_script_is_held_up(instance: tuple[BusConfig, str]) -> None:
+    """Through Janus the page dates each voice packet on the server's clock, which it learns by asking (GET /clock).
+    Timed by when the page's script ran, an answer whose callback a busy page runs late looks like a long way back,
+    and the midpoint puts the server's clock early by half of it: every reading of which packet Janus relayed first
+    one packet early, all of them dropped, and the voice's numbering never found (a real Chromium through Janus,
+    "rebasings 0"). Timed by the browser's network timing of each request, it holds. The server here is this
+    machine: its clock is the page's (the offset is 0 within a millisecond or two). The control times by the script."""
+    _, url = instance
+    with chromium() as driver:
+        driver.get(url + "?mic=0")
+        got = driver.execute_async_script(SERVER_CLOCK_WHILE_BUSY)
+    assert isinstance(got, list), got
+    timed, by_script = got
+    assert abs(timed) <= 6.0, got  # the network's times: the server's clock is where it is
+    assert by_script <= -20.0, got  # the control: early by about half the 60 ms the script was held up
+
+
 @pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
 def test_the_page_finds_janus_s_first_packet_across_pauses_in_the_voice(instance: tuple[BusConfig, str]) -> None:
     """Through Janus, the page's voice clock (static/face3d.js VoiceClock) finds the RTP timestamp of the first packet

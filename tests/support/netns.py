@@ -142,7 +142,7 @@ def _make_router() -> _Router:
     pid = os.getpid()
     ns, uplink, inside = f"{ROUTER_PREFIX}{pid}", f"{UPLINK_PREFIX}{pid}"[:15], "uplink"
     with _allocation_lock():
-        _remove_stale_routers()
+        remove_stale_routers()
         block = _free_block()
         _ip("netns", "add", ns)
         try:
@@ -161,11 +161,14 @@ def _make_router() -> _Router:
             subprocess.run(["ip", "netns", "delete", ns], capture_output=True)  # its end of the uplink goes too
             raise
     OWN_LINKS.add(uplink)
-    atexit.register(subprocess.run, ["ip", "netns", "delete", ns], capture_output=True)
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        atexit.register(subprocess.run, ["ip", "netns", "delete", ns], capture_output=True)
+    # else the controller removes it once every worker has ended (remove_stale_routers in tests/conftest.py): a
+    # worker that ended first would otherwise take its link away under the other's running test
     return _Router(ns, uplink, block)
 
 
-def _remove_stale_routers() -> None:
+def remove_stale_routers() -> None:
     """The router namespaces of test processes that are gone (killed before their exit handler ran)."""
     listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout.split()
     for name in listed:

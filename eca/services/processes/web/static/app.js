@@ -153,7 +153,7 @@ async function connectThroughJanus(sfu, agents, iceServers) {
       const canvas = eca.faces[agent].parentElement.querySelector("canvas");
       const url = token ? `${description.url}?token=${encodeURIComponent(token)}` : description.url;
       receiver = receiver || pc.getReceivers().find((r) => r.track.kind === "audio");
-      const serverClock = async () => (await fetch(withToken("/clock"), { cache: "no-store" })).json();
+      const serverClock = () => face3d.askServerClock(withToken("/clock"));
       const face = new face3d.BrowserFace(canvas, { ...description, url },
                                           { token, receiver, serverClock, watchedSinceMs });
       await face.load();

@@ -48,13 +48,35 @@ export function webglAvailable() {
   }
 }
 
+// The server's wall clock (Unix ms, GET `url`: /clock) with when the request left and its answer came back, on this
+// page's clock (ms since 1970), from the browser's network timing of that request (Resource Timing), not from when
+// this page's script ran: a busy page (software WebGL drawing) takes its time to run the answer's callback, which
+// makes the way back look longer than the way there, and the midpoint of the two would put the server's clock early
+// by half the difference (and every voice packet's departure with it, VoiceClock.rebase).
+let clockAsks = 0;
+export async function askServerClock(url) {
+  const address = new URL(url, location.href);
+  address.searchParams.set("ask", String(clockAsks += 1));  // a name of its own, to find its timing by
+  const sentMs = performance.timeOrigin + performance.now();
+  const answer = await (await fetch(address, { cache: "no-store" })).json();
+  const backMs = performance.timeOrigin + performance.now();
+  const timing = performance.getEntriesByName(address.href).pop();
+  performance.clearResourceTimings();  // its buffer holds 250 entries; the page reads no other
+  if (timing && timing.requestStart > 0 && timing.responseStart >= timing.requestStart) {
+    return { unix_ms: answer.unix_ms, sentMs: performance.timeOrigin + timing.requestStart,
+             backMs: performance.timeOrigin + timing.responseStart, timed: true };
+  }
+  return { unix_ms: answer.unix_ms, sentMs, backMs, timed: false };
+}
+
 // What the listener hears now, on the sender's clock (ms since 1900), or null until the server's first report.
 // The server reports what its RTCP sender reports carry (an RTP timestamp of the voice and when it left, on the
 // data channel: a page cannot read the reports its browser receives); the audio receiver's synchronization
 // source says which RTP timestamp was last handed to the speakers, and when. Both are of the same RTP clock,
 // so what plays now is the report's time plus the samples between them.
 export class VoiceClock {
-  // `serverClock` (a function answering the server's wall clock, Unix ms): the voice comes through Janus, whose RTP
+  // `serverClock` (a function answering { unix_ms: the server's wall clock, and sentMs, backMs: when the asking left and
+  // its answer came, on this page's clock, if known }; askServerClock): the voice comes through Janus, whose RTP
   // timestamps start from the first packet it relayed here; `watchedSinceMs` (this page's clock, ms since 1970): when
   // the page asked Janus for it (no packet Janus relays here left the server much before)
   constructor(receiver, { serverClock = null, watchedSinceMs = null } = {}) {
@@ -72,11 +94,12 @@ export class VoiceClock {
     this.timer = null;
     if (serverClock) {
       const ask = async () => {
-        const sent = performance.timeOrigin + performance.now();
+        const asked = performance.timeOrigin + performance.now();
         try {
-          const { unix_ms: serverMs } = await serverClock();
-          const back = performance.timeOrigin + performance.now();
-          this.asks.push({ rttMs: back - sent, offsetMs: serverMs - (sent + back) / 2 });
+          const answer = await serverClock();
+          const sent = answer.sentMs ?? asked;  // the browser's own times of the request, when it gives them
+          const back = answer.backMs ?? performance.timeOrigin + performance.now();
+          this.asks.push({ rttMs: back - sent, offsetMs: answer.unix_ms - (sent + back) / 2 });
           if (this.asks.length > CLOCK_ASKS) this.asks.shift();
         } catch {
           // the server away for a moment: the asks kept still hold
