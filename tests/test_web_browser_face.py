@@ -356,9 +356,9 @@ SERVER_CLOCK_WHILE_BUSY = """
 const done = arguments[arguments.length - 1];
 (async () => {
   const face3d = await import("./static/face3d.js");
-  // the page's script is held up 60 ms just after each ask leaves (as software WebGL drawing holds it): the answer
-  // is there in a few milliseconds, its callback runs when the 60 ms are over
-  const busy = (ask) => () => { const answer = ask(); const end = performance.now() + 60;
+  // the page's script is held up 100 ms just after each ask leaves (as software WebGL drawing holds it): the answer
+  // is there in a few milliseconds, its callback runs when the 100 ms are over
+  const busy = (ask) => () => { const answer = ask(); const end = performance.now() + 100;
                                 while (performance.now() < end) { /* the page drawing */ } return answer; };
   const offsets = [];
   for (const ask of [() => face3d.askServerClock("./clock"),
@@ -388,7 +388,9 @@ def test_the_page_reads_the_server_s_clock_right_while_its_script_is_held_up(ins
     assert isinstance(got, list), got
     timed, by_script = got
     assert abs(timed) <= 6.0, got  # the network's times: the server's clock is where it is
-    assert by_script <= -20.0, got  # the control: early by about half the 60 ms the script was held up
+    # the control: early by half the 100 ms the script was held up, less the server's time to answer (a loaded
+    # machine's few milliseconds)
+    assert by_script <= -15.0, got
 
 
 @pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))
