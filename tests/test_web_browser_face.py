@@ -365,7 +365,8 @@ const done = arguments[arguments.length - 1];
                      async () => (await fetch("./clock", { cache: "no-store" })).json()]) {
     const clock = new face3d.VoiceClock(null, { serverClock: busy(ask) });
     while (clock.asks.length < 4) await new Promise((r) => setTimeout(r, 20));  // its first four asks
-    offsets.push(clock.serverOffsetMs());
+    const quickest = clock.asks.reduce((x, y) => (y.rttMs < x.rttMs ? y : x));  // the ask the offset comes from
+    offsets.push([clock.serverOffsetMs(), quickest.rttMs]);
     clock.stop();
   }
   done(offsets);
@@ -386,11 +387,13 @@ def test_the_page_reads_the_server_s_clock_right_while_its_script_is_held_up(ins
         driver.get(url + "?mic=0")
         got = driver.execute_async_script(SERVER_CLOCK_WHILE_BUSY)
     assert isinstance(got, list), got
-    timed, by_script = got
-    assert abs(timed) <= 6.0, got  # the network's times: the server's clock is where it is
-    # the control: early by half the 100 ms the script was held up, less the server's time to answer (a loaded
-    # machine's few milliseconds)
-    assert by_script <= -15.0, got
+    (timed, timed_rtt), (by_script, script_rtt) = got
+    # timed by the network, the 100 ms hold is not in the round trip, and the offset is within half of it (all that a
+    # midpoint can promise: a loaded server answers late, never early)
+    assert timed_rtt < 100.0 and abs(timed) <= timed_rtt / 2 + 2.0, got
+    # the control: the hold is in its round trip, and it puts the server's clock early by about half of it (less the
+    # server's time to answer)
+    assert script_rtt >= 100.0 and by_script <= -15.0, got
 
 
 @pytest.mark.skipif(browser_available() is not None, reason=str(browser_available()))

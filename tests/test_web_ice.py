@@ -205,7 +205,7 @@ def test_the_default_peer_asks_no_outside_server() -> None:
                                                              "turns:t.example", "turn:u.example"],
                                                  "username": "u", "credential": "p"}).servers,
                          username="u", credential="p").for_peer()
-    assert chosen == ([("stun:a.example", None, None), ("turns:t.example", "u", "p")], "all")
+    assert chosen == [("stun:a.example", None, None), ("turns:t.example", "u", "p")]
 
 
 @pytest.mark.parametrize(("table", "said"), [

@@ -671,24 +671,25 @@ def check_drawn_through_janus(config: BusConfig, service: WebService, tmp_path: 
         assert wait_until(lambda: service.clock.now_ns() - (voice.last_ns or 0) > 1_000_000_000, 5.0), \
             "the voice did not pause in silence"
         before = driver.execute_async_script(VOICE_PACKETS)
+
+        def voice_state() -> str:  # for a failure's message: the voice at both ends, the connection, Janus's log
+            return (f"the page has {driver.execute_async_script(VOICE_PACKETS)} packets ({before} before the pause); "
+                    f"eca sent {voice.packets}, the newest {(service.clock.now_ns() - (voice.last_ns or 0)) / 1e6:.0f} "
+                    f"ms ago; the page's connection to Janus: {driver.execute_async_script(JANUS_PCS)}; Janus's log:\n"
+                    f"{running_logs()}")
+
         with talking(audio):
             sent = service.sfu.mountpoints["ada"].voice_frames if service.sfu else 0
             assert wait_until(lambda: driver.execute_async_script(VOICE_PACKETS) >= before + 25, 15.0), \
-                (f"the voice did not come again: the page has {driver.execute_async_script(VOICE_PACKETS)} packets "
-                 f"({before} before); eca sent {voice.packets} ({sent} frames before), the newest "
-                 f"{(service.clock.now_ns() - (voice.last_ns or 0)) / 1e6:.0f} ms ago; the page's connection to "
-                 f"Janus: {driver.execute_async_script(JANUS_PCS)}; Janus's log:\n{running_logs()}")
+                f"the voice did not come again ({sent} frames sent before): {voice_state()}"
             windows = []
             for _ in range(6):  # a window in which the browser plays steadily (a loaded machine stretches some)
                 played, base, buffered_ms, report = driver.execute_async_script(PLAYED)
                 windows.append(played)
                 if steady(played):
                     break
-            assert steady(played), (
-                f"the browser's playout never steady in {len(windows)} windows of 1 s: {windows}; the page has "
-                f"{driver.execute_async_script(VOICE_PACKETS)} packets ({before} before the pause); eca sent "
-                f"{voice.packets}, the newest {(service.clock.now_ns() - (voice.last_ns or 0)) / 1e6:.0f} ms ago; the "
-                f"page's connection to Janus: {driver.execute_async_script(JANUS_PCS)}; Janus's log:\n{running_logs()}")
+            assert steady(played), \
+                f"the browser's playout never steady in {len(windows)} windows of 1 s: {windows}; {voice_state()}"
             heard_ms, newest_ms = driver.execute_script("""
                 const f = window.eca.drawn.ada; f.present();
                 return [f.clock.nowMs(), f.frames[f.frames.length - 1].timeMs];""")

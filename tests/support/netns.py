@@ -63,7 +63,7 @@ class Host:
     name: str  # the namespace
     address: str  # its address on the bridge's /24
     veth_outside: str  # its cable's end on the bridge, in the router namespace (cut/heal take it down/up)
-    router: str = ""  # the router namespace the bridge is in
+    router: str  # the router namespace the bridge is in
 
     def argv(self, argv: Sequence[str]) -> list[str]:
         return ["ip", "netns", "exec", self.name, *argv]
@@ -85,9 +85,7 @@ class Host:
 @dataclass
 class Network:
     hosts: dict[str, Host]
-    bridge: str  # in the router namespace
     root_address: str  # the root namespace's (the test's own) address, as the hosts reach it (through the router)
-    router: str = ""
 
     def __getitem__(self, name: str) -> Host:
         return self.hosts[name]
@@ -169,7 +167,8 @@ def _make_router() -> _Router:
 
 
 def remove_stale_routers() -> None:
-    """The router namespaces of test processes that are gone (killed before their exit handler ran)."""
+    """The router namespaces of test processes that are gone (test workers, or processes killed before their exit
+    handler ran)."""
     listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout.split()
     for name in listed:
         if name.startswith(ROUTER_PREFIX) and name[len(ROUTER_PREFIX):].isdigit():
@@ -300,7 +299,7 @@ def hosts(*names: str, delays: dict[str, float] | None = None) -> Iterator[Netwo
                 _no_offloads(ns, inside)
             _ip("-n", ns, "link", "set", "lo", "up")
             out[name] = Host(ns, f"{prefix}.{i}", outside, r)
-        yield Network(out, bridge, router.root_address, r)
+        yield Network(out, router.root_address)
     finally:
         for proc in links:
             proc.kill()

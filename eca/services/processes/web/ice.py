@@ -44,13 +44,10 @@ class IceSettingsError(ValueError):
 
 @dataclass(frozen=True)
 class IceServer:
-    """One STUN or TURN server as the settings name it."""
+    """One STUN or TURN server as the settings name it (parse_server has checked its URL)."""
 
     url: str
     scheme: str  # stun, turn or turns
-    host: str
-    port: int
-    transport: str | None  # TURN only: udp or tcp
 
     @property
     def turn(self) -> bool:
@@ -66,17 +63,14 @@ def parse_server(url: Any, where: str) -> IceServer:
         raise IceSettingsError(f"{where}: {url[:80]!r} is not a STUN or TURN server's URL (stun:host[:port], "
                                "turn:host[:port][?transport=udp|tcp] or turns:host[:port])")
     scheme, port = match["scheme"], match["port"]
-    number = int(port) if port else (5349 if scheme == "turns" else 3478)
-    if not 0 < number < 65536:
+    if port and not 0 < int(port) < 65536:
         raise IceSettingsError(f"{where}: {url!r}: the port must lie in 1..65535")
     transport = match["transport"]
     if scheme == "stun" and transport:
         raise IceSettingsError(f"{where}: {url!r}: a STUN server's URL has no transport")
     if scheme == "turns" and transport == "udp":
         raise IceSettingsError(f"{where}: {url!r}: TURN over TLS runs over TCP (turns:...?transport=tcp)")
-    if scheme != "stun" and not transport:
-        transport = "tcp" if scheme == "turns" else "udp"
-    return IceServer(url, scheme, match["host"].strip("[]"), number, transport)
+    return IceServer(url, scheme)
 
 
 def turn_rest_credential(secret: bytes, expires_unix_s: int, user: str = "eca") -> tuple[str, str]:
@@ -157,9 +151,9 @@ class IceSettings:
             page.append(entry)
         return page
 
-    def for_peer(self) -> tuple[list[tuple[str, str | None, str | None]], str]:
-        """The first STUN and the first TURN server (what aioice can use) as (url, username, credential), and the
-        transport policy, for one of the service's own peers."""
+    def for_peer(self) -> list[tuple[str, str | None, str | None]]:
+        """The first STUN and the first TURN server (what aioice can use) as (url, username, credential), for one of
+        the service's own peers."""
         username, credential = self.credentials()
         chosen: list[tuple[str, str | None, str | None]] = []
         stun = next((s for s in self.servers if not s.turn), None)
@@ -168,7 +162,7 @@ class IceSettings:
             chosen.append((stun.url, None, None))
         if turn is not None:
             chosen.append((turn.url, username, credential))
-        return chosen, self.transport_policy
+        return chosen
 
 
 def _is_address(text: str) -> bool:

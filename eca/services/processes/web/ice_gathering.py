@@ -26,11 +26,10 @@ _INTERFACES: contextvars.ContextVar[tuple[str, ...]] = contextvars.ContextVar("e
 
 def configuration(settings: IceSettings) -> RTCConfiguration:
     """One peer's configuration: never None, which would have aiortc ask Google's public STUN server."""
-    servers, policy = settings.for_peer()
     return RTCConfiguration(
         iceServers=[RTCIceServer(urls=url, username=username, credential=credential)
-                    for url, username, credential in servers],
-        iceTransportPolicy=RTCIceTransportPolicy.RELAY if policy == "relay" else RTCIceTransportPolicy.ALL)
+                    for url, username, credential in settings.for_peer()],
+        iceTransportPolicy=RTCIceTransportPolicy(settings.transport_policy))
 
 
 def addresses_of(interfaces: tuple[str, ...]) -> dict[str, list[str]]:

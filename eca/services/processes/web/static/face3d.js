@@ -57,16 +57,16 @@ let clockAsks = 0;
 export async function askServerClock(url) {
   const address = new URL(url, location.href);
   address.searchParams.set("ask", String(clockAsks += 1));  // a name of its own, to find its timing by
-  const sentMs = performance.timeOrigin + performance.now();
   const answer = await (await fetch(address, { cache: "no-store" })).json();
-  const backMs = performance.timeOrigin + performance.now();
   const timing = performance.getEntriesByName(address.href).pop();
-  performance.clearResourceTimings();  // its buffer holds 250 entries; the page reads no other
-  if (timing && timing.requestStart > 0 && timing.responseStart >= timing.requestStart) {
-    return { unix_ms: answer.unix_ms, sentMs: performance.timeOrigin + timing.requestStart,
-             backMs: performance.timeOrigin + timing.responseStart, timed: true };
+  // the buffer holds 250 entries (then drops new ones); cleared when near full, not at every ask, so that an ask
+  // still under way keeps its entry
+  if (performance.getEntriesByType("resource").length > 200) performance.clearResourceTimings();
+  if (!timing || !(timing.requestStart > 0) || timing.responseStart < timing.requestStart) {
+    return { unix_ms: answer.unix_ms };  // no network timing: VoiceClock times it by the script
   }
-  return { unix_ms: answer.unix_ms, sentMs, backMs, timed: false };
+  return { unix_ms: answer.unix_ms, sentMs: performance.timeOrigin + timing.requestStart,
+           backMs: performance.timeOrigin + timing.responseStart };
 }
 
 // What the listener hears now, on the sender's clock (ms since 1900), or null until the server's first report.
