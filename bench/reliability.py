@@ -43,14 +43,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
-import random
 import re
 import shutil
 import signal
 import statistics
-import struct
 import subprocess
 import sys
 import tempfile
@@ -65,528 +62,32 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from bench._reliability_common import (  # noqa: E402
+    AFTER_FLOOD_S,
+    AGENT,
+    BUSY_LOOP,
+    INTERRUPT_AFTER_S,
+    PLAYED_TOLERANCE_S,
+    PROBE_ANSWER_TIMEOUT_S,
+    PROBE_PERIOD_S,
+    READY_TIMEOUT_S,
+    SAY_RATE_HZ,
+    SETTLE_TIMEOUT_S,
+    STATE_KINDS,
+    TARGET_FPS_OF_60,
+    TARGET_PROBE_MS,
+    TARGET_RSS_GROWTH,
+    TARGET_SETTLE_MS,
+    TARGET_START_S,
+    WARM_UP_S,
+    is_final,
+    reliability_command,
+    say_stderr,
+)
+from bench._reliability_flood import run_sender  # noqa: E402
+from bench._reliability_monitor import run_monitor  # noqa: E402
 from bench.report import Report, percentile, run_guarded, wait_until_ns  # noqa: E402
 from eca.services.tools.child_processes import subprocess_env  # noqa: E402 (after the path is set)
-
-AGENT = "ada"
-READY_TIMEOUT_S = 90.0  # eca up to "ready": the renderer's JIT cache may be cold
-WARM_UP_S = 3.0
-AFTER_FLOOD_S = 5.0  # the third RSS reading, this long after the flood's end
-PROBE_PERIOD_S = 0.05
-PROBE_ANSWER_TIMEOUT_S = 2.0
-PROBE_EMOTION = "happy"
-SETTLE_TIMEOUT_S = 30.0
-INTERRUPT_AFTER_S = 30.0
-SAY_RATE_HZ = 22_050
-POOL_SIZE = 10_000  # distinct messages a sender cycles through (pre-encoded, so sending is cheap)
-
-# Targets
-TARGET_FPS_OF_60 = 58.0
-TARGET_PROBE_MS = 100.0
-TARGET_SETTLE_MS = 100.0
-TARGET_RSS_GROWTH = 0.10
-TARGET_START_S = 1.0
-PLAYED_TOLERANCE_S = 0.5
-
-# The final command per state; the flood never sends these values, so seeing one means it arrived.
-FINAL_COMMANDS: dict[str, dict[str, Any]] = {
-    "emotion": {"type": "set_emotion", "name": "surprised", "intensity": 0.37, "transition_s": 0.2},
-    "head": {"type": "move_head", "turn": 0.21, "nod": 0.0, "tilt": 0.0, "duration_s": 0.3},
-    "role": {"type": "set_role", "role": "silence", "speaker": ""},
-    "gaze_target": {"type": "set_gaze_target", "yaw_deg": 7.5, "pitch_deg": 0.0, "target": "user"},
-    "eyes": {"type": "set_eyes", "mode": "saccade"},
-}
-STATE_KINDS = tuple(FINAL_COMMANDS)
-
-
-# Load for the says: a pure Python loop per core, which ends itself if the bench dies without stopping it.
-BUSY_LOOP = ("import os\nparent = os.getppid()\nwhile os.getppid() == parent:\n"
-             "    for _ in range(1_000_000):\n        pass\n")
-
-
-def is_final(kind: str, state: dict[str, Any]) -> bool:
-    """Whether a decoded state message carries the final value of its kind."""
-    if kind == "emotion":
-        return state.get("name") == "surprised" and state.get("intensity") == 0.37
-    if kind == "head":
-        return state.get("turn") == 0.21
-    if kind == "role":
-        return state.get("role") == "silence"
-    if kind == "gaze_target":
-        return state.get("yaw_deg") == 7.5
-    return state.get("mode") == "saccade"
-
-
-def _packed_float(x: float) -> bytes:
-    return b"\xcb" + struct.pack(">d", x)
-
-
-# A state payload can only be final if it holds these bytes: most flood states are skipped undecoded.
-FINAL_MARKERS: dict[str, bytes] = {
-    "emotion": _packed_float(0.37), "head": _packed_float(0.21), "role": b"\xa7silence",
-    "gaze_target": _packed_float(7.5), "eyes": b"\xa7saccade",
-}
-
-
-def say_stderr(line: str) -> None:
-    print(f"[reliability] {line}", file=sys.stderr, flush=True)
-
-
-def _self(*args: str) -> list[str]:
-    return [sys.executable, str(Path(__file__).resolve()), *args]
-
-
-def _wait_readable(sock: Any, timeout_s: float) -> bool:
-    return bool(sock.poll(max(0, int(timeout_s * 1000))))
-
-
-# --- the flood sender (its own process) ------------------------------------------------------------
-
-
-def _envelope_prefix(body: dict[str, Any], source: str) -> bytes:
-    """A msgpack map of `body` plus the envelope, open at the end for `seq` and `t_ns` (patched per send)."""
-    import msgpack
-
-    entries = {"v": 1, "agent": AGENT, "source": source, **body}
-    count = len(entries) + 2
-    head = bytes([0x80 | count]) if count < 16 else b"\xde" + struct.pack(">H", count)
-    return head + b"".join(msgpack.packb(k) + msgpack.packb(v) for k, v in entries.items())
-
-
-def _stamp(prefix: bytes, seq: int, t_ns: int) -> bytes:
-    return prefix + b"\xa3seq\xcf" + seq.to_bytes(8, "big") + b"\xa4t_ns\xcf" + t_ns.to_bytes(8, "big")
-
-
-EMOTIONS = ("natural", "happy", "surprised", "arrogant", "angry", "half-angry", "disappointed", "annoyed",
-            "frightened")
-
-
-def valid_command(rng: random.Random) -> dict[str, Any]:
-    """One realistic command body with varying values; never one of FINAL_COMMANDS' values."""
-    kind = rng.choices(("emotion", "head", "gaze_target", "role", "eyes"), weights=(25, 25, 25, 15, 10))[0]
-    two = lambda lo, hi: round(rng.uniform(lo, hi), 2)  # two decimals: never a probe's intensity
-    if kind == "emotion":
-        name = rng.choice(EMOTIONS)
-        intensity = two(0.0, 1.0)
-        if name == "surprised" and intensity == 0.37:
-            intensity = 0.38
-        return {"type": "set_emotion", "name": name, "intensity": intensity, "transition_s": two(0.0, 1.0)}
-    if kind == "head":
-        turn = two(-1.0, 1.0)
-        return {"type": "move_head", "turn": 0.2 if turn == 0.21 else turn, "nod": two(-1.0, 1.0),
-                "tilt": two(-0.5, 0.5), "duration_s": two(0.0, 1.0)}
-    if kind == "gaze_target":
-        yaw = two(-30.0, 30.0)
-        return {"type": "set_gaze_target", "yaw_deg": 7.49 if yaw == 7.5 else yaw, "pitch_deg": two(-20.0, 20.0),
-                "target": rng.choice(("user", "bob", "screen"))}
-    if kind == "role":
-        return {"type": "set_role", "role": rng.choice(("talking", "listening")),
-                "speaker": rng.choice(("user", AGENT, "bob"))}
-    return {"type": "set_eyes", "mode": rng.choice(("static", "noise", "saccade+blink"))}
-
-
-def garbage_message(rng: random.Random, kind: str) -> list[bytes]:
-    """One malformed message (a list of frames) of the given kind, always on a `cmd.ada.` topic."""
-    import msgpack
-
-    good = valid_command(rng)
-    topic = f"cmd.{AGENT}.{good['type']}".encode()
-    full = {"v": 1, "agent": AGENT, "seq": rng.randrange(1, 10**6), "t_ns": time.monotonic_ns(),
-            "source": "flood", **good}
-    pack = lambda obj: msgpack.packb(obj, use_bin_type=True)
-    if kind == "not_msgpack":
-        choice = rng.randrange(5)
-        if choice == 0:
-            return [topic, rng.randbytes(rng.randrange(1, 200))]
-        if choice == 1:
-            return [topic, b"\xc1" + rng.randbytes(8)]  # 0xc1 is never used by msgpack
-        if choice == 2:
-            data = pack(full)
-            return [topic, data[: rng.randrange(1, len(data))]]  # truncated
-        if choice == 3:
-            return [topic, pack(full) + pack(full)]  # two values
-        return [topic, b""]
-    if kind == "not_a_map":
-        return [topic, pack(rng.choice([[1, 2, 3], 42, "set_emotion", None, 3.5, b"\x00\x01"]))]
-    if kind == "wrong_type":
-        body = dict(full)
-        key = rng.choice([k for k in good if k != "type"] + ["agent", "seq", "v"])
-        if isinstance(body[key], str):
-            body[key] = rng.choice([5, [1.0], {"x": 1}, None, True, b"bin"])
-        elif isinstance(body[key], float):
-            body[key] = rng.choice(["high", [1.0], {"x": 1}, None, True, b"\x00"])
-        else:  # the integers of the envelope
-            body[key] = rng.choice(["1", 1.5, None, [1]])
-        return [topic, pack(body)]
-    if kind == "non_str_keys":
-        return [topic, pack({1: 2, "v": 1, "type": good["type"]})]
-    if kind == "missing_field":
-        body = dict(full)
-        required = {"set_emotion": "name", "set_role": "role", "set_eyes": "mode"}.get(good["type"], "type")
-        body.pop(required, None)
-        body.pop(rng.choice(["v", "agent", required]), None)
-        return [topic, pack(body)]
-    if kind == "unknown_type":
-        body = dict(full, type=rng.choice(["dance", "set_mood", 7, "", "SET_EMOTION"]))
-        if rng.random() < 0.3:
-            body["v"] = rng.choice([2, 0, "1", None])
-        return [topic, pack(body)]
-    if kind == "extra_field":
-        return [topic, pack(dict(full, color="red", **{"__class__": "x"}))]
-    if kind == "not_finite":
-        value = rng.choice([math.nan, math.inf, -math.inf])
-        body = {"v": 1, "type": "set_emotion", "agent": AGENT, "name": "happy", "intensity": value}
-        if rng.random() < 0.5:
-            body = {"v": 1, "type": "move_head", "agent": AGENT, "turn": value, "nod": 0.0}
-        return [topic if body["type"] == good["type"] else f"cmd.{AGENT}.{body['type']}".encode(), pack(body)]
-    if kind == "out_of_range":
-        body = rng.choice([
-            {"v": 1, "type": "set_emotion", "agent": AGENT, "name": "gleeful"},  # refused by the service
-            {"v": 1, "type": "set_emotion", "agent": AGENT, "name": "happy", "intensity": 5.0},
-            {"v": 1, "type": "set_gaze_target", "agent": AGENT, "yaw_deg": 400.0},
-            {"v": 1, "type": "set_role", "agent": AGENT, "role": "shouting"},
-            {"v": 1, "type": "set_eyes", "agent": AGENT, "mode": "closed"},
-            {"v": 1, "type": "set_emotion", "agent": AGENT, "name": "happy", "seq": -3},
-        ])
-        return [f"cmd.{AGENT}.{body['type']}".encode(), pack(body)]
-    if kind == "long_string":
-        n = rng.randrange(16_000, 256_000)
-        key = rng.choice(["name", "speaker", "target", "source", "request_id"])
-        body = {"v": 1, "type": "set_emotion", "agent": AGENT, "name": "happy"}
-        if key in ("speaker",):
-            body = {"v": 1, "type": "set_role", "agent": AGENT, "role": "talking"}
-        if key in ("target",):
-            body = {"v": 1, "type": "set_gaze_target", "agent": AGENT}
-        body[key] = rng.choice("abcxyz") * n
-        return [f"cmd.{AGENT}.{body['type']}".encode(), pack(body)]
-    if kind == "deep":
-        nested: Any = "bottom"
-        for i in range(200):
-            nested = [nested] if i % 2 else {"k": nested}
-        body = rng.choice([nested, dict(full, name=nested), dict(full, intensity=nested)])
-        return [topic, pack(body)]
-    if kind == "frames":
-        return rng.choice([[topic], [topic, pack(full), b"extra"], [topic, b"", pack(full)], [topic] * 5])
-    if kind == "topic_mismatch":
-        choice = rng.randrange(4)
-        if choice == 0:
-            other = "move_head" if good["type"] != "move_head" else "set_eyes"
-            return [f"cmd.{AGENT}.{other}".encode(), pack(full)]
-        if choice == 1:
-            return [topic, pack(dict(full, agent="bob"))]
-        if choice == 2:
-            return [f"cmd.{AGENT}.{good['type']}.extra".encode(), pack(full)]
-        return [f"cmd.{AGENT}.".encode(), pack(full)]
-    if kind == "non_utf8_topic":
-        return [rng.choice([b"cmd.ada.\xff\xfe", b"cmd.ada.set_\xc3(emotion", b"cmd.ada.\x80move_head"]),
-                pack(full)]
-    raise ValueError(kind)
-
-
-GARBAGE_KINDS = ("not_msgpack", "not_a_map", "wrong_type", "non_str_keys", "missing_field", "unknown_type",
-                 "extra_field", "not_finite", "out_of_range", "long_string", "deep", "frames", "topic_mismatch",
-                 "non_utf8_topic")
-
-
-@dataclass
-class Pool:
-    """What a sender cycles through: a valid command's envelope prefix (stamped per send) or garbage frames."""
-
-    entries: list[tuple[bytes, bytes | None, list[bytes] | None]] = field(default_factory=list)
-    garbage_by_kind: dict[str, int] = field(default_factory=dict)
-    valid_by_type: dict[str, int] = field(default_factory=dict)
-
-
-def build_pool(rng: random.Random, size: int, garbage_fraction: float, source: str) -> Pool:
-    from eca.protocol.codec import decode
-
-    pool = Pool()
-    n_garbage = round(size * garbage_fraction)
-    kinds = [GARBAGE_KINDS[i % len(GARBAGE_KINDS)] for i in range(n_garbage)]
-    rng.shuffle(kinds)
-    for kind in kinds:
-        pool.entries.append((b"", None, garbage_message(rng, kind)))
-        pool.garbage_by_kind[kind] = pool.garbage_by_kind.get(kind, 0) + 1
-    # one payload just over the codec's 4 MiB cap, the broker still forwards it
-    if n_garbage:
-        huge = {"v": 1, "type": "set_emotion", "agent": AGENT, "name": "x" * (4 * 1024 * 1024 + 100)}
-        import msgpack
-
-        pool.entries[0] = (b"", None, [f"cmd.{AGENT}.set_emotion".encode(), msgpack.packb(huge)])
-        pool.garbage_by_kind["over_cap"] = 1
-        pool.garbage_by_kind[kinds[0]] -= 1
-    for _ in range(size - n_garbage):
-        body = valid_command(rng)
-        prefix = _envelope_prefix(body, source)
-        decode(_stamp(prefix, 1, 1))  # what we send as valid must be valid
-        pool.entries.append((f"cmd.{AGENT}.{body['type']}".encode(), prefix, None))
-        pool.valid_by_type[body["type"]] = pool.valid_by_type.get(body["type"], 0) + 1
-    rng.shuffle(pool.entries)
-    return pool
-
-
-def run_sender(config_path: str, instance: str, rate: float, seconds: float, garbage: float, seed: int,
-               index: int) -> int:
-    """Wait for `go <start_ns>` on stdin, flood from then on at `rate`, then send the final commands."""
-    import zmq
-
-    from eca.protocol.codec import encode
-    from eca.protocol.endpoints import load_bus_config
-    from eca.protocol.messages import MESSAGE_TYPES
-
-    config = load_bus_config(config_path, instance)
-    source = f"flood{index}"
-    pool = build_pool(random.Random(seed * 1009 + index), min(POOL_SIZE, max(100, int(rate))), garbage, source)
-    ctx = zmq.Context()
-    sock = ctx.socket(zmq.XPUB)
-    sock.setsockopt(zmq.SNDHWM, config.hwm)
-    sock.setsockopt(zmq.LINGER, 10_000)  # the final commands must leave before the process ends
-    sock.setsockopt(zmq.XPUB_NODROP, 1)  # a full queue refuses (counted) instead of dropping silently
-    sock.setsockopt(zmq.SNDTIMEO, 10_000)
-    sock.connect(config.frontend)
-    if not _wait_readable(sock, 10.0):
-        print(json.dumps({"error": "no broker subscription"}), flush=True)
-        return 1
-    sock.recv()
-    print("READY", flush=True)
-    line = sys.stdin.readline().split()
-    if len(line) != 2 or line[0] != "go":
-        return 1
-    start_ns = int(line[1])
-    total = round(rate * seconds)
-    end_ns = start_ns + int(seconds * 1e9)
-    entries = pool.entries
-    n_pool = len(entries)
-    sent = refused = 0
-    garbage_sent = 0
-    seq = 0
-    max_behind = 0
-    noblock = zmq.NOBLOCK
-    while time.monotonic_ns() < start_ns:
-        time.sleep(max(0.0, (start_ns - time.monotonic_ns()) / 1e9))  # pacing: the common start time
-    first_ns = time.monotonic_ns()
-
-    def send_upto(due: int) -> None:
-        nonlocal sent, refused, garbage_sent, seq
-        while sent + refused < due:
-            topic, prefix, frames = entries[(sent + refused) % n_pool]
-            if prefix is not None:
-                seq += 1
-                frames = [topic, _stamp(prefix, seq, time.monotonic_ns())]
-            try:
-                sock.send_multipart(frames, noblock)  # type: ignore[arg-type]
-                sent += 1
-                if prefix is None:
-                    garbage_sent += 1
-            except zmq.Again:
-                refused += 1
-
-    while True:
-        now = time.monotonic_ns()
-        if now >= end_ns:
-            break
-        due = min(total, (now - start_ns) * total // (end_ns - start_ns))
-        max_behind = max(max_behind, due - sent - refused)
-        send_upto(due)
-        tick_left = 1_000_000 - (time.monotonic_ns() - start_ns) % 1_000_000
-        time.sleep(tick_left / 1e9)  # pacing: the next millisecond tick of the schedule
-    send_upto(total)
-    last_ns = time.monotonic_ns()
-    finals_refused = []
-    for final in FINAL_COMMANDS.values():
-        cls = MESSAGE_TYPES[final["type"]]
-        seq += 1
-        msg = cls(agent=AGENT, seq=seq, t_ns=time.monotonic_ns(), source=source,
-                  **{k: v for k, v in final.items() if k != "type"})
-        try:  # blocking (up to SNDTIMEO): the final commands must not be refused like flood messages
-            sock.send_multipart([f"cmd.{AGENT}.{final['type']}".encode(), encode(msg)])
-        except zmq.Again:
-            finals_refused.append(final["type"])
-    final_ns = time.monotonic_ns()
-    print(json.dumps({
-        "index": index, "offered": sent + refused, "sent": sent, "refused": refused, "garbage_sent": garbage_sent,
-        "first_ns": first_ns, "last_ns": last_ns, "final_sent_ns": final_ns, "finals_refused": finals_refused,
-        "max_behind_ms": max_behind / rate * 1000.0, "garbage_by_kind": pool.garbage_by_kind,
-        "valid_by_type": pool.valid_by_type, "pool": n_pool,
-    }), flush=True)
-    # Keep the connection until told (or stdin closes): a peer that goes away may take its unread
-    # messages, the final commands among them, with it.
-    sys.stdin.readline()
-    sock.close()
-    ctx.term()
-    return 0
-
-
-# --- the monitor: frame rate, probes, final states, heartbeats (its own process) ------------------
-
-
-def run_monitor(config_path: str, instance: str, seed: int) -> int:
-    """Subscribe before the flood; commands on stdin: `probe <start_ns> <end_ns>`, `stop` (dump JSON)."""
-    import msgpack
-    import zmq
-
-    from eca.protocol.codec import encode
-    from eca.protocol.endpoints import load_bus_config
-    from eca.protocol.messages import SetEmotion
-
-    config = load_bus_config(config_path, instance)
-    rng = random.Random(seed * 7919 + 1)
-    ctx = zmq.Context()
-    sub = ctx.socket(zmq.SUB)
-    sub.setsockopt(zmq.RCVHWM, config.hwm)
-    sub.setsockopt(zmq.LINGER, 0)
-    face_topic = f"stream.{AGENT}.face_frame".encode()
-    state_prefix = f"state.{AGENT}.".encode()
-    ack_topic = f"event.{AGENT}.ack".encode()  # where a dialogue service that acknowledges commands does so
-    for prefix in (face_topic, state_prefix, ack_topic, b"sys."):
-        sub.setsockopt(zmq.SUBSCRIBE, prefix)
-    sub.connect(config.backend)
-    pub = ctx.socket(zmq.XPUB)
-    pub.setsockopt(zmq.SNDHWM, config.hwm)
-    pub.setsockopt(zmq.LINGER, 0)
-    pub.connect(config.frontend)
-    if not _wait_readable(pub, 10.0):
-        return 1
-    pub.recv()
-
-    unpack = msgpack.unpackb
-    frames_t_ns: list[int] = []
-    state_counts: dict[str, int] = {}
-    final_since: dict[str, tuple[int, int] | None] = {k: None for k in STATE_KINDS}
-    overwritten = {k: 0 for k in STATE_KINDS}
-    settled_announced = False
-    beats: dict[str, list[tuple[int, int, int, int]]] = {}  # service -> (arrival, pid, started, bad)
-    probe_by_intensity: dict[float, int] = {}
-    probe_by_request: dict[str, int] = {}
-    # [sent_ns, first answer's arrival_ns, the answer's t_ns, state's arrival_ns, ack's arrival_ns]
-    probes: list[list[int | None]] = []
-
-    def answered(k: int | None, now: int, t_ns: int, slot: int) -> None:
-        if k is None:
-            return
-        probe = probes[k]
-        if probe[1] is None:
-            probe[1], probe[2] = now, t_ns
-        if probe[slot] is None:
-            probe[slot] = now
-
-    def take(frames: list[bytes], now: int) -> None:
-        nonlocal settled_announced
-        if len(frames) != 2:
-            return
-        topic, payload = frames
-        if topic == face_topic:
-            frames_t_ns.append(unpack(payload)["t_ns"])
-            return
-        if topic.startswith(state_prefix):
-            kind = topic[len(state_prefix):].decode()
-            state_counts[kind] = state_counts.get(kind, 0) + 1
-            if kind not in final_since:
-                return
-            state = None
-            if kind == "emotion" or FINAL_MARKERS[kind] in payload:
-                state = unpack(payload)
-            if kind == "emotion" and state is not None and state.get("name") == PROBE_EMOTION:
-                answered(probe_by_intensity.pop(state.get("intensity"), None), now, state["t_ns"], 3)
-            if state is not None and is_final(kind, state):
-                if final_since[kind] is None:
-                    final_since[kind] = (now, state["t_ns"])
-            elif final_since[kind] is not None:
-                overwritten[kind] += 1
-                final_since[kind] = None
-            if not settled_announced and all(v is not None for v in final_since.values()):
-                settled_announced = True
-                print("SETTLED " + json.dumps(final_since), flush=True)
-            return
-        if topic == ack_topic:
-            ack = unpack(payload)
-            answered(probe_by_request.pop(ack.get("request_id"), None), now, ack.get("t_ns", 0), 4)
-            return
-        if topic == b"sys.*.heartbeat":
-            beat = unpack(payload)
-            beats.setdefault(beat["service"], []).append(
-                (now, beat["pid"], beat["started_ns"], beat.get("bad_messages", 0)))
-
-    def read_all(limit: int = 2000) -> None:
-        """What is waiting, up to `limit` (so a flood of states cannot starve the probes' schedule)."""
-        for _ in range(limit):
-            try:
-                frames = sub.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            take(frames, time.monotonic_ns())
-
-    probe = f"sys.{rng.getrandbits(64):016x}.hello".encode()  # the subscriber's readiness barrier
-    sub.setsockopt(zmq.SUBSCRIBE, probe)
-    deadline = time.monotonic() + 10.0
-    while True:
-        if not _wait_readable(sub, deadline - time.monotonic()):
-            return 1
-        frames = sub.recv_multipart()
-        if frames[0] == probe:
-            break
-        take(frames, time.monotonic_ns())
-    sub.setsockopt(zmq.UNSUBSCRIBE, probe)
-    print("READY", flush=True)
-
-    poller = zmq.Poller()
-    poller.register(sub, zmq.POLLIN)
-    stdin_fd = sys.stdin.fileno()
-    poller.register(stdin_fd, zmq.POLLIN)
-    pending_input = b""
-    probe_start = probe_end = next_probe = 0
-    stop_at: int | None = None  # when stopping: the last probe's answer deadline
-    seq = 0
-    while True:
-        now = time.monotonic_ns()
-        if probe_end and next_probe <= now < probe_end and stop_at is None:
-            k = len(probes)
-            intensity = 0.5 + (k + 1) * 1e-6  # unique, and never a flood value (those have two decimals)
-            seq += 1
-            # Answered by the state showing its unique intensity or, from a dialogue service that publishes
-            # one state per batch (a later command in the batch may hide this one's value), by its ack.
-            msg = SetEmotion(agent=AGENT, seq=seq, t_ns=time.monotonic_ns(), source="probe", name=PROBE_EMOTION,
-                             intensity=intensity, transition_s=0.0, request_id=f"probe-{k}")
-            probe_by_intensity[intensity] = k
-            probe_by_request[msg.request_id] = k
-            probes.append([msg.t_ns, None, None, None, None])
-            pub.send_multipart([f"cmd.{AGENT}.set_emotion".encode(), encode(msg)])
-            next_probe = max(next_probe + int(PROBE_PERIOD_S * 1e9), now)
-        if stop_at is not None and (now >= stop_at or all(p[1] is not None for p in probes)):
-            break
-        wake = [now + 100_000_000]
-        if probe_end and next_probe < probe_end and stop_at is None:
-            wake.append(max(next_probe, probe_start))
-        if stop_at is not None:
-            wake.append(stop_at)
-        events = dict(poller.poll(max(0, (min(wake) - time.monotonic_ns()) // 1_000_000)))
-        if sub in events:
-            read_all()
-        if stdin_fd in events:
-            chunk = os.read(stdin_fd, 4096)
-            pending_input += chunk if chunk else b"\nstop\n"
-            while b"\n" in pending_input:
-                line, pending_input = pending_input.split(b"\n", 1)
-                words = line.decode().split()
-                if words[:1] == ["probe"]:
-                    probe_start, probe_end = int(words[1]), int(words[2])
-                    next_probe = probe_start
-                elif words[:1] == ["stop"] and stop_at is None:
-                    last_sent = max((p[0] for p in probes), default=0) or 0
-                    stop_at = max(time.monotonic_ns(), int(last_sent) + int(PROBE_ANSWER_TIMEOUT_S * 1e9))
-            if not chunk:
-                poller.unregister(stdin_fd)
-    read_all(10**9)
-    print(json.dumps({
-        "frames_t_ns": frames_t_ns, "probes": probes, "state_counts": state_counts,
-        "finals": {k: (None if v is None else {"arrival_ns": v[0], "t_ns": v[1]}) for k, v in final_since.items()},
-        "overwritten_after_final": overwritten, "heartbeats": beats,
-    }), flush=True)
-    pub.close()
-    sub.close()
-    ctx.term()
-    return 0
-
 
 # --- orchestration ---------------------------------------------------------------------------------
 
@@ -723,10 +224,10 @@ def flood_phase(args: argparse.Namespace, config: Any, up: Up, monitor: subproce
     rate_each = args.rate / args.senders
     rss_before = {name: rss_kib(pid) for name, pid in up.pids().items()}
     pids_before = up.pids()
-    with contextmanager_list([child(_self("--role", "sender", "--config", str(config.config_path), "--instance",
-                                          config.instance, "--rate", str(rate_each), "--flood-s", str(args.flood_s),
-                                          "--garbage", str(args.garbage), "--seed", str(args.seed),
-                                          "--index", str(i)), stdin=True)
+    with contextmanager_list([child(reliability_command("--role", "sender", "--config", str(config.config_path),
+                                                        "--instance", config.instance, "--rate", str(rate_each),
+                                                        "--flood-s", str(args.flood_s), "--garbage", str(args.garbage),
+                                                        "--seed", str(args.seed), "--index", str(i)), stdin=True)
                               for i in range(args.senders)]) as senders:
         for _, out in senders:
             try:
@@ -1144,8 +645,9 @@ def run(args: argparse.Namespace, report: Report) -> None:
                 up.pids()
                 try:
                     if not args.skip_flood:
-                        with child(_self("--role", "monitor", "--config", str(config.config_path), "--instance",
-                                         config.instance, "--seed", str(args.seed)), stdin=True) as (mon, mon_out):
+                        with child(reliability_command("--role", "monitor", "--config", str(config.config_path),
+                                                       "--instance", config.instance, "--seed", str(args.seed)),
+                                   stdin=True) as (mon, mon_out):
                             try:
                                 mon_out.wait_for("READY", 30.0)
                             except TimeoutError:
