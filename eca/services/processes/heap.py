@@ -6,6 +6,10 @@ resident for good. A fixed threshold keeps large buffers mapped (returned to the
 fixed trim threshold hands back the free top of the heap, two arenas keep the threads (zmq's I/O thread,
 the audio threads) from holding a heap each, and `trim` returns the free pages inside the heap too.
 Elsewhere than glibc these are no-ops.
+
+The price: a buffer of the threshold or more is mapped and unmapped each time it is made. A library that makes one
+per call does so at every call; msgpack's packer did for every message (its first buffer is 256 KiB), so the
+protocol's codec starts its own at 16 KiB (eca/protocol/codec.py `PACK_BUFFER_BYTES`).
 """
 
 from __future__ import annotations

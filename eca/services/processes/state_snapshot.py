@@ -20,7 +20,7 @@ from pathlib import Path
 
 import msgpack
 
-from eca.protocol.codec import ProtocolError, decode
+from eca.protocol.codec import ProtocolError, decode, packb
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import Message
 
@@ -40,7 +40,7 @@ class StateSnapshot:
 
     def save(self, encoded: Iterable[bytes], ended: dict[str, list[str]]) -> None:
         """Write the state: its messages as published (encoded by the codec) and the ended request ids per agent."""
-        data = msgpack.packb({"messages": list(encoded), "ended": ended}, use_bin_type=True)
+        data = packb({"messages": list(encoded), "ended": ended})
         with open(self._tmp, "wb") as fh:
             fh.write(data)
         os.replace(self._tmp, self.path)

@@ -24,11 +24,10 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote, unquote
 
-import msgpack
 from aiohttp import web
 
 from eca.agent.vocabulary import EYE_MODES
-from eca.protocol.codec import ProtocolError, decode, describe, is_agent_id
+from eca.protocol.codec import ProtocolError, decode, describe, is_agent_id, packb
 from eca.protocol.messages import MESSAGE_TYPES, PROTOCOL_VERSION
 from eca.services.processes.web.conversations import Busy, Conversation, Conversations
 from eca.services.processes.web.face_frames import FaceFrames
@@ -367,7 +366,7 @@ def parse_command(command: Any, agents: tuple[str, ...]) -> Any:
         raise BadRequest(f"'command.agent' must be one of {', '.join(agents)}")
     payload = {k: v for k, v in command.items() if k not in ("v", "seq", "t_ns", "source")}
     try:
-        return decode(msgpack.packb({**payload, "v": PROTOCOL_VERSION, "source": "web-page"}, use_bin_type=True))
+        return decode(packb({**payload, "v": PROTOCOL_VERSION, "source": "web-page"}))
     except ProtocolError as exc:
         raise BadRequest(f"'command': {exc}") from None
     except (TypeError, ValueError, OverflowError):  # msgpack cannot pack what JSON gave (a huge integer)
