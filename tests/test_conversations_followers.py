@@ -34,7 +34,7 @@ from eca.services.processes.audio.service import AudioService
 from eca.services.processes.audio.sinks import NullSink
 from eca.services.processes.gaze import GazeService
 from eca.services.processes.runtime import Service, wait_until
-from eca.services.processes.scene.bus_scene import BusScenes
+from eca.services.processes.scene.bus_scene import BusScenes, agent_topics
 from tests.support.bus import BrokerThread, ServiceThread, private_bus_config
 
 NS = 1_000_000_000
@@ -158,10 +158,7 @@ def test_scenes_that_neither_follow_nor_listen_subscribe_as_before() -> None:
     with private_bus_config() as config:
         service = SceneService(config, ["ada"], follow=False)
     plain = BusScenes(service, ["ada", "bob"])  # a renderer's: no follow, no hook
-    assert plain.subscriptions() == [
-        "stream.*.eye_states",
-        "state.ada.", "event.ada.", "stream.ada.clock_anchor", "stream.ada.mouth",
-        "state.bob.", "event.bob.", "stream.bob.clock_anchor", "stream.bob.mouth"]
+    assert plain.subscriptions() == ["stream.*.eye_states", *agent_topics("ada"), *agent_topics("bob")]
 
 
 # --- the gaze service ---------------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from eca.protocol.codec import encode
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import (
     ALL_AGENTS,
+    AgentsState,
     ClockAnchor,
     EmotionState,
     EyesState,
@@ -183,11 +184,27 @@ def test_states_reach_each_agents_scene(config: BusConfig) -> None:
     assert (bob.emotion, bob.eye_mode, ada.emotion) == (("angry", 0.5), "static", ("natural", 1.0))
     assert (ada.role, ada.head, bob.role) == ("talking", (0.4, 0.0, 0.1), "listening")
     assert ada.frame_at(3 * S).values.any() and sum(svc.bad_messages.values()) == 0
+    events = [f"event.{{}}.{t}" for t in ("nod", "head_gesture", "expression", "saccade", "speech_started",
+                                          "speech_finished", "speech_interrupted", "speech_failed")]
     assert scenes.subscriptions() == [
         "stream.*.eye_states",
-        "state.ada.", "event.ada.", "stream.ada.clock_anchor", "stream.ada.mouth",
-        "state.bob.", "event.bob.", "stream.bob.clock_anchor", "stream.bob.mouth",
+        "state.ada.", *(e.format("ada") for e in events), "stream.ada.clock_anchor", "stream.ada.mouth",
+        "state.bob.", *(e.format("bob") for e in events), "stream.bob.clock_anchor", "stream.bob.mouth",
     ]
+
+
+def test_every_message_a_scene_handles_is_subscribed_and_acknowledgements_are_not(config: BusConfig) -> None:
+    """A scene subscribes to the events it handles one by one: an acknowledgement, one per command, does not reach
+    a drawer (a flood of commands acknowledged would), and no handled message is left out."""
+    svc = RecordingService(config)
+    scenes = BusScenes(svc, ["ada"], idle_noise=False, follow=True)
+    subs = scenes.subscriptions()
+    handled = list(svc._handlers)
+    assert len(handled) >= 15
+    for cls in handled:
+        topic = f"{cls.CATEGORY}.{'*' if cls in (EyeStates, AgentsState) else 'ada'}.{cls.TYPE}"
+        assert any(topic.startswith(p) for p in subs), (topic, subs)
+    assert not any("event.ada.ack".startswith(p) for p in subs)
 
 
 def test_a_tick_of_eye_states_reaches_each_drawn_agent_and_passes_the_others_by(config: BusConfig) -> None:

@@ -197,8 +197,10 @@ class FaceLink(Service):
         # The scene's subscriptions less eca's own mouth keys and clock anchors: the mouth follows the
         # pipeline's audio (voice.py); eca's keys of that audio, or of a say someone else sent on the bus
         # (which the pipeline's listener does not hear), would pull it onto eca's timeline.
+        # The acknowledgements of its own commands too, which a scene does not read.
         own = (f"stream.{self.agent}.mouth", f"stream.{self.agent}.clock_anchor")
-        return [s for s in self.scenes.subscriptions() if s not in own] + [f"error.{self.agent}."]
+        return [s for s in self.scenes.subscriptions() if s not in own] + [f"event.{self.agent}.{Ack.TYPE}",
+                                                                           f"error.{self.agent}."]
 
     # --- what the pipeline submits (any thread) ---------------------------------------------------
 

@@ -305,7 +305,13 @@ class BusScenes:
         self._guard(m, lambda s: s.speech_failed(m.request_id, m.t_ns))
 
 
+# The events a live scene is fed. Not the rest of event.<agent>.*: the acknowledgements above all, one per command,
+# which under a flood of commands (bench/reliability.py: 20,000 a second) every drawer would otherwise read and drop.
+SCENE_EVENTS: tuple[type[Message], ...] = (Nod, HeadGesture, Expression, Saccade, SpeechStarted, SpeechFinished,
+                                           SpeechInterrupted, SpeechFailed)
+
+
 def agent_topics(agent: str) -> list[str]:
     """What the live scene of one agent is fed from."""
-    return [f"state.{agent}.", f"event.{agent}.", f"stream.{agent}.clock_anchor",
-            f"stream.{agent}.mouth"]
+    return [f"state.{agent}.", *(f"event.{agent}.{cls.TYPE}" for cls in SCENE_EVENTS),
+            f"stream.{agent}.clock_anchor", f"stream.{agent}.mouth"]
