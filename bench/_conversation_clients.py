@@ -35,10 +35,10 @@ import gc
 import json
 import struct
 import sys
-import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import aiohttp
@@ -50,6 +50,10 @@ from aiortc import MediaStreamTrack, RTCConfiguration, RTCPeerConnection, RTCSes
 from aiortc.codecs.opus import OpusEncoder
 from aiortc.rtcrtpreceiver import RTCRtpReceiver
 from aiortc.rtcsctptransport import RTCSctpTransport
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run as a script: the repository's bench package
+
+from bench._stdio import say, stdin_lines  # noqa: E402
 
 FRAME_NS = 20_000_000
 OPUS_RATE = 48_000
@@ -462,22 +466,11 @@ async def add_visitors(session: aiohttp.ClientSession, args: argparse.Namespace,
 
 
 async def serve(args: argparse.Namespace) -> None:
-    loop = asyncio.get_running_loop()
-    lines: asyncio.Queue[str | None] = asyncio.Queue()
-
-    def read_stdin() -> None:
-        for line in sys.stdin:
-            loop.call_soon_threadsafe(lines.put_nowait, line.strip())
-        loop.call_soon_threadsafe(lines.put_nowait, None)
-
-    threading.Thread(target=read_stdin, daemon=True).start()
+    lines = stdin_lines()
     speech, silence = encode_speech(args.mic)
     visitors: list[Visitor] = []
     lag = LoopLag()
     lag_task = asyncio.ensure_future(lag.run())
-
-    def say(obj: dict[str, Any]) -> None:
-        print(json.dumps(obj), flush=True)
 
     async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=60)) as session:
         try:

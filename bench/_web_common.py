@@ -258,7 +258,8 @@ class Instance:
 @contextmanager
 def instance(face: str | None = None) -> Iterator[Instance]:
     """`eca up --web` on a private instance and a free port; with `face`, every agent's face (`--face`)."""
-    from tests.support.bus import eca_command, private_bus_config, running
+    from eca.services.tools.child_processes import eca_command
+    from tests.support.bus import private_bus_config, running
 
     # The supervisor restarts a service whose loop is silent for [heartbeat] timeout_s (1.5 s); on a loaded machine
     # the web service's loop stalled longer (the figure "loop: longest stall"), and a web service restarted on

@@ -72,7 +72,7 @@ from bench._web_page import (
     SYNC_JS,
     TAKE_JS,
 )
-from bench._web_viewers import ask, least_squares_slope, load_process, measure_window, wait_watching
+from bench._web_viewers import ask, least_squares_slope, load_process, measure_levels, measure_window, wait_watching
 from bench.report import Report, percentile, wait_until_ns
 
 # --- 4. the face drawn in the browser ----------------------------------------------------------------
@@ -379,7 +379,7 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
         voiced_share = sum(1 for h in talking if h["flags"] & 1) / len(talking) if talking else None
         late = [m["syncedMs"] - m["timeMs"] for m in window_marks if m.get("syncedMs") is not None
                 and (m.get("flags") or 0) & 1]
-        w = details["windows"][label] = {
+        got: dict[str, Any] = {
             "from_s": lo, "to_s": hi, "markers_connection": win.reference,
             **{name: spread([o for _, o in pairs]) for name, pairs in timed.items()},
             "browser-drawn less reference": spread(each),
@@ -398,17 +398,18 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
                 ("reference: flash at source -> shown", flashes(taken.frames.get(MARKED, []))))},
             "offsets_ms": {name: [round(o, 2) for _, o in pairs] for name, pairs in timed.items()},
         }
-        d = w["browser-drawn"]
+        details["windows"][label] = got
+        d = got["browser-drawn"]
         if not d.get("n"):
             report.add(f"A/V browser-drawn face, {label}", "none measured", "pairs > 0", False, "",
-                       f"clicks heard {w['onsets']['browser-drawn clicks']}, marks shown {len(window_marks)}")
+                       f"clicks heard {got['onsets']['browser-drawn clicks']}, marks shown {len(window_marks)}")
             continue
         median = d["median"]
         report.add(f"A/V browser-drawn face (click - mark), {label}", median,
                    f"-{ATSC_EARLY_MS:g}..+{ATSC_LATE_MS:g}", -ATSC_EARLY_MS <= median <= ATSC_LATE_MS, "ms",
                    f"ATSC IS-191; + = audio late; p10 {d['p10']}, p90 {d['p90']}, n {d['n']}; marks reached "
                    f"{len(window_marks)} of {seconds} s ({drawn_marks} drawn themselves, {voiced} voiced)")
-        ref = w["reference"]
+        ref = got["reference"]
         if each:
             diff = statistics.median(each)
             report.add(f"A/V browser-drawn - reference, {label}", round(diff, 1), f"+-{TARGET_AV_DIFF_MS:g}",
@@ -429,11 +430,11 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
                            ("browser-drawn, voice clock", "voiced marks: the click less when the page's voice clock "
                             "said the mark's time played (at the drawing, less how far past the mark it was): the "
                             "wait for the animation frame taken out")):
-            v = w[name]
+            v = got[name]
             if v.get("n"):
                 report.add(f"  {name}, {label}", v["median"], "-", None, "ms",
                            f"{note}; p10 {v['p10']}, p90 {v['p90']}, n {v['n']}")
-        mouth = w["browser-drawn mouth"]
+        mouth = got["browser-drawn mouth"]
         if mouth.get("n"):
             report.add(f"A/V browser-drawn mouth (burst - jaw half open), {label}", mouth["median"], "-", None, "ms",
                        f"the voiced weights of the heard frames shown; lip-sync included; p10 {mouth['p10']}, "
@@ -441,12 +442,12 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
         if voiced_share is not None:
             report.add(f"  heard frames voiced, {label}", round(100 * voiced_share, 1), "-", None, "%",
                        "the agent talks throughout (the quiet tone): a frame not voiced is drawn as it arrives")
-        past = w["marks"]["voice_past_mark_ms"]
+        past = got["marks"]["voice_past_mark_ms"]
         if past.get("n"):
             report.add(f"  voice past the mark when drawn, {label}", past["median"], "-", None, "ms",
                        f"voiced marks: the voice clock's time at the drawing that reached the mark, less the mark's "
                        f"time: the wait for the animation frame; p90 {past['p90']}")
-        paths = w["paths_ms"]
+        paths = got["paths_ms"]
         for who, heard_path, shown_path in (
                 ("browser-drawn", "browser-drawn: click at source -> heard", "browser-drawn: mark at source -> shown"),
                 ("reference", "reference: click at source -> heard", "reference: flash at source -> shown")):
@@ -455,7 +456,7 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
                 report.add(f"  {who}: click heard / mark shown, {label}", f"{a['median']:g} / {b['median']:g} ms",
                            "-", None, "", "median ms after the whole second of the master clock they mark")
         rates = window_rates(taken.stats.get(DRAWN, []), tie, lo_ms, hi_ms)
-        w["rates_per_s"] = rates
+        got["rates_per_s"] = rates
         if rates:
             report.add(f"  face frames received / drawn, {label}",
                        f"{rates['received']:.1f} / {rates['ticks']:.1f} /s", "-", None, "",
@@ -590,7 +591,7 @@ def close_page_connections(inst: Instance, driver: Any) -> None:
 
 
 def drawn_viewers_phase(args: argparse.Namespace, inst: Instance, driver: Any, report: Report) -> None:
-    details: dict[str, Any] = {"levels": []}
+    details: dict[str, Any] = {}
     report.details["drawn_viewers"] = details
     pid = inst.web_pid
     close_page_connections(inst, driver)
@@ -599,19 +600,12 @@ def drawn_viewers_phase(args: argparse.Namespace, inst: Instance, driver: Any, r
     time.sleep(VIEWER_SETTLE_S)  # the service lets go of its drawing
     zero = measure_window(pid, None, None, VIEWER_WINDOW_S)
     details["zero"] = zero
-    levels: list[tuple[int, dict[str, Any]]] = []
     with load_process(inst.url, drawn=True) as load:
         ask(*load, "hello", 30.0)
-        for n in args.viewers:
-            got = ask(*load, f"set {n}", 60.0)
-            if got.get("connected") != n:
-                raise RuntimeError(f"the aiortc viewers did not all connect: {got}")
-            time.sleep(VIEWER_SETTLE_S)  # the new viewers' first frames pass
-            m = measure_window(pid, None, load, VIEWER_WINDOW_S)
-            levels.append((n, m))
-            details["levels"].append({"viewers": n, **m})
-            progress(f"  {n} browser-drawn viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS "
-                     f"{m['rss_mib']:.0f} MiB, {m.get('load_fps_each', float('nan')):.1f} face frames/s each")
+        levels = measure_levels(pid, load, args.viewers, 0, None, lambda n, m: (
+            f"  {n} browser-drawn viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
+            f"{m.get('load_fps_each', float('nan')):.1f} face frames/s each"))
+        details["levels"] = [{"viewers": n, **m} for n, m in levels]
         mark = len(inst.reader.lines)
         ask(*load, "set 0", 30.0)
     left = wait_watching(inst, 0, 20.0, mark)

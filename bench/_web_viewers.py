@@ -10,14 +10,14 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
 
+from bench._stdio import say, stdin_lines
 from bench._web_common import (
     AFTER_LEAVING_S,
     AGENT,
@@ -76,7 +76,8 @@ def ask(proc: subprocess.Popen[bytes], reader: Any, line: str, timeout_s: float)
     proc.stdin.write((line + "\n").encode())
     proc.stdin.flush()
     index = reader.wait_for("{", timeout_s, start)
-    return json.loads(reader.lines[index])
+    answer: dict[str, Any] = json.loads(reader.lines[index])
+    return answer
 
 
 def measure_window(pid: int, driver: Any | None, load: tuple[Any, Any] | None, seconds: float) -> dict[str, Any]:
@@ -121,9 +122,26 @@ def least_squares_slope(xs: list[float], ys: list[float]) -> float | None:
     return float(np.polyfit(np.asarray(xs, float), np.asarray(ys, float), 1)[0])
 
 
+def measure_levels(pid: int, load: tuple[Any, Any], counts: list[int], others: int, driver: Any | None,
+                   line: Callable[[int, dict[str, Any]], str]) -> list[tuple[int, dict[str, Any]]]:
+    """The web service's CPU and memory with each of `counts` viewers, `others` of them not the load process's (the
+    page): the load process's aiortc viewers set to the rest, then a window once their first frames have passed;
+    `line(n, window)` is the progress line of each."""
+    levels = []
+    for n in counts:
+        got = ask(*load, f"set {n - others}", 60.0)
+        if got.get("connected") != n - others:
+            raise RuntimeError(f"the aiortc viewers did not all connect: {got}")
+        time.sleep(VIEWER_SETTLE_S)  # measuring starts after the new viewers' first frames (and keyframes)
+        window = measure_window(pid, driver, load, VIEWER_WINDOW_S)
+        levels.append((n, window))
+        progress(line(n, window))
+    return levels
+
+
 def viewers_phase(args: argparse.Namespace, inst: Instance, driver: Any, report: Report,
                   baselines: dict[str, float] | None) -> None:
-    details: dict[str, Any] = {"levels": []}
+    details: dict[str, Any] = {}
     report.details["viewers"] = details
     pid = inst.web_pid
     mark = len(inst.reader.lines)
@@ -135,23 +153,13 @@ def viewers_phase(args: argparse.Namespace, inst: Instance, driver: Any, report:
     time.sleep(VIEWER_SETTLE_S)  # the service lets go of its drawing
     zero = measure_window(pid, None, None, VIEWER_WINDOW_S)
     details["zero"] = zero
-    levels: list[tuple[int, dict[str, Any]]] = []
     with load_process(inst.url) as load:
         ask(*load, "hello", 30.0)
-        page_connected = False
-        for n in args.viewers:
-            if not page_connected:
-                connect_page(driver)
-                page_connected = True
-            got = ask(*load, f"set {n - 1}", 60.0)
-            if got.get("connected") != n - 1:
-                raise RuntimeError(f"the aiortc viewers did not all connect: {got}")
-            time.sleep(VIEWER_SETTLE_S)  # the new viewers' first frames and keyframes pass
-            m = measure_window(pid, driver, load, VIEWER_WINDOW_S)
-            levels.append((n, m))
-            details["levels"].append({"viewers": n, **m})
-            progress(f"  {n} viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
-                     f"page {m.get('page_fps', float('nan')):.1f} fps")
+        connect_page(driver)  # the first viewer; the aiortc ones make up the rest
+        levels = measure_levels(pid, load, args.viewers, 1, driver, lambda n, m: (
+            f"  {n} viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
+            f"page {m.get('page_fps', float('nan')):.1f} fps"))
+        details["levels"] = [{"viewers": n, **m} for n, m in levels]
         mark = len(inst.reader.lines)
         ask(*load, "set 0", 30.0)
     disconnect_page(driver)
@@ -224,7 +232,7 @@ def run_load(url: str, drawn: bool = False) -> int:
     from aiortc import RTCPeerConnection, RTCSessionDescription
 
     aiortc.rtcrtpreceiver.get_decoder = (  # type: ignore[attr-defined]
-        lambda codec: CountingNullDecoder(codec.mimeType.split("/")[0].lower()))
+        lambda codec: CountingNullDecoder(codec.mimeType.split("/")[0].lower()))  # type: ignore[assignment, return-value]
     face_frames = [0]
 
     def on_message(message: object) -> None:
@@ -253,18 +261,8 @@ def run_load(url: str, drawn: bool = False) -> int:
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
-        lines: asyncio.Queue[str | None] = asyncio.Queue()
-
-        def read_stdin() -> None:
-            for line in sys.stdin:
-                loop.call_soon_threadsafe(lines.put_nowait, line.strip())
-            loop.call_soon_threadsafe(lines.put_nowait, None)
-
-        threading.Thread(target=read_stdin, daemon=True).start()
+        lines = stdin_lines()
         clients: list[RTCPeerConnection] = []
-
-        def say(obj: dict[str, Any]) -> None:
-            print(json.dumps(obj), flush=True)
 
         async with aiohttp.ClientSession() as session:
             try:

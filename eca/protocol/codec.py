@@ -22,19 +22,18 @@ from eca.protocol.messages import AGENT_ID_PATTERN, ALL_AGENTS, MESSAGE_TYPES, P
 
 DEFAULT_MAX_BYTES = 4 * 1024 * 1024
 # msgpack's packer starts with a 256 KiB buffer of its own for every message it packs. In a process that keeps
-# allocations that large mapped (eca's services fix glibc's mmap threshold at 128 KiB, so a flood's memory goes
-# back: services/processes/heap.py), every message then mapped and unmapped that buffer: 8 us a message instead
-# of 0.7 (a dialogue service acknowledging a flood of 20,000 commands a second spent a quarter of its time
-# there). A smaller start holds a message of any size just the same: the buffer grows as it fills.
+# allocations that large mapped (a fixed glibc mmap threshold under 256 KiB, as eca's services set one so that a
+# flood's memory goes back), every message then mapped and unmapped that buffer: 8 us a message instead of 0.7.
+# A smaller start holds a message of any size just the same: the buffer grows as it fills.
 PACK_BUFFER_BYTES = 16 * 1024
+ENVELOPE_KEYS = ("v", "type")
+_AGENT_ID = re.compile(AGENT_ID_PATTERN)
 
 
 def packb(obj: Any) -> bytes:
     """msgpack bytes of `obj` (bin type for bytes), through a packer whose buffer starts small."""
     data: bytes = msgpack.packb(obj, use_bin_type=True, buf_size=PACK_BUFFER_BYTES)
     return data
-ENVELOPE_KEYS = ("v", "type")
-_AGENT_ID = re.compile(AGENT_ID_PATTERN)
 
 
 def is_agent_id(text: str) -> bool:

@@ -21,7 +21,6 @@ from __future__ import annotations
 from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 from eca.agent.face.composed import ComposedFace
 from eca.agent.face.scene import LiveScene
@@ -67,6 +66,32 @@ class AgentView:
     face: ComposedFace | None = None  # what the stage last composed
 
 
+# What a live scene is fed: each message type with the BusScenes method that handles it.
+HANDLERS: dict[type[Message], str] = {
+    RoleState: "on_role",
+    EmotionState: "on_emotion",
+    HeadState: "on_head",
+    EyesState: "on_eyes",
+    GazeTargetState: "on_gaze_target",
+    AttentionState: "on_attention",
+    Nod: "on_nod",
+    HeadGesture: "on_head_gesture",
+    Expression: "on_expression",
+    Saccade: "on_saccade",
+    EyeStates: "on_eye_states",
+    ClockAnchor: "on_anchor",
+    MouthKeys: "on_mouth",
+    SpeechStarted: "on_speech_started",
+    SpeechFinished: "on_speech_ended",
+    SpeechInterrupted: "on_speech_ended",
+    SpeechFailed: "on_speech_failed",
+    AgentsState: "on_agents_state",
+}
+# Its events, subscribed one by one (agent_topics), not event.<agent>.* whole: the acknowledgements above all, one per
+# command, which under a flood of commands (bench/reliability.py: 20,000 a second) every drawer would read and drop.
+SCENE_EVENTS = tuple(cls for cls in HANDLERS if cls.CATEGORY == "event")
+
+
 class BusScenes:
     """The live scenes of `agents`, fed from `service`'s bus (its handlers are registered on it).
 
@@ -92,28 +117,8 @@ class BusScenes:
         # a commanded state (role, emotion, head, eye mode) changed since the drawer last cleared this: one
         # that can draw between its frame slots shows it at once instead of at the next slot
         self.commanded = False
-        handlers: tuple[tuple[type[Any], Callable[[Any], None]], ...] = (
-            (RoleState, self.on_role),
-            (EmotionState, self.on_emotion),
-            (HeadState, self.on_head),
-            (EyesState, self.on_eyes),
-            (GazeTargetState, lambda m: None),
-            (AttentionState, self.on_attention),
-            (Nod, self.on_nod),
-            (HeadGesture, self.on_head_gesture),
-            (Expression, self.on_expression),
-            (Saccade, self.on_saccade),
-            (EyeStates, self.on_eye_states),
-            (ClockAnchor, self.on_anchor),
-            (MouthKeys, self.on_mouth),
-            (SpeechStarted, self.on_speech_started),
-            (SpeechFinished, self.on_speech_ended),
-            (SpeechInterrupted, self.on_speech_ended),
-            (SpeechFailed, self.on_speech_failed),
-            (AgentsState, self.on_agents_state),
-        )
-        for cls, fn in handlers:
-            service.handle(cls, fn)
+        for cls, handler in HANDLERS.items():
+            service.handle(cls, getattr(self, handler))
 
     def subscriptions(self) -> list[str]:
         """The topics of every agent's scene; the list of live agents too when following it or told of it."""
@@ -273,6 +278,9 @@ class BusScenes:
         if self._guard(m, lambda s: s.set_eye_mode(m.mode)):
             self.commanded = True
 
+    def on_gaze_target(self, m: GazeTargetState) -> None:
+        """Nothing to do: the eyes follow the gaze service's eye states, which it makes of the target."""
+
     def on_saccade(self, m: Saccade) -> None:
         self._guard(m, lambda s: s.add_saccade(m.onset_ns, (m.from_yaw_deg, m.from_pitch_deg),
                                                (m.to_yaw_deg, m.to_pitch_deg), m.duration_s))
@@ -303,12 +311,6 @@ class BusScenes:
 
     def on_speech_failed(self, m: SpeechFailed) -> None:
         self._guard(m, lambda s: s.speech_failed(m.request_id, m.t_ns))
-
-
-# The events a live scene is fed. Not the rest of event.<agent>.*: the acknowledgements above all, one per command,
-# which under a flood of commands (bench/reliability.py: 20,000 a second) every drawer would otherwise read and drop.
-SCENE_EVENTS: tuple[type[Message], ...] = (Nod, HeadGesture, Expression, Saccade, SpeechStarted, SpeechFinished,
-                                           SpeechInterrupted, SpeechFailed)
 
 
 def agent_topics(agent: str) -> list[str]:
