@@ -182,3 +182,55 @@ def test_a_voice_track_counts_how_late_it_hands_each_frame_over() -> None:
 
     asyncio.run(main())
     assert (timing.frames, timing.late_20ms, timing.late_60ms, timing.max_late_ns) == (4, 2, 0, 40_000_000)
+
+
+def test_the_voice_sounds_at_a_time_when_a_loud_sample_lies_within_the_window_around_it() -> None:
+    """sounding() against the timeline worked out directly: 150 blocks of 10 ms (quiet or loud at random, with
+    gaps where no block came), asked at times across all of it and past both ends."""
+    rng = np.random.default_rng(7)
+    feed = VoiceFeed(RATE)
+    timeline = np.zeros(160 * BLOCK, dtype=np.int32)  # from 1 s; a gap is silence
+    for k in range(150):
+        if rng.random() < 0.15:
+            continue  # no block here
+        loud = rng.random() < 0.3
+        samples = rng.integers(-40, 40, BLOCK).astype(np.int16)
+        if loud:
+            samples[rng.integers(0, BLOCK)] = 3000
+        feed.add(1_000_000_000 + k * BLOCK_NS, samples, RATE)
+        timeline[k * BLOCK:(k + 1) * BLOCK] = samples
+    window_ns = 20_000_000
+    for t_ns in rng.integers(990_000_000, 2_620_000_000, 400):
+        lo = (int(t_ns) - window_ns // 2 - 1_000_000_000) * RATE // 1_000_000_000
+        hi = (int(t_ns) + window_ns // 2 - 1_000_000_000) * RATE // 1_000_000_000 + 1
+        expected = bool(np.abs(timeline[max(0, lo):max(0, hi)]).max(initial=0) > 64)
+        assert feed.sounding(int(t_ns), window_ns) == expected, t_ns
+
+
+def test_the_voice_encoder_sends_celt_packets_that_decode_to_the_voice() -> None:
+    """OpusFrames: every packet in Opus' CELT-only mode (its TOC byte's configuration 16-31, RFC 6716 §3.1), and
+    what a decoder makes of them is the voice sent: a tone comes back at its level and frequency, 2.5 ms late
+    (the mode's lookahead)."""
+    from eca.services.processes.web.tracks import OpusFrames
+
+    rate, frame = OpusFrames.RATE, OpusFrames.RATE // 50
+    t = np.arange(50 * frame) / rate
+    sent = (8000 * np.sin(2 * np.pi * 440 * t)).astype(np.int16)
+    opus = OpusFrames()
+    decoder = av.CodecContext.create("libopus", "r")
+    assert isinstance(decoder, av.AudioCodecContext)
+    decoder.sample_rate, decoder.layout = rate, "mono"
+    heard = []
+    for k in range(50):
+        packet = opus.encode(sent[k * frame:(k + 1) * frame], k * frame)
+        assert packet is not None and packet.pts == k * frame
+        data = bytes(packet)
+        assert data[0] >> 3 >= 16, f"frame {k}: TOC configuration {data[0] >> 3} is not CELT-only"
+        for decoded in decoder.decode(av.Packet(data)):
+            heard.append(decoded.to_ndarray().reshape(-1))
+    got = np.concatenate(heard).astype(np.float64)
+    got = got if np.abs(got).max() > 2 else got * 32768  # float or int16 output, as the build decodes
+    delay = 120  # 2.5 ms at 48 kHz
+    a, b = sent[10 * frame:40 * frame].astype(np.float64), got[10 * frame + delay:40 * frame + delay]
+    error = np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(a ** 2))
+    assert error < 0.2, f"the decoded tone is {error:.0%} off the one sent"

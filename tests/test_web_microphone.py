@@ -178,3 +178,45 @@ def test_the_answer_asks_the_microphones_section_alone_for_dtx() -> None:
     assert lines[lines.index("a=rtpmap:96 OPUS/48000/2") + 1] == "a=fmtp:96 usedtx=1"  # a format line of its own
     assert "usedtx" not in "".join(ask_dtx(sdp, "1").split("m=")[3]) and "usedtx" not in "".join(lines[:9])
     assert ask_dtx(sdp, "7") == sdp  # no such section: unchanged
+
+
+def test_a_microphone_decoded_on_the_loop_gives_aiortcs_frames_drops_a_bad_one_and_hands_the_stop_on() -> None:
+    """DecodeOnLoop (web/mic_decoding.py), in the place of a receiver's decoder queue: each encoded frame decoded
+    at once into the track's queue, with its RTP timestamp; a frame libopus refuses dropped and counted, the next
+    decoded; the receiver's stop handed to its thread's `get`."""
+    import asyncio
+    import queue
+    import threading
+
+    from aiortc.jitterbuffer import JitterFrame
+    from aiortc.rtcrtpparameters import RTCRtpCodecParameters
+
+    from eca.services.processes.web.mic_decoding import DecodeOnLoop
+    from eca.services.processes.web.tracks import OpusFrames
+
+    codec = RTCRtpCodecParameters(mimeType="audio/opus", clockRate=48_000, channels=2, payloadType=111)
+    opus = OpusFrames()
+    tone = (6000 * np.sin(2 * np.pi * 300 * np.arange(960 * 5) / 48_000)).astype(np.int16)
+    packets = [bytes(p) for k in range(5) if (p := opus.encode(tone[k * 960:(k + 1) * 960], k * 960)) is not None]
+    assert len(packets) == 5
+
+    async def main() -> list[av.AudioFrame]:
+        frames: asyncio.Queue[av.AudioFrame] = asyncio.Queue()
+        stand_in = DecodeOnLoop(frames)
+        stand_in.put((codec, JitterFrame(data=packets[0], timestamp=1000)))
+        stand_in.put((codec, JitterFrame(data=b"\xff" * 3, timestamp=1960)))  # a code-63 packet with no count
+        for k, data in enumerate(packets[1:], start=1):
+            stand_in.put((codec, JitterFrame(data=data, timestamp=1000 + 960 * k)))
+        assert (stand_in.decoded, stand_in.failed) == (5, 1)
+        stopped: queue.SimpleQueue[object] = queue.SimpleQueue()
+        thread = threading.Thread(target=lambda: stopped.put(stand_in.get()))
+        thread.start()
+        stand_in.put(None)
+        thread.join(5.0)
+        assert not thread.is_alive() and stopped.get_nowait() is None
+        return [frames.get_nowait() for _ in range(frames.qsize())]
+
+    got = asyncio.run(main())
+    assert [f.pts for f in got] == [1000 + 960 * k for k in range(5)]
+    assert all(f.sample_rate == 48_000 and f.samples == 960 for f in got)
+    assert np.abs(got[-1].to_ndarray()).max() > 3000  # the tone, not silence

@@ -152,6 +152,10 @@ def test_the_users_speech_becomes_turns_and_audio_on_the_bus(web: tuple[BusConfi
         await client.connect()
         try:
             await asyncio.sleep(6.0)  # the WAV plays in real time: let it (pacing, not synchronisation)
+            assert service.viewers is not None
+            (viewer,) = service.viewers.open.values()
+            # decoded on the service's event loop (web/mic_decoding.py), not on a thread of aiortc's
+            assert viewer.mic_decoding is not None and viewer.mic_decoding.decoded >= 3.0 * 50
         finally:
             await client.pc.close()
 

@@ -122,25 +122,29 @@ class VoiceFeed:
         `window_ns` of it), without letting any block go: a browser-drawn mouth follows it."""
         rate = self.sample_rate
         lo_ns, hi_ns = t_ns - window_ns // 2, t_ns + window_ns // 2
-        for first_ns, samples in self._held_blocks():
-            if first_ns >= hi_ns:
-                break
-            end_ns = self._end_ns(first_ns, samples)
-            if end_ns <= lo_ns:
-                continue
+        for first_ns, samples in self._blocks_around(lo_ns, hi_ns):
             a = max(0, (lo_ns - first_ns) * rate // 1_000_000_000)
             b = min(len(samples), (hi_ns - first_ns) * rate // 1_000_000_000 + 1)
             if a < b and int(np.abs(samples[a:b].astype(np.int32)).max()) > floor:
                 return True
         return False
 
-    def _held_blocks(self) -> tuple[tuple[int, np.ndarray], ...]:
-        """The blocks held now, as they are (a block's samples are never changed once added). The lock is held
-        only to copy the list: the bus loop and the event loop share this feed, and a thread that took the lock
-        and then lost the interpreter's lock in numpy would hold the other one up for a switch interval or more
-        (a voice frame sent late)."""
+    def _blocks_around(self, lo_ns: int, hi_ns: int) -> list[tuple[int, np.ndarray]]:
+        """The held blocks that overlap [lo_ns, hi_ns), as they are (a block's samples are never changed once
+        added). Blocks come in time order and a frame's time is near the newest, so they are looked for from the
+        newest back: a feed holds up to `max_s` of blocks, and walking all of them for every agent at every frame
+        slot was a tenth of the face frames' cost. The lock is held only to pick them: the bus loop and the event
+        loop share this feed, and a thread that took the lock and then lost the interpreter's lock in numpy would
+        hold the other one up for a switch interval or more (a voice frame sent late)."""
+        found: list[tuple[int, np.ndarray]] = []
         with self._lock:
-            return tuple(self._blocks)
+            for first_ns, samples in reversed(self._blocks):
+                if first_ns >= hi_ns:
+                    continue
+                if self._end_ns(first_ns, samples) <= lo_ns:
+                    break
+                found.append((first_ns, samples))
+        return found
 
     def take(self, start_ns: int, count: int) -> np.ndarray:
         """The `count` samples from master-clock time `start_ns` on (int16): what the blocks hold there,
@@ -155,7 +159,7 @@ class VoiceFeed:
                     break
                 self._blocks.popleft()
                 self._held -= len(samples)
-            blocks = tuple(self._blocks)  # copied under the lock, read outside it (_held_blocks says why)
+            blocks = tuple(self._blocks)  # copied under the lock, read outside it (_blocks_around says why)
         for first_ns, samples in blocks:
             if first_ns >= end_ns:
                 break

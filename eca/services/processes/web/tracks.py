@@ -87,9 +87,15 @@ class FaceTrack(MediaStreamTrack):
 
 class OpusFrames:
     """A mono Opus encoder for 20 ms frames at 48 kHz (what the voice's RTP clock counts): one packet per frame,
-    stamped by the caller, so a track that skips frames keeps its timestamps on the master clock."""
+    stamped by the caller, so a track that skips frames keeps its timestamps on the master clock.
+
+    Opus' restricted low-delay mode (CELT only) at 32 kb/s: it encodes a 20 ms frame of speech in about half the
+    time of its VoIP mode (measured on espeak-ng speech: 71-77 µs against 164-180, in packets of about the same
+    size: 132 bytes on average against 154 at VoIP's default rate), and its lookahead is 2.5 ms instead of 6.5.
+    Every conversation that speaks pays this 50 times a second; a browser decodes either mode."""
 
     RATE = 48_000
+    BIT_RATE = 32_000
 
     def __init__(self) -> None:
         codec = av.CodecContext.create("libopus", "w")
@@ -98,7 +104,8 @@ class OpusFrames:
         codec.layout = "mono"
         codec.format = "s16"
         codec.time_base = fractions.Fraction(1, self.RATE)
-        codec.options = {"application": "voip"}
+        codec.bit_rate = self.BIT_RATE
+        codec.options = {"application": "lowdelay"}
         self.codec = codec
         self.time_base = fractions.Fraction(1, self.RATE)
 

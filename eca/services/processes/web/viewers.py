@@ -31,6 +31,7 @@ from eca.services.processes.web.face_frames import next_due_ns
 from eca.services.processes.web.feeds import FrameFeed, VoiceFeed
 from eca.services.processes.web.ice import IceSettings
 from eca.services.processes.web.ice_gathering import configuration, gathering
+from eca.services.processes.web.mic_decoding import DecodeOnLoop, decode_on_loop
 from eca.services.processes.web.microphone import MicBlock, Microphone
 from eca.services.processes.web.options import VadSettings
 from eca.services.processes.web.tracks import FaceTrack, VoiceTiming, VoiceTrack
@@ -87,6 +88,7 @@ class Viewer:
     request: ViewRequest
     tracks: list[MediaStreamTrack] = field(default_factory=list)
     mic_task: asyncio.Task[None] | None = None
+    mic_decoding: DecodeOnLoop | None = None  # its microphone decoded on the event loop (web/mic_decoding.py)
     watchdog: asyncio.Future[None] | None = None
     closed: bool = False
     channel: RTCDataChannel | None = None  # its face channel, once the page opened it
@@ -172,6 +174,7 @@ class Viewers:
             transceiver = by_mid.get(request.mic_mid)
             if transceiver is None or transceiver.kind != "audio":
                 raise ValueError(f"the offer has no audio section with mid {request.mic_mid!r} for the microphone")
+            viewer.mic_decoding = decode_on_loop(transceiver.receiver)
             viewer.mic_task = asyncio.ensure_future(self._listen(viewer, transceiver.receiver.track))
 
     def _face_track(self, agent: str, request: ViewRequest) -> FaceTrack:

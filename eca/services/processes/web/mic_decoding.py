@@ -1,0 +1,76 @@
+"""A browser's microphone decoded on the event loop, as its packets arrive, instead of on a thread of its own.
+
+aiortc gives every receiver a decoder thread: each frame goes to it through a queue and comes back to the event
+loop through `run_coroutine_threadsafe`. For a microphone's 20 ms Opus frames that handover costs far more than
+the decoding (libopus: about 30 µs a frame here): with a conversation per visitor, forty such threads took 14 % of
+a core between them at N = 40 (bench/conversations.py, per-thread CPU from /proc), nearly all of it waking up and
+taking the interpreter's lock from the two threads that send the voices and the faces, which it delayed too.
+
+`decode_on_loop(receiver)` puts a stand-in where the receiver keeps its decoder queue, before the receiver
+starts: aiortc's own decoder for the codec then runs where the packet is handled (on the event loop), and its
+frames go straight into the track's queue, the same frames as before. The receiver's thread is still started,
+and waits for the stop alone, which the stand-in hands it: the track then ends as before.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+from typing import Any
+
+import av
+from aiortc import RTCRtpReceiver
+from aiortc.codecs import get_decoder
+
+log = logging.getLogger(__name__)
+
+_QUEUE = "_RTCRtpReceiver__decoder_queue"  # aiortc 1.9-1.x keep the decoder's input here ...
+_THREAD = "_RTCRtpReceiver__decoder_thread"  # ... and the thread that reads it, once receive() started it
+
+
+class DecodeOnLoop:
+    """Stands in for a receiver's decoder queue: `put` (from the receiver, on the event loop) decodes a frame at
+    once and hands its frames to the track; `get` (the receiver's thread) returns only the stop."""
+
+    def __init__(self, frames: asyncio.Queue[Any]) -> None:
+        self._frames = frames
+        self._stop: queue.SimpleQueue[None] = queue.SimpleQueue()
+        self._decoder: Any = None
+        self._codec_name: str | None = None
+        self.decoded = 0  # frames decoded here
+        self.failed = 0  # frames the decoder refused
+
+    def put(self, task: tuple[Any, Any] | None) -> None:
+        if task is None:
+            self._stop.put(None)  # the receiver stops: its thread ends the track
+            return
+        codec, encoded_frame = task
+        if codec.name != self._codec_name:
+            self._decoder, self._codec_name = get_decoder(codec), codec.name
+        try:
+            frames = self._decoder.decode(encoded_frame)
+        except av.FFmpegError as exc:  # as aiortc's thread does: the frame is dropped, the decoder kept
+            self.failed += 1
+            log.warning("a microphone frame did not decode (%s): dropped", exc)
+            return
+        self.decoded += 1
+        for frame in frames:
+            self._frames.put_nowait(frame)
+
+    def get(self) -> None:
+        return self._stop.get()
+
+
+def decode_on_loop(receiver: RTCRtpReceiver) -> DecodeOnLoop | None:
+    """Make `receiver` decode on the event loop (see the module); None, and aiortc's thread decodes as it always
+    did, when the receiver has started already or this aiortc keeps its queue elsewhere."""
+    track = receiver.track
+    frames = getattr(track, "_queue", None)
+    if (not isinstance(getattr(receiver, _QUEUE, None), queue.Queue) or getattr(receiver, _THREAD, 0) is not None
+            or not isinstance(frames, asyncio.Queue)):
+        log.warning("this aiortc's receiver is not the one expected: its microphone is decoded on its own thread")
+        return None
+    stand_in = DecodeOnLoop(frames)
+    setattr(receiver, _QUEUE, stand_in)
+    return stand_in
