@@ -54,6 +54,7 @@ from aiortc.rtcsctptransport import RTCSctpTransport
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run as a script: the repository's bench package
 
 from bench._stdio import say, stdin_lines  # noqa: E402
+from eca.services.processes.web.mic_decoding import decode_on_loop  # noqa: E402
 
 FRAME_NS = 20_000_000
 OPUS_RATE = 48_000
@@ -73,6 +74,14 @@ class NullDecoder:
 
 
 aiortc.rtcrtpreceiver.get_decoder = lambda codec: NullDecoder()  # type: ignore[attr-defined, assignment, return-value]
+
+
+def drop_on_loop(receiver: RTCRtpReceiver) -> None:
+    """The receiver's complete frames dropped where they are handled, as the web service decodes its microphones
+    (web/mic_decoding.py), not handed to a decoder thread of their own that would decode nothing: each handover
+    wakes that thread and takes the interpreter's lock from the visitors' event loop. (Where aiortc is not the
+    one expected, its thread takes them, as before, and says so.)"""
+    decode_on_loop(receiver, lambda codec: NullDecoder())
 _handle_rtp = RTCRtpReceiver._handle_rtp_packet
 
 
@@ -291,6 +300,7 @@ async def _arrive(session: aiohttp.ClientSession, args: argparse.Namespace, inde
         mic_track.dtx = asks_dtx(answer["sdp"], mic.mid)
     for transceiver, kind in sections:
         transceiver.receiver.__dict__["_bench_record"] = (visitor.voice if kind == "audio" else visitor.video).add
+        drop_on_loop(transceiver.receiver)  # its track exists now, and it starts receiving once connected
     deadline = time.monotonic() + CONNECT_TIMEOUT_S
     while pc.connectionState != "connected" and time.monotonic() < deadline and visitor.ended_at is None:
         await asyncio.sleep(0.05)  # polling the connection's state

@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import queue
+from collections.abc import Callable
 from typing import Any
 
 import av
@@ -33,8 +34,9 @@ class DecodeOnLoop:
     """Stands in for a receiver's decoder queue: `put` (from the receiver, on the event loop) decodes a frame at
     once and hands its frames to the track; `get` (the receiver's thread) returns only the stop."""
 
-    def __init__(self, frames: asyncio.Queue[Any]) -> None:
+    def __init__(self, frames: asyncio.Queue[Any], make_decoder: Callable[[Any], Any] = get_decoder) -> None:
         self._frames = frames
+        self._make_decoder = make_decoder  # a codec's decoder (aiortc's, unless a caller has its own)
         self._stop: queue.SimpleQueue[None] = queue.SimpleQueue()
         self._decoder: Any = None
         self._codec_name: str | None = None
@@ -47,7 +49,7 @@ class DecodeOnLoop:
             return
         codec, encoded_frame = task
         if codec.name != self._codec_name:
-            self._decoder, self._codec_name = get_decoder(codec), codec.name
+            self._decoder, self._codec_name = self._make_decoder(codec), codec.name
         try:
             frames = self._decoder.decode(encoded_frame)
         except av.FFmpegError as exc:  # as aiortc's thread does: the frame is dropped, the decoder kept
@@ -62,15 +64,16 @@ class DecodeOnLoop:
         return self._stop.get()
 
 
-def decode_on_loop(receiver: RTCRtpReceiver) -> DecodeOnLoop | None:
-    """Make `receiver` decode on the event loop (see the module); None, and aiortc's thread decodes as it always
-    did, when the receiver has started already or this aiortc keeps its queue elsewhere."""
+def decode_on_loop(receiver: RTCRtpReceiver, make_decoder: Callable[[Any], Any] = get_decoder) -> DecodeOnLoop | None:
+    """Make `receiver` decode on the event loop (see the module), with `make_decoder`'s decoder for a codec; None,
+    and aiortc's thread decodes as it always did, when the receiver has started already or this aiortc keeps its
+    queue elsewhere."""
     track = receiver.track
     frames = getattr(track, "_queue", None)
     if (not isinstance(getattr(receiver, _QUEUE, None), queue.Queue) or getattr(receiver, _THREAD, 0) is not None
             or not isinstance(frames, asyncio.Queue)):
         log.warning("this aiortc's receiver is not the one expected: its microphone is decoded on its own thread")
         return None
-    stand_in = DecodeOnLoop(frames)
+    stand_in = DecodeOnLoop(frames, make_decoder)
     setattr(receiver, _QUEUE, stand_in)
     return stand_in
