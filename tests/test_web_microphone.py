@@ -220,3 +220,36 @@ def test_a_microphone_decoded_on_the_loop_gives_aiortcs_frames_drops_a_bad_one_a
     assert [f.pts for f in got] == [1000 + 960 * k for k in range(5)]
     assert all(f.sample_rate == 48_000 and f.samples == 960 for f in got)
     assert np.abs(got[-1].to_ndarray()).max() > 3000  # the tone, not silence
+
+
+def test_a_microphone_decoded_on_the_loop_drops_whatever_bytes_a_page_sends() -> None:
+    """Hostile or broken packets (seeded random bytes of 0-1,500, empty ones among them, and Opus TOC bytes with
+    garbage after them): each dropped or decoded, none raising into the connection's packet handling, and a good
+    frame still decodes after (an empty packet is FFmpeg's end of stream: once sent, every frame had failed)."""
+    import asyncio
+
+    from aiortc.jitterbuffer import JitterFrame
+    from aiortc.rtcrtpparameters import RTCRtpCodecParameters
+
+    from eca.services.processes.web.mic_decoding import DecodeOnLoop
+    from eca.services.processes.web.tracks import OpusFrames
+
+    codec = RTCRtpCodecParameters(mimeType="audio/opus", clockRate=48_000, channels=2, payloadType=111)
+    rng = np.random.default_rng(11)
+    good = OpusFrames().encode((3000 * np.sin(np.arange(960) / 7)).astype(np.int16), 0)
+    assert good is not None
+
+    async def main() -> tuple[int, int, int]:
+        frames: asyncio.Queue[av.AudioFrame] = asyncio.Queue()
+        stand_in = DecodeOnLoop(frames)
+        payloads = [rng.bytes(int(n)) for n in rng.integers(0, 1500, 600)] + [b""]
+        payloads += [bytes([toc]) + rng.bytes(int(rng.integers(0, 40))) for toc in range(256)]
+        for k, data in enumerate(payloads):
+            stand_in.put((codec, JitterFrame(data=data, timestamp=960 * k)))
+        before = stand_in.decoded
+        stand_in.put((codec, JitterFrame(data=bytes(good), timestamp=960 * len(payloads))))
+        assert stand_in.decoded == before + 1
+        return stand_in.decoded, stand_in.failed, len(payloads) + 1
+
+    decoded, failed, sent = asyncio.run(main())
+    assert decoded + failed == sent and failed > 0

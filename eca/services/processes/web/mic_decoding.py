@@ -20,7 +20,6 @@ import queue
 from collections.abc import Callable
 from typing import Any
 
-import av
 from aiortc import RTCRtpReceiver
 from aiortc.codecs import get_decoder
 
@@ -48,13 +47,25 @@ class DecodeOnLoop:
             self._stop.put(None)  # the receiver stops: its thread ends the track
             return
         codec, encoded_frame = task
+        if not encoded_frame.data:
+            # An RTP packet with no payload: FFmpeg takes an empty packet as the end of the stream and refuses
+            # every frame after it, so one such packet from a page would end its microphone's decoding for good.
+            self.failed += 1
+            return
         if codec.name != self._codec_name:
             self._decoder, self._codec_name = self._make_decoder(codec), codec.name
         try:
             frames = self._decoder.decode(encoded_frame)
-        except av.FFmpegError as exc:  # as aiortc's thread does: the frame is dropped, the decoder kept
+        except Exception as exc:  # a page's bytes: whatever the decoder makes of them, the frame goes
+            # The frame is dropped, whatever the error: this runs inside the connection's packet handling, which an
+            # exception would end. And the decoder is made anew for the next frame (a voice's decoder holds only a
+            # few ms of state), in case the error left it refusing everything. Said for the first, then every
+            # 1,000th (a page can send nothing but such).
             self.failed += 1
-            log.warning("a microphone frame did not decode (%s): dropped", exc)
+            self._codec_name = None
+            if self.failed % 1000 == 1:
+                log.warning("a microphone frame did not decode (%s: %s): dropped (%d so far)", type(exc).__name__,
+                            exc, self.failed)
             return
         self.decoded += 1
         for frame in frames:
