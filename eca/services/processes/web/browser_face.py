@@ -177,15 +177,18 @@ class BrowserFace:
         at = HEADER.size
         out[:, at:at + self.layout.n_weights] = weights
         at += self.layout.n_weights
-        for joint in self.joints:
-            local = pose.local.get(joint)
-            if local is None:
-                local = np.broadcast_to(self._rest[joint, :3, :3], (n, 3, 3))
+        if self.joints:
+            # every joint of every agent in one call: _quaternions is some forty array operations whatever the
+            # rows, which one call per joint paid four or five times a frame slot (about 200 us at N = 1)
+            posed = [pose.local.get(joint) for joint in self.joints]
+            local = np.stack([np.broadcast_to(self._rest[joint, :3, :3], (n, 3, 3)) if m is None else m
+                              for joint, m in zip(self.joints, posed, strict=True)]).astype(np.float64, copy=False)
             if self._vrm0:
                 local = _TURN @ local @ _TURN
-            q = np.rint(_quaternions(np.asarray(local, dtype=np.float64)) * 32767.0).astype("<i2")
-            out[:, at:at + 8] = q.view(np.uint8).reshape(n, 8)
-            at += 8
+            q = np.rint(_quaternions(local.reshape(-1, 3, 3)) * 32767.0).astype("<i2")
+            n_joints = len(self.joints)
+            out[:, at:at + 8 * n_joints] = q.reshape(n_joints, n, 4).transpose(1, 0, 2).reshape(n, 4 * n_joints) \
+                .view(np.uint8)
         frames = []
         for i in range(n):
             flags = (VOICED if voiced[i] else 0) | (MARK if mark else 0)
