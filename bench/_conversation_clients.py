@@ -82,6 +82,8 @@ def drop_on_loop(receiver: RTCRtpReceiver) -> None:
     wakes that thread and takes the interpreter's lock from the visitors' event loop. (Where aiortc is not the
     one expected, its thread takes them, as before, and says so.)"""
     decode_on_loop(receiver, lambda codec: NullDecoder())
+
+
 _handle_rtp = RTCRtpReceiver._handle_rtp_packet
 
 

@@ -83,7 +83,7 @@ def decode_on_loop(receiver: RTCRtpReceiver, make_decoder: Callable[[Any], Any] 
     frames = getattr(track, "_queue", None)
     if (not isinstance(getattr(receiver, _QUEUE, None), queue.Queue) or getattr(receiver, _THREAD, 0) is not None
             or not isinstance(frames, asyncio.Queue)):
-        log.warning("this aiortc's receiver is not the one expected: its microphone is decoded on its own thread")
+        log.warning("this aiortc's receiver is not the one expected: its frames are decoded on its own thread")
         return None
     stand_in = DecodeOnLoop(frames, make_decoder)
     setattr(receiver, _QUEUE, stand_in)
