@@ -420,3 +420,24 @@ def test_the_drawing_is_ready_before_the_first_viewer_and_kept_between_viewers(
     service.watch(2, ViewRequest(("ada",), 2 * SMALL["width"], 2 * SMALL["height"], SMALL["fps"], (), None))
     assert wait_until(lambda: service._yuv is not None and service._yuv is not prepared, 10.0)  # another size
     service.unwatch(2)
+
+
+def test_what_the_viewers_ask_for_is_worked_out_again_only_when_they_change() -> None:
+    """The draw plan follows every page that watches or leaves, at once, and between such changes is the one
+    already worked out (the bus loop asks for it at every wake)."""
+    with private_bus_config(agents=["ada", "bob"]) as config:
+        service = WebService(config, WebOptions(port=0, **SMALL))
+        assert service._current_plan() is None
+        small = ViewRequest(("ada",), 320, 240, 15.0, (), None, False, ("ada",))
+        service.watch(1, small)
+        first = service._current_plan()
+        assert first is not None and first.drawn_by_pages == ("ada",) and (first.width, first.fps) == (320, 15.0)
+        assert service._current_plan() is first  # nothing changed: not worked out again
+        service.watch(2, ViewRequest(("bob",), 640, 480, 30.0, (), None, False, ()))
+        both = service._current_plan()
+        assert both is not None and both is not first
+        assert (both.agents, both.drawn_by_pages, both.width, both.fps) == (("bob",), ("ada",), 640, 30.0)
+        service.unwatch(2)
+        assert service._current_plan() == first
+        service.unwatch(1)
+        assert service._current_plan() is None

@@ -117,6 +117,11 @@ class WebService(Service):
         self._no_gl: str | None = None  # why drawing cannot be made ready here, once that is known
         self._lock = threading.Lock()
         self._watching: dict[int, ViewRequest] = {}
+        # What the viewers ask for is worked out again only when what it is made of changes (the pages watching,
+        # the agents, whether drawing works here): the bus loop wakes hundreds of times a second with many
+        # conversations, and a pass over every page's request cost 15-20 us a wake at N = 32-50.
+        self._plan_inputs = 0  # bumped (under _lock) at each such change
+        self._asked: tuple[int, DrawPlan | None] = (-1, None)  # (_plan_inputs then, the plan worked out)
         self._plan: DrawPlan | None = None
         self._schedule: FrameSchedule | None = None
         self._last_frame_ns = -(1 << 62)  # the time the last frame drawn is shown
@@ -203,6 +208,7 @@ class WebService(Service):
     def watch(self, viewer: int, request: ViewRequest) -> None:
         with self._lock:
             self._watching[viewer] = request
+            self._plan_inputs += 1
         if self.conversations is not None:
             for agent in request.agents:
                 self.conversations.watched(agent, viewer)
@@ -211,6 +217,7 @@ class WebService(Service):
         with self._lock:
             self._watching.pop(viewer, None)
             self._left.add(viewer)
+            self._plan_inputs += 1
 
     # --- conversations per visitor (web/conversations.py) ------------------------------------------
 
@@ -261,6 +268,7 @@ class WebService(Service):
         self.face_frames.add(agent, self.faces[agent])
         self.scenes.add_agent(agent)
         self.agent_ids.append(agent)
+        self._plan_inputs_changed()
         assert self.sub is not None
         self.sub.subscribe(f"stream.{agent}.voice")
         self._unsubscribe(f"error.{agent}.")
@@ -277,6 +285,7 @@ class WebService(Service):
         self.frames.forget(agent)
         if agent in self.agent_ids:
             self.agent_ids.remove(agent)
+            self._plan_inputs_changed()
         self._unsubscribe(f"stream.{agent}.voice")
         if self._events is not None and self.viewers is not None:
             self._events.loop.call_soon_threadsafe(self.viewers.close_watching, agent)
@@ -446,12 +455,24 @@ class WebService(Service):
                 return
             self.publish(msg)
 
+    def _plan_inputs_changed(self) -> None:
+        with self._lock:
+            self._plan_inputs += 1
+
     def _current_plan(self) -> DrawPlan | None:
         with self._lock:
+            inputs = self._plan_inputs
+            if self._asked[0] == inputs:
+                return self._asked[1]
             requests = list(self._watching.values())
+        plan = self._plan_of(requests)
+        self._asked = (inputs, plan)
+        return plan
+
+    def _plan_of(self, requests: list[ViewRequest]) -> DrawPlan | None:
         if not requests:
             return None
-        # once per wake of the bus loop: one pass over the pages' requests, not over every agent for every page
+        # one pass over the pages' requests, not over every agent for every page
         wanted_video: set[str] = set()
         wanted_by_pages: set[str] = set()
         for r in requests:
@@ -512,6 +533,7 @@ class WebService(Service):
                 self._prepare_drawing(size)
         except HeadlessContextError as exc:
             self._no_gl = str(exc)
+            self._plan_inputs_changed()
             self.log.error("no video for pages without WebGL: %s", exc)
             return False
         return True
