@@ -16,7 +16,6 @@ import numpy as np
 
 from bench._web_av import by_window, flashes, pair_offsets, split_onsets, vowel_bursts
 from bench._web_common import (
-    AFTER_LEAVING_S,
     AGENT,
     ATSC_EARLY_MS,
     ATSC_LATE_MS,
@@ -72,7 +71,7 @@ from bench._web_page import (
     SYNC_JS,
     TAKE_JS,
 )
-from bench._web_viewers import ask, least_squares_slope, load_process, measure_levels, measure_window, wait_watching
+from bench._web_viewers import least_squares_slope, viewer_levels, wait_watching
 from bench.report import Report, percentile, wait_until_ns
 
 # --- 4. the face drawn in the browser ----------------------------------------------------------------
@@ -593,26 +592,12 @@ def close_page_connections(inst: Instance, driver: Any) -> None:
 def drawn_viewers_phase(args: argparse.Namespace, inst: Instance, driver: Any, report: Report) -> None:
     details: dict[str, Any] = {}
     report.details["drawn_viewers"] = details
-    pid = inst.web_pid
     close_page_connections(inst, driver)
     progress(f"browser-drawn viewers: 0 (baseline), then {', '.join(map(str, args.viewers))} aiortc viewers drawing "
              f"the face themselves; {VIEWER_WINDOW_S:g} s windows after {VIEWER_SETTLE_S:g} s")
-    time.sleep(VIEWER_SETTLE_S)  # the service lets go of its drawing
-    zero = measure_window(pid, None, None, VIEWER_WINDOW_S)
-    details["zero"] = zero
-    with load_process(inst.url, drawn=True) as load:
-        ask(*load, "hello", 30.0)
-        levels = measure_levels(pid, load, args.viewers, 0, None, lambda n, m: (
-            f"  {n} browser-drawn viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
-            f"{m.get('load_fps_each', float('nan')):.1f} face frames/s each"))
-        details["levels"] = [{"viewers": n, **m} for n, m in levels]
-        mark = len(inst.reader.lines)
-        ask(*load, "set 0", 30.0)
-    left = wait_watching(inst, 0, 20.0, mark)
-    time.sleep(AFTER_LEAVING_S)
-    after = measure_window(pid, None, None, VIEWER_WINDOW_S)
-    details["after"] = after
-    details["all_left"] = left
+    zero, levels, after, left = viewer_levels(inst, args.viewers, True, None, lambda n, m: (
+        f"  {n} browser-drawn viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
+        f"{m.get('load_fps_each', float('nan')):.1f} face frames/s each"), details)
 
     video = {v["viewers"]: v for v in report.details.get("viewers", {}).get("levels", [])}
     video_zero = report.details.get("viewers", {}).get("zero")

@@ -122,52 +122,58 @@ def least_squares_slope(xs: list[float], ys: list[float]) -> float | None:
     return float(np.polyfit(np.asarray(xs, float), np.asarray(ys, float), 1)[0])
 
 
-def measure_levels(pid: int, load: tuple[Any, Any], counts: list[int], others: int, driver: Any | None,
-                   line: Callable[[int, dict[str, Any]], str]) -> list[tuple[int, dict[str, Any]]]:
-    """The web service's CPU and memory with each of `counts` viewers, `others` of them not the load process's (the
-    page): the load process's aiortc viewers set to the rest, then a window once their first frames have passed;
-    `line(n, window)` is the progress line of each."""
+Levels = tuple[dict[str, Any], list[tuple[int, dict[str, Any]]], dict[str, Any], bool]
+
+
+def viewer_levels(inst: Instance, counts: list[int], drawn: bool, page: Any | None,
+                  line: Callable[[int, dict[str, Any]], str], details: dict[str, Any]) -> Levels:
+    """The web service's CPU and memory with no viewer, with each of `counts` viewers (pairs of the count and its
+    window), and once all have left, with whether they did; also written into `details` ("zero", "levels", "after",
+    "all_left"). The viewers are the load process's
+    aiortc ones (drawing the face themselves with `drawn`), and with `page` (a driven Chromium) the page's own
+    connection as the first of them; each level's window starts once its new viewers' first frames have passed, and
+    `line(n, window)` is its progress line."""
+    pid = inst.web_pid
+    others = 0 if page is None else 1
+    time.sleep(VIEWER_SETTLE_S)  # the service lets go of its drawing
+    zero = measure_window(pid, None, None, VIEWER_WINDOW_S)
     levels = []
-    for n in counts:
-        got = ask(*load, f"set {n - others}", 60.0)
-        if got.get("connected") != n - others:
-            raise RuntimeError(f"the aiortc viewers did not all connect: {got}")
-        time.sleep(VIEWER_SETTLE_S)  # measuring starts after the new viewers' first frames (and keyframes)
-        window = measure_window(pid, driver, load, VIEWER_WINDOW_S)
-        levels.append((n, window))
-        progress(line(n, window))
-    return levels
+    with load_process(inst.url, drawn=drawn) as load:
+        ask(*load, "hello", 30.0)
+        if page is not None:
+            connect_page(page)  # the first viewer; the aiortc ones make up the rest
+        for n in counts:
+            got = ask(*load, f"set {n - others}", 60.0)
+            if got.get("connected") != n - others:
+                raise RuntimeError(f"the aiortc viewers did not all connect: {got}")
+            time.sleep(VIEWER_SETTLE_S)  # measuring starts after the new viewers' first frames (and keyframes)
+            window = measure_window(pid, page, load, VIEWER_WINDOW_S)
+            levels.append((n, window))
+            progress(line(n, window))
+        mark = len(inst.reader.lines)
+        ask(*load, "set 0", 30.0)
+    if page is not None:
+        disconnect_page(page)
+    left = wait_watching(inst, 0, 20.0, mark)
+    time.sleep(AFTER_LEAVING_S)  # what the service lets go of when the last viewer leaves
+    after = measure_window(pid, None, None, VIEWER_WINDOW_S)
+    details.update(zero=zero, levels=[{"viewers": n, **m} for n, m in levels], after=after, all_left=left)
+    return zero, levels, after, left
 
 
 def viewers_phase(args: argparse.Namespace, inst: Instance, driver: Any, report: Report,
                   baselines: dict[str, float] | None) -> None:
     details: dict[str, Any] = {}
     report.details["viewers"] = details
-    pid = inst.web_pid
     mark = len(inst.reader.lines)
     disconnect_page(driver)
     if not wait_watching(inst, 0, 20.0, mark):
         raise RuntimeError("the page's viewers did not leave")
     progress(f"viewers: 0 (baseline), then {', '.join(map(str, args.viewers))}; "
              f"{VIEWER_WINDOW_S:g} s windows after {VIEWER_SETTLE_S:g} s")
-    time.sleep(VIEWER_SETTLE_S)  # the service lets go of its drawing
-    zero = measure_window(pid, None, None, VIEWER_WINDOW_S)
-    details["zero"] = zero
-    with load_process(inst.url) as load:
-        ask(*load, "hello", 30.0)
-        connect_page(driver)  # the first viewer; the aiortc ones make up the rest
-        levels = measure_levels(pid, load, args.viewers, 1, driver, lambda n, m: (
-            f"  {n} viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
-            f"page {m.get('page_fps', float('nan')):.1f} fps"))
-        details["levels"] = [{"viewers": n, **m} for n, m in levels]
-        mark = len(inst.reader.lines)
-        ask(*load, "set 0", 30.0)
-    disconnect_page(driver)
-    left = wait_watching(inst, 0, 20.0, mark)
-    time.sleep(AFTER_LEAVING_S)  # what the service lets go of when the last viewer leaves
-    after = measure_window(pid, None, None, VIEWER_WINDOW_S)
-    details["after"] = after
-    details["all_left"] = left
+    zero, levels, after, left = viewer_levels(inst, args.viewers, False, driver, lambda n, m: (
+        f"  {n} viewer(s): web CPU {m['cpu_pct']:.0f} % of a core, RSS {m['rss_mib']:.0f} MiB, "
+        f"page {m.get('page_fps', float('nan')):.1f} fps"), details)
 
     report.add("viewers: web CPU with 0 viewers", round(zero["cpu_pct"], 1), "-", None, "% core",
                f"RSS {zero['rss_mib']:.0f} MiB")
