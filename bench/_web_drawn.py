@@ -415,6 +415,11 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
                        abs(diff) <= TARGET_AV_DIFF_MS, "ms",
                        f"each second's click - mark less the markers' click - flash of that second (median of "
                        f"{len(each)}; p10 {percentile(each, 0.1):.1f}, p90 {percentile(each, 0.9):.1f})")
+        # the markers' connection as the browser itself reckons it (getStats): libwebrtc's stream synchronization
+        # leaves a difference under 30 ms alone (kMinDeltaMs in video/stream_synchronization.cc), so the reference
+        # can sit that far from its own voice with nothing wrong
+        estimate = spread([o for t, o in taken.sync.get(MARKED, []) if in_window(t)])
+        got["reference_browser_estimate_ms"] = estimate
         if ref.get("n"):
             server_ref = report.details.get("av", {}).get("reference", {}).get("offsets", {}).get("median")
             report.add(f"A/V reference (server-drawn markers), {label}", ref["median"], "-", None, "ms",
@@ -422,6 +427,11 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
                        f"{VIDEO.width}x{VIDEO.height}; "
                        f"p10 {ref['p10']}, p90 {ref['p90']}, n {ref['n']}"
                        + ("" if server_ref is None else f"; the 2D face's run above: {server_ref}"))
+        if estimate.get("n"):
+            report.add(f"  reference: video ahead by the browser's own estimate, {label}", estimate["median"], "-",
+                       None, "ms", f"the markers' connection, getStats estimatedPlayoutTimestamp video - audio; "
+                       f"libwebrtc corrects only differences over 30 ms; p10 {estimate['p10']}, "
+                       f"p90 {estimate['p90']}, n {estimate['n']}")
         for name, note in (("browser-drawn, voiced marks", "the marks flagged voiced only: drawn when the page's "
                              "voice clock reached them (the others as they arrived)"),
                            ("browser-drawn, next frame", "the click less the next animation frame after the one that "
