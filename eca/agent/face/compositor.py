@@ -157,14 +157,35 @@ class Compositor:
                 target = blend_onto(target, self._poses[spec.name], spec.blend)
         return np.nan_to_num(target, nan=0.0)  # nobody cares: the flexor relaxes
 
+    @property
+    def settler(self) -> Settler:
+        """The settled layers' composite over time (read it; the layers' poses change it)."""
+        return self._settler
+
+    @property
+    def top_layer(self) -> tuple[str, Blend, Action | None]:
+        """The topmost layer's name, blend and action (None for a settled layer, or a layer holding none)."""
+        spec = self.layers[-1]
+        return spec.name, spec.blend, None if spec.settles else self._actions[spec.name]
+
     def compose(self, t_ns: int) -> np.ndarray:
         """Every flexor's value at t_ns, in [-1, 1]."""
+        values = self._settler.value_at(t_ns)
+        self.apply_trajectories(values, t_ns)
+        np.maximum(values, FLEXOR_MIN, out=values)  # np.clip's Python wrapper costs more than both
+        return np.minimum(values, FLEXOR_MAX, out=values)
+
+    def apply_trajectories(self, values: np.ndarray, t_ns: int, below_top: bool = False) -> None:
+        """The trajectory layers at t_ns onto `values` (the settled composite, or a row of many), in place, unclipped;
+        with `below_top`, all but the topmost layer (a batch of many faces adds that one for all at once)."""
         # blend_onto, in place: the settled values hold no NaN and a replacing layer writes only values it
         # cares about, so the composite below each layer never does either, and an added layer simply adds
         # where it cares. Per frame this runs once per layer, where numpy's call overhead is the cost.
-        values = self._settler.value_at(t_ns)
+        if below_top and self.layers[-1].settles:
+            raise ValueError(f"the top layer {self.layers[-1].name!r} settles: no trajectory layer to leave out")
         sparse = self._sparse
-        for name, blend in self._trajectory_layers:
+        layers = self._trajectory_layers[:-1] if below_top else self._trajectory_layers
+        for name, blend in layers:
             action = self._actions[name]
             if action is None:
                 continue
@@ -187,8 +208,6 @@ class Compositor:
                 np.add(values, layer, out=values, where=cares)
             else:
                 np.copyto(values, layer, where=cares)
-        np.maximum(values, FLEXOR_MIN, out=values)  # np.clip's Python wrapper costs more than both
-        return np.minimum(values, FLEXOR_MAX, out=values)
 
     def frame_at(self, t_ns: int) -> FlexorFrame:
         return FlexorFrame.composed(self.compose(t_ns), t_ns)

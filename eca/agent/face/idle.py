@@ -90,3 +90,60 @@ class IdleNoise:
         n1 = self._g1 * (f - 1.0)
         fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
         return 2.0 * (n0 + fade * (n1 - n0))
+
+
+class IdleNoiseBatch:
+    """The idle noise of many faces at one instant, as one array: IdleNoise.sparse_at of each, element for element
+    the same arithmetic. It takes noises of one rate and one set of amplitudes (one face configuration; `fits`):
+    their phases are then the same, so their lattice cells change at the same instants and only the gradients,
+    hashed from each face's seed, differ by row. It keeps those gradients between calls, as IdleNoise does."""
+
+    def __init__(self) -> None:
+        self._noises: list[IdleNoise] = []
+        self._fit = True  # whether _noises fit one batch
+        self._keys = np.zeros((0, N_FLEXORS), dtype=np.uint64)
+        self._lattice: np.ndarray | None = None
+        self._g0 = self._g1 = np.zeros((0, N_FLEXORS))
+
+    def fits(self, noises: list[IdleNoise]) -> bool:
+        """Whether these noises (at least one) can be evaluated as one batch: one rate, the same amplitudes. Worked
+        out again only when they are not the noises of the last call."""
+        if len(noises) != len(self._noises) or any(a is not b for a, b in zip(noises, self._noises, strict=True)):
+            first = noises[0]
+            self._noises = list(noises)
+            self._fit = all(n.rate_hz == first.rate_hz and np.array_equal(n.amplitude, first.amplitude)
+                            for n in noises[1:])
+            self._keys = np.stack([n._keys for n in noises])
+            self._lattice = None
+        return self._fit
+
+    def sparse_at(self, noises: list[IdleNoise], t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(active flexors (k,), values (N, k)) of `noises` (which `fits`) at t_ns, or None where none is active."""
+        if not self.fits(noises):
+            raise ValueError("idle noises of different rates or amplitudes cannot be evaluated as one batch")
+        first = noises[0]
+        if not first._active_index.size:
+            return None
+        x = first.rate_hz * seconds(t_ns) + first._offset
+        i0 = np.floor(x)
+        if self._lattice is None:
+            lattice = i0.astype(np.int64).astype(np.uint64)
+            self._g0 = uniform01_keyed(self._keys, lattice) * 2.0 - 1.0
+            self._g1 = uniform01_keyed(self._keys, lattice + np.uint64(1)) * 2.0 - 1.0
+            self._lattice = i0
+        elif (moved := np.flatnonzero(i0 != self._lattice)).size:
+            lattice = i0[moved].astype(np.int64).astype(np.uint64)
+            stepped = i0[moved] == self._lattice[moved] + 1.0
+            self._g0[:, moved[stepped]] = self._g1[:, moved[stepped]]
+            jumped = moved[~stepped]
+            if jumped.size:
+                self._g0[:, jumped] = uniform01_keyed(self._keys[:, jumped], lattice[~stepped]) * 2.0 - 1.0
+            self._g1[:, moved] = uniform01_keyed(self._keys[:, moved], lattice + np.uint64(1)) * 2.0 - 1.0
+            self._lattice = i0
+        f = x - i0
+        n0 = self._g0 * f
+        n1 = self._g1 * (f - 1.0)
+        fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
+        noise = 2.0 * (n0 + fade * (n1 - n0))
+        index = first._active_index
+        return index, first._active_amplitude * noise[:, index]

@@ -104,6 +104,11 @@ class FaceModel:
         self._emotion: tuple[str, float] = (NATURAL, 1.0)
 
     @property
+    def eyes_deg(self) -> tuple[float, float] | None:
+        """The gaze last set (set_eyes), in degrees, unclipped; None when it left the eyes to the layers below."""
+        return self._eyes_deg
+
+    @property
     def emotion(self) -> tuple[str, float]:
         """(name, intensity) of the emotion last set."""
         return self._emotion

@@ -45,6 +45,7 @@ class Settler:
         self._last_change_ns = int(t_ns)
         self._divisor = np.where(self._settle_s == 0, 1.0, self._settle_s)  # the settle times, 1 where 0
         self._gap = np.zeros(N_FLEXORS)  # start - target; 0 where the settle time is 0 (at the target at once)
+        self.version = 0  # bumped at each change of the transitions (a batch of many faces keeps their arrays)
 
     @property
     def targets(self) -> np.ndarray:
@@ -55,6 +56,11 @@ class Settler:
         elapsed_s = np.maximum(int(t_ns) - self._t0_ns, 0) / 1e9
         # A flexor with no settle time is at its target: its gap is 0 (and its divisor 1, not 0).
         return self._target + self._gap * np.exp(-LN_20 * elapsed_s / self._divisor)
+
+    def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(target, gap, t0_ns, divisor): what value_at evaluates, for evaluating many settlers as one array (read
+        only; `version` says when they change)."""
+        return self._target, self._gap, self._t0_ns, self._divisor
 
     def retarget(self, target: np.ndarray, t_ns: int, settle_s: np.ndarray | float | None = None) -> None:
         """New targets from t_ns; only flexors whose target changes start a new transition.
@@ -79,3 +85,12 @@ class Settler:
         at_once = self._settle_s == 0
         self._divisor = np.where(at_once, 1.0, self._settle_s)
         self._gap = np.where(at_once, 0.0, self._start - self._target)
+        self.version += 1
+
+
+def settled_many(transitions: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], t_ns: int) -> np.ndarray:
+    """Settler.value_at of many settlers at once, from their transitions() stacked row by row: the same arithmetic,
+    element for element."""
+    target, gap, t0_ns, divisor = transitions
+    elapsed_s = np.maximum(int(t_ns) - t0_ns, 0) / 1e9
+    return target + gap * np.exp(-LN_20 * elapsed_s / divisor)

@@ -22,6 +22,7 @@ import math
 import sys
 from typing import Any
 
+from eca.agent.face.batch import FaceBatch
 from eca.agent.rig import Retargeter
 from eca.protocol.endpoints import BusConfig
 from eca.protocol.messages import AgentsState, Heartbeat, RigPose
@@ -59,6 +60,7 @@ class RigService(Service):
         if self.scenes.follow:
             self.scenes.on_agents = self._on_agents
         self.retargeter = Retargeter.load()
+        self.faces = FaceBatch()  # the followed agents composed together at each slot
         options = self.plan.options
         self.vmc = {a: VmcPacker(options.vmc_names, options.vmc_neck_share)
                     for a in self.agent_ids[:len(self.plan.vmc)]}
@@ -154,7 +156,7 @@ class RigService(Service):
 
     def send_frame(self, frame_ns: int) -> None:
         """Compose every agent's face for `frame_ns`, retarget them together, publish and send them."""
-        batch = compose_rig_batch(self.scenes.views, frame_ns, self.retargeter)
+        batch = compose_rig_batch(self.scenes.views, frame_ns, self.retargeter, self.faces)
         head, eyes = batch.head_deg, batch.eyes_deg
         time_s = (frame_ns - self.started_ns) / 1e9
         livelink = self.plan.livelink

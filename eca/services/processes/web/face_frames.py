@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from eca.agent.clock import Clock
+from eca.agent.face.batch import FaceBatch
 from eca.agent.rig import Retargeter
 from eca.services.processes.scene.bus_scene import AgentView
 from eca.services.processes.scene.rig_batch import compose_rig_batch
@@ -52,6 +53,7 @@ class FaceFrames:
         self._by_file: dict[Path, BrowserFace] = {}
         self.slots = {agent: i for i, agent in enumerate(faces)}
         self._retargeter: Retargeter | None = None
+        self._faces = FaceBatch()  # the agents composed together at each slot
         self.seq = 0
         self.sent = 0
 
@@ -98,7 +100,7 @@ class FaceFrames:
             return {}
         if self._retargeter is None:
             self._retargeter = Retargeter()
-        batch = compose_rig_batch(views, t_ns, self._retargeter)
+        batch = compose_rig_batch(views, t_ns, self._retargeter, self._faces)
         wall_offset_ns = time.time_ns() - self.clock.now_ns()
         time_ms = (t_ns + wall_offset_ns) / 1e6 + NTP_UNIX_OFFSET_MS
         self.seq += 1
@@ -110,8 +112,7 @@ class FaceFrames:
             agents = [views[i].agent for i in rows]
             # the voice sounds then: an utterance of the lip-sync plays at t (its keys and clock anchors come ahead
             # of the sound), or the voice's own samples there are loud (they come only some 40 ms ahead)
-            voiced = [views[i].scene.voiced_at(t_ns) or sounding(agent, t_ns)
-                      for i, agent in zip(rows, agents, strict=True)]
+            voiced = [self._faces.voiced[i] or sounding(agent, t_ns) for i, agent in zip(rows, agents, strict=True)]
             frames = self.face(agents[0]).pack_many(batch, rows, [self.slots[a] for a in agents], self.seq, time_ms,
                                                     voiced, mark=t_ns % 1_000_000_000 == 0)
             out.update(zip(agents, frames, strict=True))
