@@ -180,10 +180,10 @@ def test_the_answer_asks_the_microphones_section_alone_for_dtx() -> None:
     assert ask_dtx(sdp, "7") == sdp  # no such section: unchanged
 
 
-def test_a_microphone_decoded_on_the_loop_gives_aiortcs_frames_drops_a_bad_one_and_hands_the_stop_on() -> None:
+def test_a_microphone_decoded_on_the_loop_gives_mono_frames_drops_a_bad_one_and_hands_the_stop_on() -> None:
     """DecodeOnLoop (web/mic_decoding.py), in the place of a receiver's decoder queue: each encoded frame decoded
-    at once into the track's queue, with its RTP timestamp; a frame libopus refuses dropped and counted, the next
-    decoded; the receiver's stop handed to its thread's `get`."""
+    at once into the track's queue, with its RTP timestamp, to one channel (a microphone is one voice); a frame
+    libopus refuses dropped and counted, the next decoded; the receiver's stop handed to its thread's `get`."""
     import asyncio
     import queue
     import threading
@@ -218,8 +218,16 @@ def test_a_microphone_decoded_on_the_loop_gives_aiortcs_frames_drops_a_bad_one_a
 
     got = asyncio.run(main())
     assert [f.pts for f in got] == [1000 + 960 * k for k in range(5)]
-    assert all(f.sample_rate == 48_000 and f.samples == 960 for f in got)
-    assert np.abs(got[-1].to_ndarray()).max() > 3000  # the tone, not silence
+    assert all(f.sample_rate == 48_000 and f.samples == 960 and f.layout.name == "mono" for f in got)
+    samples = got[-1].to_ndarray().reshape(-1)
+    assert samples.shape == (960,) and np.abs(samples).max() > 3000  # the tone, not silence
+    # the same frame through aiortc's own (stereo) decoder: the same voice in each channel
+    from aiortc.codecs import get_decoder
+
+    decoder = get_decoder(codec)  # made anew after the bad frame, as the stand-in's was
+    stereo = [decoder.decode(JitterFrame(data=p, timestamp=960 * k))[0] for k, p in enumerate(packets[1:])]
+    both = stereo[-1].to_ndarray().reshape(-1, 2)
+    assert np.array_equal(both[:, 0], samples) and np.array_equal(both[:, 1], samples)
 
 
 def test_a_microphone_decoded_on_the_loop_drops_whatever_bytes_a_page_sends() -> None:
