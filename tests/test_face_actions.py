@@ -109,3 +109,16 @@ def test_idle_noise_is_small_smooth_seeded_and_cares_only_where_it_has_amplitude
     np.testing.assert_array_equal(IdleNoise(amplitude, 0.5, seed=3).values_at(S(4.2)), noise.values_at(S(4.2)))
     other = IdleNoise(amplitude, 0.5, seed=4).values_at(S(4.2))
     assert other[FLEXOR_INDEX["nod"]] != noise.values_at(S(4.2))[FLEXOR_INDEX["nod"]]
+
+
+def test_idle_noise_with_kept_gradients_is_perlin1d_frame_after_frame_and_after_a_jump() -> None:
+    """The gradients kept between frames (stepped from cell to cell, hashed anew after a jump) give exactly
+    agent.noise.perlin1d of each flexor's phase."""
+    from eca.agent.face.idle import _PHASE, _STREAMS
+    from eca.agent.noise import perlin1d
+
+    amplitude = np.full(N_FLEXORS, 0.05)
+    noise = IdleNoise(amplitude, rate_hz=0.7, seed=9)
+    for t_s in [*np.arange(0.0, 12.0, 1 / 30), 500.0, 500.1, 3.0]:
+        phase = 0.7 * (S(t_s) / 1e9) + _PHASE[_STREAMS]
+        np.testing.assert_array_equal(noise.values_at(S(t_s)), amplitude * perlin1d(phase, 9, _STREAMS))

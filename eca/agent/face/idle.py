@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from eca.agent.clock import seconds
-from eca.agent.counter_rng import stream_key, uniform01, uniform01_keyed
+from eca.agent.counter_rng import stream_key, uniform01_keyed
 from eca.agent.face.flexors import FLEXOR_INDEX, FLEXOR_NAMES, N_FLEXORS
 
 
@@ -23,6 +23,44 @@ _STREAMS = _pair_streams()
 # Noise is zero at integer lattice points; a per-stream offset keeps flexors from all passing through
 # zero at the same instants.
 _PHASE = (np.arange(N_FLEXORS) * 0.618034) % 1.0
+
+
+class _Gradients:
+    """The lattice gradients of noise streams (`keys`: stream_key per flexor, one row per face or a single row),
+    kept between evaluations, and the noise at a phase (agent.noise.perlin1d, the same arithmetic step for step).
+
+    The gradients change only when a flexor's phase crosses an integer (every few seconds at idle rates), and hashing
+    them is most of perlin1d's cost. Each flexor's phase has its own offset, so one or another crosses an integer
+    several times a second: only those get new gradients, and one that stepped to the next cell keeps its old g1 as
+    its g0. The hash of (seed, stream) is kept: a gradient is then one splitmix64 of its counter."""
+
+    def __init__(self, keys: np.ndarray) -> None:
+        self.keys = keys
+        self._lattice: np.ndarray | None = None  # the integer parts the gradients belong to
+        self._g0 = self._g1 = np.zeros(keys.shape)
+
+    def noise(self, x: np.ndarray) -> np.ndarray:
+        """The noise of every stream at phases `x` (one per flexor): keys' shape."""
+        i0 = np.floor(x)
+        if self._lattice is None:
+            lattice = i0.astype(np.int64).astype(np.uint64)
+            self._g0 = uniform01_keyed(self.keys, lattice) * 2.0 - 1.0
+            self._g1 = uniform01_keyed(self.keys, lattice + np.uint64(1)) * 2.0 - 1.0
+            self._lattice = i0
+        elif (moved := np.flatnonzero(i0 != self._lattice)).size:
+            lattice = i0[moved].astype(np.int64).astype(np.uint64)
+            stepped = i0[moved] == self._lattice[moved] + 1.0
+            self._g0[..., moved[stepped]] = self._g1[..., moved[stepped]]
+            jumped = moved[~stepped]
+            if jumped.size:
+                self._g0[..., jumped] = uniform01_keyed(self.keys[..., jumped], lattice[~stepped]) * 2.0 - 1.0
+            self._g1[..., moved] = uniform01_keyed(self.keys[..., moved], lattice + np.uint64(1)) * 2.0 - 1.0
+            self._lattice = i0
+        f = x - i0
+        n0 = self._g0 * f
+        n1 = self._g1 * (f - 1.0)
+        fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
+        return 2.0 * (n0 + fade * (n1 - n0))
 
 
 class IdleNoise:
@@ -46,9 +84,8 @@ class IdleNoise:
         self._active_index = np.flatnonzero(self._active)
         self._active_amplitude = amplitude[self._active_index]
         self._offset = _PHASE[_STREAMS]
-        self._lattice: np.ndarray | None = None  # the integer parts the cached gradients belong to
         self._keys = stream_key(self.seed, _STREAMS)
-        self._g0 = self._g1 = np.zeros(N_FLEXORS)
+        self._gradients = _Gradients(self._keys)
 
     def values_at(self, t_ns: int) -> np.ndarray:
         phase = self.rate_hz * seconds(t_ns) + self._offset
@@ -61,35 +98,9 @@ class IdleNoise:
         noise = self._perlin(self.rate_hz * seconds(t_ns) + self._offset)
         return self._active_index, self._active_amplitude * noise[self._active_index]
 
-    def _gradient(self, flexors: np.ndarray, lattice: np.ndarray) -> np.ndarray:
-        """uniform01(seed, _STREAMS[flexors], lattice) * 2 - 1, from the kept per-stream keys."""
-        return uniform01_keyed(self._keys[flexors], lattice) * 2.0 - 1.0
-
     def _perlin(self, x: np.ndarray) -> np.ndarray:
         """perlin1d(x, self.seed, _STREAMS), the same arithmetic step for step."""
-        i0 = np.floor(x)
-        if self._lattice is None:
-            lattice = i0.astype(np.int64).astype(np.uint64)
-            self._g0 = uniform01(self.seed, _STREAMS, lattice) * 2.0 - 1.0
-            self._g1 = uniform01(self.seed, _STREAMS, lattice + np.uint64(1)) * 2.0 - 1.0
-            self._lattice = i0
-        elif (moved := np.flatnonzero(i0 != self._lattice)).size:
-            # Each flexor's phase has its own offset, so one or another crosses an integer several times a
-            # second: only those get new gradients, and one that stepped to the next cell keeps its old g1 as
-            # its g0. The hash of (seed, stream) is kept: a gradient is then one splitmix64 of its counter.
-            lattice = i0[moved].astype(np.int64).astype(np.uint64)
-            stepped = i0[moved] == self._lattice[moved] + 1.0
-            self._g0[moved[stepped]] = self._g1[moved[stepped]]
-            jumped = moved[~stepped]
-            if jumped.size:
-                self._g0[jumped] = self._gradient(jumped, lattice[~stepped])
-            self._g1[moved] = self._gradient(moved, lattice + np.uint64(1))
-            self._lattice = i0
-        f = x - i0
-        n0 = self._g0 * f
-        n1 = self._g1 * (f - 1.0)
-        fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
-        return 2.0 * (n0 + fade * (n1 - n0))
+        return self._gradients.noise(x)
 
 
 class IdleNoiseBatch:
@@ -101,9 +112,7 @@ class IdleNoiseBatch:
     def __init__(self) -> None:
         self._noises: list[IdleNoise] = []
         self._fit = True  # whether _noises fit one batch
-        self._keys = np.zeros((0, N_FLEXORS), dtype=np.uint64)
-        self._lattice: np.ndarray | None = None
-        self._g0 = self._g1 = np.zeros((0, N_FLEXORS))
+        self._gradients = _Gradients(np.zeros((0, N_FLEXORS), dtype=np.uint64))
 
     def fits(self, noises: list[IdleNoise]) -> bool:
         """Whether these noises (at least one) can be evaluated as one batch: one rate, the same amplitudes. Worked
@@ -113,8 +122,7 @@ class IdleNoiseBatch:
             self._noises = list(noises)
             self._fit = all(n.rate_hz == first.rate_hz and np.array_equal(n.amplitude, first.amplitude)
                             for n in noises[1:])
-            self._keys = np.stack([n._keys for n in noises])
-            self._lattice = None
+            self._gradients = _Gradients(np.stack([n._keys for n in noises]))
         return self._fit
 
     def sparse_at(self, noises: list[IdleNoise], t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -124,26 +132,6 @@ class IdleNoiseBatch:
         first = noises[0]
         if not first._active_index.size:
             return None
-        x = first.rate_hz * seconds(t_ns) + first._offset
-        i0 = np.floor(x)
-        if self._lattice is None:
-            lattice = i0.astype(np.int64).astype(np.uint64)
-            self._g0 = uniform01_keyed(self._keys, lattice) * 2.0 - 1.0
-            self._g1 = uniform01_keyed(self._keys, lattice + np.uint64(1)) * 2.0 - 1.0
-            self._lattice = i0
-        elif (moved := np.flatnonzero(i0 != self._lattice)).size:
-            lattice = i0[moved].astype(np.int64).astype(np.uint64)
-            stepped = i0[moved] == self._lattice[moved] + 1.0
-            self._g0[:, moved[stepped]] = self._g1[:, moved[stepped]]
-            jumped = moved[~stepped]
-            if jumped.size:
-                self._g0[:, jumped] = uniform01_keyed(self._keys[:, jumped], lattice[~stepped]) * 2.0 - 1.0
-            self._g1[:, moved] = uniform01_keyed(self._keys[:, moved], lattice + np.uint64(1)) * 2.0 - 1.0
-            self._lattice = i0
-        f = x - i0
-        n0 = self._g0 * f
-        n1 = self._g1 * (f - 1.0)
-        fade = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
-        noise = 2.0 * (n0 + fade * (n1 - n0))
+        noise = self._gradients.noise(first.rate_hz * seconds(t_ns) + first._offset)
         index = first._active_index
         return index, first._active_amplitude * noise[:, index]
