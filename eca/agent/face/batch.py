@@ -41,16 +41,8 @@ class FaceBatch:
         """(flexors (N, 21) in [-1, 1], eyes (N, 4) [left yaw, left pitch, right yaw, right pitch] and head (N, 3)
         [yaw, pitch, roll] in degrees) of `scenes` at display time t_ns: row i is scenes[i].compose(t_ns)'s face."""
         t = int(t_ns)
-        models = []
-        voiced = []
-        for scene in scenes:  # each scene's inputs at t set on its model, as LiveScene.compose does
-            yaw, pitch, lid = scene.eyes_at(t)
-            scene.model.set_eyes(yaw, pitch, lid)
-            mouth = scene.mouth_row_at(t)
-            scene.model.set_mouth_row(mouth)
-            models.append(scene.model)
-            voiced.append(mouth is not None)  # LiveScene.voiced_at(t), without a second look
-        self.voiced = voiced
+        self.voiced = [scene.pose_model(t) for scene in scenes]  # each scene's inputs at t set on its model
+        models = [scene.model for scene in scenes]
         values = self._flexors(models, t)
         n = len(models)
         scale = np.array([(m.units.turn_deg, m.units.nod_deg, m.units.tilt_deg, m.units.look_x_deg,
@@ -95,7 +87,7 @@ class FaceBatch:
             compositor = model.compositor
             if compositor.layers is not DEFAULT_LAYERS:  # (the stack a FaceModel makes; another: each face alone)
                 return None
-            action = compositor.top_layer[2]
+            action = compositor.top_action
             if action is not None:
                 if not isinstance(action, IdleNoise):
                     return None

@@ -163,10 +163,10 @@ class Compositor:
         return self._settler
 
     @property
-    def top_layer(self) -> tuple[str, Blend, Action | None]:
-        """The topmost layer's name, blend and action (None for a settled layer, or a layer holding none)."""
+    def top_action(self) -> Action | None:
+        """The topmost layer's action (None for a settled layer, or a layer holding none)."""
         spec = self.layers[-1]
-        return spec.name, spec.blend, None if spec.settles else self._actions[spec.name]
+        return None if spec.settles else self._actions[spec.name]
 
     def compose(self, t_ns: int) -> np.ndarray:
         """Every flexor's value at t_ns, in [-1, 1]."""

@@ -362,10 +362,17 @@ class LiveScene:
     def compose(self, t_ns: int) -> ComposedFace:
         """The composed face at display time t_ns (agent/face/composed.py), with the role in force."""
         t = int(t_ns)
-        yaw, pitch, lid = self.eyes_at(t)
-        self.model.set_eyes(yaw, pitch, lid)
-        self.model.set_mouth_row(self.mouth_row_at(t))
+        self.pose_model(t)
         return self.model.compose(t, role=self.role)
+
+    def pose_model(self, t_ns: int) -> bool:
+        """Give the face model this scene's eyes and mouth at t_ns (what compose does before composing, and a batch
+        of many faces, agent/face/batch.py); whether an utterance is heard then (voiced_at, without a second look)."""
+        yaw, pitch, lid = self.eyes_at(t_ns)
+        self.model.set_eyes(yaw, pitch, lid)
+        mouth = self.mouth_row_at(t_ns)
+        self.model.set_mouth_row(mouth)
+        return mouth is not None
 
     def frame_at(self, t_ns: int) -> FlexorFrame:
         """The composed face's flexor frame at display time t_ns."""

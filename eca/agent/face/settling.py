@@ -53,9 +53,7 @@ class Settler:
 
     def value_at(self, t_ns: int) -> np.ndarray:
         """Settled values at t_ns; before a flexor's last change it reads that change's start value."""
-        elapsed_s = np.maximum(int(t_ns) - self._t0_ns, 0) / 1e9
-        # A flexor with no settle time is at its target: its gap is 0 (and its divisor 1, not 0).
-        return self._target + self._gap * np.exp(-LN_20 * elapsed_s / self._divisor)
+        return settled_many(self.transitions(), t_ns)
 
     def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(target, gap, t0_ns, divisor): what value_at evaluates, for evaluating many settlers as one array (read
@@ -89,8 +87,8 @@ class Settler:
 
 
 def settled_many(transitions: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], t_ns: int) -> np.ndarray:
-    """Settler.value_at of many settlers at once, from their transitions() stacked row by row: the same arithmetic,
-    element for element."""
+    """The settled values at t_ns of one settler's transitions() (Settler.value_at), or of many stacked row by row."""
     target, gap, t0_ns, divisor = transitions
     elapsed_s = np.maximum(int(t_ns) - t0_ns, 0) / 1e9
+    # A flexor with no settle time is at its target: its gap is 0 (and its divisor 1, not 0).
     return target + gap * np.exp(-LN_20 * elapsed_s / divisor)
