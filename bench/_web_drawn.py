@@ -218,13 +218,14 @@ def mark_pairs(clicks: list[float], marks: list[dict[str, Any]]) -> list[tuple[f
     return out
 
 
-def per_second_differences(pairs: list[tuple[float, float]], reference: list[tuple[float, float]]) -> list[float]:
-    """Each (time, offset) less the reference's of the same second (the nearest within 500 ms)."""
+def per_second_pairs(pairs: list[tuple[float, float]],
+                     reference: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Each (time, offset) with the reference's offset of the same second (the nearest within 500 ms)."""
     out = []
     for t, o in pairs:
         ref_t, ref_o = min(reference, key=lambda r: abs(r[0] - t), default=(math.inf, 0.0))
         if abs(ref_t - t) <= 500:
-            out.append(o - ref_o)
+            out.append((o, ref_o))
     return out
 
 
@@ -369,7 +370,10 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
             return lo_ms <= tie.host_ms(t_page) < hi_ms
 
         timed = {name: [(t, o) for t, o in pairs if in_window(t)] for name, pairs in series.items()}
-        each = per_second_differences(timed["browser-drawn"], timed["reference"])
+        by_second = per_second_pairs(timed["browser-drawn"], timed["reference"])
+        each = [o - ref_o for o, ref_o in by_second]
+        # how much further from in step than the reference, second by second (negative: nearer)
+        further = [abs(o) - abs(ref_o) for o, ref_o in by_second]
         window_marks = [m for m in marks if in_window(m["shownMs"])]
         seconds = len(range(math.ceil(lo_ms / 1e3), math.ceil(hi_ms / 1e3)))  # whole seconds: marks due
         voiced = sum(1 for m in window_marks if (m.get("flags") or 0) & 1)
@@ -382,6 +386,7 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
             "from_s": lo, "to_s": hi, "markers_connection": win.reference,
             **{name: spread([o for _, o in pairs]) for name, pairs in timed.items()},
             "browser-drawn less reference": spread(each),
+            "browser-drawn further from in step than reference": spread(further),
             "marks": {"shown": len(window_marks), "seconds": seconds, "voiced": voiced, "drawn_themselves": drawn_marks,
                       "in_face3d_log": sum(1 for m in logged if in_window(m["shownMs"])),
                       "voice_past_mark_ms": spread(late)},
@@ -410,11 +415,17 @@ def drawn_av_phase(args: argparse.Namespace, inst: Instance, driver: Any, server
                    f"{len(window_marks)} of {seconds} s ({drawn_marks} drawn themselves, {voiced} voiced)")
         ref = got["reference"]
         if each:
-            diff = statistics.median(each)
-            report.add(f"A/V browser-drawn - reference, {label}", round(diff, 1), f"+-{TARGET_AV_DIFF_MS:g}",
-                       abs(diff) <= TARGET_AV_DIFF_MS, "ms",
-                       f"each second's click - mark less the markers' click - flash of that second (median of "
-                       f"{len(each)}; p10 {percentile(each, 0.1):.1f}, p90 {percentile(each, 0.9):.1f})")
+            # The reference is the server-drawn video, which the browser re-times on its own (libwebrtc leaves up
+            # to 30 ms alone): it can sit outside IS-191 itself (52 ms on a GPU machine, docs/web.md). So the face
+            # is held to be no further from in step than the reference by more than the target, not to copy it:
+            # a face nearer in step than its reference passes.
+            diff, worse = statistics.median(each), statistics.median(further)
+            report.add(f"A/V browser-drawn vs reference, {label}", round(worse, 1),
+                       f"<= +{TARGET_AV_DIFF_MS:g}", worse <= TARGET_AV_DIFF_MS, "ms",
+                       f"how much further from in step than the markers' reference, each second |click - mark| less "
+                       f"|click - flash| (median of {len(further)}; p10 {percentile(further, 0.1):.1f}, p90 "
+                       f"{percentile(further, 0.9):.1f}); the signed difference click - mark less click - flash "
+                       f"{diff:+.1f} (p10 {percentile(each, 0.1):.1f}, p90 {percentile(each, 0.9):.1f})")
         # the markers' connection as the browser itself reckons it (getStats): libwebrtc's stream synchronization
         # leaves a difference under 30 ms alone (kMinDeltaMs in video/stream_synchronization.cc), so the reference
         # can sit that far from its own voice with nothing wrong
