@@ -11,7 +11,7 @@ from scipy.signal import lfilter
 
 from eca.agent.config import ConfigError, load_toml
 from eca.agent.lipsync import MOUTH_FLEXORS, LipSyncConfig, LipSyncEstimator, MouthTrack, mouth_track
-from eca.agent.lipsync.features import SpectrumPeaks, formants, levinson, lpc_solve
+from eca.agent.lipsync.features import FeatureExtractor, SpectrumPeaks, formants, levinson, lpc_solve
 
 FRAME_S = 1.0 / 60.0  # one video frame
 
@@ -164,6 +164,19 @@ def test_lpc_roots_recover_known_resonances() -> None:
         assert SpectrumPeaks(4, rate, 3000.0, 25.0, 300.0, contour_hz)(a) == pytest.approx(peaks, abs=10.0)
     # a resonance wider than the limit is no peak
     assert SpectrumPeaks(4, rate, 3000.0, 25.0, 60.0, 0.0)(a) == []
+
+
+def test_blocks_refuse_bounds_that_are_no_blocks(cfg: LipSyncConfig) -> None:
+    features = FeatureExtractor(16_000, window_s=cfg.window_s, preemphasis=cfg.preemphasis, lpc_order=cfg.lpc_order,
+                                lpc_band_hz=cfg.lpc_band_hz, high_cut_hz=cfg.high_cut_hz, low_cut_hz=cfg.low_cut_hz,
+                                max_bandwidth_hz=cfg.max_bandwidth_hz, f1_range_hz=cfg.f1_range_hz,
+                                f2_range_hz=cfg.f2_range_hz, formant_gap_hz=cfg.formant_gap_hz,
+                                lag_window_hz=cfg.lag_window_hz)
+    x = vowel(700, 1200, 0.05, 16_000)
+    for starts in ([], [10, 160], [0, 800], [0, 320, 160], [0, 160, 160]):
+        with pytest.raises(ValueError, match="starts"):
+            features.blocks(x, starts)
+    assert len(features.blocks(x, [0, 160, 320])) == 3
 
 
 def test_config_errors_name_the_key() -> None:

@@ -121,17 +121,21 @@ class LipSyncEstimator:
         elif x.ndim != 1:
             raise ValueError(f"samples must be 1-D (mono) or 2-D (frames x channels), got shape {x.shape}")
         buf = np.concatenate((self._pending, x)) if len(self._pending) else x
+        # the blocks complete in hand, analysed together; then keyed one after another (the filters' state)
+        first = self._block_index
+        base = self._block_start(first)
+        starts: list[int] = []
+        end = 0
+        while self._block_start(first + len(starts) + 1) - base <= len(buf):
+            starts.append(end)
+            end = self._block_start(first + len(starts)) - base
         keys: list[MouthKey] = []
-        offset = 0
-        while True:
-            start = self._block_start(self._block_index)
-            length = self._block_start(self._block_index + 1) - start
-            if len(buf) - offset < length:
-                break
-            keys.append(self._key(start, buf[offset : offset + length]))
-            offset += length
-            self._block_index += 1
-        self._pending = buf[offset:].copy()
+        if starts:
+            features = self._features.blocks(buf[:end], starts)
+            for j, f in enumerate(features):
+                keys.append(self._key(base + starts[j], f, j))
+                self._block_index += 1
+        self._pending = buf[end:].copy()
         return keys
 
     def flush(self) -> list[MouthKey]:
@@ -143,10 +147,10 @@ class LipSyncEstimator:
         keys.append(MouthKey(self.position, dict(REST_WEIGHTS), "rest"))
         return keys
 
-    def _key(self, start: int, block: np.ndarray) -> MouthKey:
+    def _key(self, start: int, f: BlockFeatures, j: int) -> MouthKey:
+        """The key of the block at `start`, whose features are `f`, block j of those analysed last."""
         # Five-element state in plain floats: numpy call overhead would dominate at this size.
-        f = self._features.block(block)
-        targets, jaw_target = self._targets(f)
+        targets, jaw_target = self._targets(f, j)
         a = self._a_jaw[0] if jaw_target > self._jaw else self._a_jaw[1]
         self._jaw += a * (jaw_target - self._jaw)
         attack, release = self._a_shape
@@ -160,7 +164,7 @@ class LipSyncEstimator:
         # Memberships and table entries are >= 0, so each weight already lies in [0, 1].
         return MouthKey(start, dict(zip(MOUTH_FLEXORS, weights, strict=True)), viseme)
 
-    def _targets(self, f: BlockFeatures) -> tuple[list[float], float]:
+    def _targets(self, f: BlockFeatures, j: int) -> tuple[list[float], float]:
         cfg = self.config
         level = f.level_db
         if level >= self._ref_db:
@@ -183,7 +187,7 @@ class LipSyncEstimator:
         nasal = (speech * (1.0 - fric) * _sigmoid((f.low_ratio - cfg.nasal_low_ratio) / cfg.nasal_width)
                  * _sigmoid((cfg.nasal_max_db - rel) / w))
         if nasal > 0.05:
-            f2 = self._features.formants()[1]
+            f2 = self._features.formants(j)[1]
             if not math.isnan(f2):
                 nasal *= 1.0 - _sigmoid((f2 - cfg.spread_f2_hz) / cfg.f2_width_hz)
         if speech > 0.5:
@@ -198,7 +202,7 @@ class LipSyncEstimator:
         closed = max(nasal, dip)
         vowel = speech * (1.0 - fric) * (1.0 - nasal)
 
-        self._track_formants(f, vowel)
+        self._track_formants(j, vowel)
         f1 = self._f1 if not math.isnan(self._f1) else cfg.open_f1_hz
         f2 = self._f2 if not math.isnan(self._f2) else 0.5 * (cfg.rounded_f2_hz + cfg.spread_f2_hz)
         open_s = _sigmoid((f1 - cfg.open_f1_hz) / cfg.open_width_hz)
@@ -216,13 +220,13 @@ class LipSyncEstimator:
         jaw = speech * min(1.0, max(0.0, (rel - cfg.speech_gate_db) / cfg.jaw_range_db))
         return targets, jaw
 
-    def _track_formants(self, f: BlockFeatures, vowel: float) -> None:
+    def _track_formants(self, j: int, vowel: float) -> None:
         # Only vowel-like blocks move the formant tracks; consonants and silence hold the last values
         # (and skip the LPC, the costly part).
         if vowel < 0.5:
             return
         a = self._a_formant
-        f1, f2 = self._features.formants()
+        f1, f2 = self._features.formants(j)
         if not math.isnan(f1):
             self._f1 = f1 if math.isnan(self._f1) else self._f1 + a * (f1 - self._f1)
         if not math.isnan(f2):

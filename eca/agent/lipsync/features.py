@@ -1,4 +1,4 @@
-"""Acoustic features of one 10 ms block: level, zero crossings, band balance and LPC formants.
+"""Acoustic features of 10 ms blocks: level, band balance and LPC formants.
 
 Formants come from *selective* linear prediction (Makhoul 1975): the autocorrelation is the inverse
 FFT of the power spectrum restricted to 0..`lpc_band_hz`, which is the autocorrelation the signal
@@ -14,6 +14,7 @@ the cost of a polynomial root finder (an eigenvalue problem), which would domina
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +25,6 @@ _EPS = 1e-12
 @dataclass(frozen=True, slots=True)
 class BlockFeatures:
     level_db: float  # block power in dB re full scale (a full-scale sine is -3 dB)
-    zcr_hz: float  # zero crossings per second in the block
     high_ratio: float  # share of window power above the fricative cut-off
     low_ratio: float  # share of window power below the nasal cut-off
 
@@ -181,7 +181,12 @@ def pick_f1_f2(freqs: list[float], f1_range: tuple[float, float], f2_range: tupl
 
 
 class FeatureExtractor:
-    """Computes `BlockFeatures` for consecutive blocks of one signal; holds the analysis window."""
+    """Computes `BlockFeatures` for consecutive blocks of one signal; holds the analysis window.
+
+    The blocks that arrive together are analysed together (`blocks`): their windows, spectra and band sums in a
+    few array operations instead of a dozen small ones per block, whose fixed cost was most of a block's time.
+    Every reduction runs row by row, so a block's features are the same bits however the signal was cut.
+    """
 
     def __init__(self, sample_rate: int, *, window_s: float, preemphasis: float, lpc_order: int,
                  lpc_band_hz: float, high_cut_hz: float, low_cut_hz: float, max_bandwidth_hz: float,
@@ -216,7 +221,7 @@ class FeatureExtractor:
         edge = np.where((k == 0) | (k == self.lpc_bins), 1.0, 2.0)
         self._lag_basis = (lag_window[:, None] * edge[None, :]
                            * np.cos(np.pi * lags[:, None] * k[None, :] / self.lpc_bins))
-        self._psd = np.zeros(self.nfft // 2 + 1)
+        self._psd = np.zeros((1, self.nfft // 2 + 1))  # the power spectra of the blocks last analysed, by row
         # Band balance is judged on the raw spectrum: weights that undo the pre-emphasis filter's gain.
         w = np.linspace(0.0, np.pi, nyquist_bin + 1)
         self._deemphasis = 1.0 / np.maximum(1.0 + preemphasis**2 - 2.0 * preemphasis * np.cos(w), 1e-6)
@@ -229,56 +234,67 @@ class FeatureExtractor:
             np.where(bins <= self.low_bin, self._deemphasis, 0.0),
             self._deemphasis,
         ])
-        self._emphasised = np.zeros(self.window_len)
         self._toeplitz = np.abs(lags[:-1, None] - lags[None, :-1])
         # 25 Hz steps: a parabola through three samples then places a peak within a few Hz.
         self._peaks = SpectrumPeaks(self.lpc_order, self.lpc_rate_hz, f2_range_hz[1] + 200.0, 25.0,
                                     max_bandwidth_hz, contour_bandwidth_hz)
         # Raw history: the last window_len samples (plus one for pre-emphasis) end at the block's end.
         self._history = np.zeros(self.window_len + 1)
-        self._formants: tuple[float, float] | None = None
+        self._span = np.arange(self.window_len + 1)
+        self._formants: dict[int, tuple[float, float]] = {}  # by row of _psd, once asked for
 
     def reset(self) -> None:
         self._history[:] = 0.0
-        self._formants = None
+        self._formants = {}
 
-    def block(self, samples: np.ndarray) -> BlockFeatures:
-        n = len(samples)
+    def blocks(self, samples: np.ndarray, starts: Sequence[int]) -> list[BlockFeatures]:
+        """The features of the next blocks: block j is samples[starts[j]:starts[j + 1]], the last ending with
+        `samples` (starts ascending, the first 0, each block at least one sample). `formants(j)` then gives block
+        j's formants."""
+        n_blocks = len(starts)
+        x = np.asarray(samples, dtype=float)
+        if n_blocks == 0 or starts[0] != 0 or len(x) <= starts[-1] or any(
+                b <= a for a, b in zip(starts, starts[1:], strict=False)):
+            raise ValueError("blocks: starts must begin at 0 and rise, each block a sample at least")
         hist = self._history
-        if n >= len(hist):
-            hist[:] = samples[-len(hist):]
-        else:
-            hist[:-n] = hist[n:]
-            hist[-n:] = samples
-        power = float(np.dot(samples, samples)) / max(n, 1)
-        level_db = 10.0 * math.log10(power + _EPS)
-        signs = np.signbit(samples)
-        zcr_hz = float(np.count_nonzero(signs[1:] != signs[:-1])) * self.sample_rate / max(n - 1, 1)
+        span = len(hist)
+        signal = np.concatenate((hist, x))
+        first = np.asarray(starts, dtype=np.intp)
+        ends = np.empty(n_blocks, dtype=np.intp)
+        ends[:-1] = first[1:]
+        ends[-1] = len(x)
+        # each block's window: the span of samples ending at its end (one more for the pre-emphasis), which in
+        # `signal` (the history before x) starts at the block's end in x
+        windows = signal[None, -span:] if n_blocks == 1 else signal[ends[:, None] + self._span]
+        hist[:] = signal[-span:]
+        power = [float(np.dot(x[a:b], x[a:b])) / (b - a) for a, b in zip(starts, ends.tolist(), strict=True)]
 
-        emphasised = self._emphasised
-        np.multiply(hist[:-1], -self.preemphasis, out=emphasised)
-        emphasised += hist[1:]
+        emphasised = windows[:, 1:] - self.preemphasis * windows[:, :-1]
         emphasised *= self.window
-        spectrum = np.fft.rfft(emphasised, self.nfft)
-        psd = np.abs(spectrum)
-        psd *= psd
-        total, high, raw_low, raw_total = (self._band_sums @ psd).tolist()
+        spectrum = np.fft.rfft(emphasised, self.nfft, axis=-1)
+        psd = spectrum.real * spectrum.real
+        psd += spectrum.imag * spectrum.imag
+        sums = np.einsum("kb,jb->kj", psd, self._band_sums)  # einsum's loops, not BLAS: row by row, in one order
         self._psd = psd
-        self._formants = None
-        return BlockFeatures(level_db, zcr_hz, high / (total + _EPS), raw_low / (raw_total + _EPS))
+        self._formants = {}
+        return [BlockFeatures(10.0 * math.log10(p + _EPS), high / (total + _EPS), raw_low / (raw_total + _EPS))
+                for p, (total, high, raw_low, raw_total) in zip(power, sums.tolist(), strict=True)]
 
-    def formants(self) -> tuple[float, float]:
-        """F1 and F2 (Hz, NaN when absent) of the window analysed by the last `block` call.
+    def formants(self, j: int = -1) -> tuple[float, float]:
+        """F1 and F2 (Hz, NaN when absent) of block j of the last `blocks` call (the last block by default).
 
-        Separate from `block` because it costs most of the time and only vowel-like and murmur-like
-        blocks need it; computed at most once per block.
+        Separate from `blocks` because it costs most of the time and only vowel-like and murmur-like
+        blocks need it; computed at most once per block, one block at a time (a block's own matrix-vector
+        products, so its formants do not depend on the blocks analysed with it).
         """
-        if self._formants is None:
-            self._formants = self._compute_formants()
-        return self._formants
+        j %= len(self._psd)
+        found = self._formants.get(j)
+        if found is None:
+            found = self._formants[j] = self._compute_formants(self._psd[j])
+        return found
 
-    def _compute_formants(self) -> tuple[float, float]:
-        r = self._lag_basis @ self._psd[: self.lpc_bins + 1]
+    def _compute_formants(self, psd: np.ndarray) -> tuple[float, float]:
+        r = self._lag_basis @ psd[: self.lpc_bins + 1]
         if r[0] <= _EPS:
             return np.nan, np.nan
         a = lpc_solve(r, self._toeplitz)
