@@ -19,6 +19,7 @@ otherwise. The server decodes it and runs its voice-activity detector on it as o
 
     python bench/_conversation_clients.py --url URL --draw browser|server --mic WAV --epoch-ns NS
                                           [--cycle-s 8] [--user-at-s 0] [--fps 30] [--width 640] [--height 480]
+                                          [--realtime-priority 0]
 
 The visitors run on the event loop the server's web service runs on (uvloop where it is installed).
 
@@ -54,6 +55,7 @@ from aiortc.rtcsctptransport import RTCSctpTransport
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run as a script: the repository's bench package
 
 from bench._stdio import say, stdin_lines  # noqa: E402
+from eca.services.processes.realtime import RealtimeSettings, ask_for_realtime  # noqa: E402
 from eca.services.processes.web.mic_decoding import decode_on_loop  # noqa: E402
 
 FRAME_NS = 20_000_000
@@ -492,7 +494,8 @@ async def serve(args: argparse.Namespace) -> None:
                 cmd = json.loads(line)
                 op = cmd.get("op")
                 if op == "hello":
-                    say({"op": "hello", "speech_packets": len(speech), "silence_bytes": len(silence)})
+                    say({"op": "hello", "speech_packets": len(speech), "silence_bytes": len(silence),
+                         "scheduling": args.scheduling})
                 elif op == "add":
                     added, failed = await add_visitors(session, args, cmd["visitors"], speech, silence, visitors)
                     # a browser's network stack has no collector that stops it: what the visitors hold leaves the
@@ -541,7 +544,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--realtime-priority", type=int, default=0,
+                        help="run at SCHED_RR this priority, as the server's voice path does (0: ordinary)")
     args = parser.parse_args(argv)
+    # before the loop makes a thread: they inherit it
+    args.scheduling = ask_for_realtime("visitors", RealtimeSettings(args.realtime_priority, ("visitors",))) or ""
     # the same event loop as the server's web service (web/event_loop.py): the visitors stand for browsers, whose
     # network stacks are not Python's, so the machine's CPU goes to the server's side as far as it can
     from eca.services.processes.web.event_loop import new_event_loop

@@ -37,6 +37,11 @@ Per step, after `--settle-s`, a window of `--hold-s`:
   service's longest heartbeat silence;
 - the web service's own count (GET /health's `voice`, before and after the window) of the voice frames it handed
   over more than 20 and 60 ms after their time: a gap the visitor saw that the server counted too is the server's.
+The server's voice path (broker, audio, web) runs at real-time priority where the system allows it ([realtime] in
+eca/configs/default.toml; each service says so as it starts, and the report shows it). The visitors stand for
+browsers on other machines; here they share the server's two cores, where an ordinary-priority visitor would starve
+behind a real-time server (its loop stalled, every gap its own), so they run at the server's priority
+(`--ordinary-visitors` keeps them ordinary).
 A step passes when all of it holds for every visitor; the figure is the largest N that passed. The server's
 CPU and memory per added conversation are the slopes of a line fitted over the passing steps (N = 0, the
 baseline, measured in the same run, among them; over every step measured when fewer than two passed: a
@@ -63,6 +68,7 @@ last line.
                                   [--server-steps 0,1,2,3,4] [--hold-s 20] [--settle-s 5] [--fps 30]
                                   [--client-procs 2] [--cycle-s 8] [--agent-s 2.5] [--gap-ms 60]
                                   [--max-viewers 64] [--max-conversations N] [--stop-after 2] [--web-workers 1]
+                                  [--ordinary-visitors]
                                   [--seed 0] [--json]
 
 With `--web-workers K` (K > 1) the instance runs K web worker processes (`eca up --web-workers K`, docs/web.md) and
@@ -300,6 +306,7 @@ class Driver:
 class Helper:
     proc: subprocess.Popen[bytes]
     reader: LineReader
+    scheduling: str = ""  # what it said of real-time scheduling in its hello
 
     def ask(self, cmd: dict[str, Any], timeout_s: float) -> dict[str, Any]:
         assert self.proc.stdin is not None
@@ -324,20 +331,22 @@ class Helper:
 
 
 @contextmanager
-def helpers(count: int, url: str, draw: str, wav: Path, epoch: float, args: argparse.Namespace) -> Iterator[
-        list[Helper]]:
-    """`count` helper processes, each its own process group, killed (the group) afterwards."""
+def helpers(count: int, url: str, draw: str, wav: Path, epoch: float, args: argparse.Namespace,
+            realtime_priority: int = 0) -> Iterator[list[Helper]]:
+    """`count` helper processes, each its own process group, killed (the group) afterwards; at SCHED_RR
+    `realtime_priority` where that is not 0 (and the system allows it: each says in its hello)."""
     started: list[Helper] = []
     try:
         for _ in range(count):
             argv = [sys.executable, str(HELPER), "--url", url, "--draw", draw, "--mic", str(wav),
                     "--epoch-ns", str(int(epoch * 1e9)), "--cycle-s", str(args.cycle_s), "--user-at-s", "0",
-                    "--fps", str(args.fps), "--width", str(args.width), "--height", str(args.height)]
+                    "--fps", str(args.fps), "--width", str(args.width), "--height", str(args.height),
+                    "--realtime-priority", str(realtime_priority)]
             proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                     env=subprocess_env(), cwd=REPO, start_new_session=True)
             started.append(Helper(proc, LineReader(proc.stdout)))
         for h in started:
-            h.ask({"op": "hello"}, 60.0)
+            h.scheduling = str(h.ask({"op": "hello"}, 60.0).get("scheduling") or "the ordinary priority")
         yield started
     finally:
         for h in started:
@@ -368,6 +377,8 @@ class Instance:
     max_viewers: int
     balancer_pid: int | None = None  # with several web workers: the HAProxy in front of them (counted as server)
     worker_urls: tuple[str, ...] = ()  # each web worker's own address (its GET /health)
+    scheduling: dict[str, str] = field(default_factory=dict)  # service -> what it said of real-time scheduling
+    realtime_priority: int = 0  # the SCHED_RR priority the server's voice path runs at (0: the ordinary priority)
 
 
 @contextmanager
@@ -418,6 +429,11 @@ def eca_up(draw: str, args: argparse.Namespace) -> Iterator[Instance]:
                 raise RuntimeError(f"eca up was not ready within {READY_TIMEOUT_S:g} s: "
                                    f"{' | '.join(said[-3:]) or 'no error printed'}") from None
             urls = [m.group(1) for line in lines if (m := re.search(r"(http://\S+/)", line))]
+            # [realtime] (eca/configs/default.toml): each service on the voice's path says how it runs, before ready
+            scheduling = {m.group(1): m.group(2) for line in reader.lines
+                          if (m := re.match(r"\[([\w-]+)\] INFO (real-time scheduling.*)", line))}
+            granted = [int(m.group(1)) for said in scheduling.values() if (m := re.search(r": SCHED_RR (\d+)$", said))]
+            priority = min(granted) if granted and len(granted) == len(scheduling) else 0
             pid = re.search(r"ready \(pid (\d+)\)", ready)
             assert len(urls) == workers and pid is not None
             balancer_pid = None
@@ -429,7 +445,7 @@ def eca_up(draw: str, args: argparse.Namespace) -> Iterator[Instance]:
                 lb = stack.enter_context(balancer(servers, check_inter_ms=1000))
                 url, balancer_pid = lb.url, lb.process.pid
             yield Instance(config, proc, reader, url, int(pid.group(1)), max_conversations, max_viewers,
-                           balancer_pid, tuple(urls))
+                           balancer_pid, tuple(urls), scheduling, priority)
 
 
 def post_conversation(url: str) -> tuple[int, Any]:
@@ -652,9 +668,23 @@ def run_path(draw: str, steps: list[int], args: argparse.Namespace, report: Repo
     with eca_up(draw, args) as inst, ExitStack() as stack:
         epoch = time.monotonic()
         driver = stack.enter_context(Driver(inst.config, pcm, epoch, args.cycle_s, agent_at_s))
-        hs = stack.enter_context(helpers(args.client_procs, inst.url, draw, wav, epoch, args))
+        # The visitors stand for browsers on other machines. Here they share the server's cores, and at the ordinary
+        # priority a server whose voice path runs real-time would starve them (their loops stalled, the gaps theirs):
+        # they run at its priority, unless --ordinary-visitors.
+        visitor_priority = 0 if args.ordinary_visitors else inst.realtime_priority
+        hs = stack.enter_context(helpers(args.client_procs, inst.url, draw, wav, epoch, args, visitor_priority))
         details.update({"max_conversations": inst.max_conversations, "max_viewers": inst.max_viewers,
-                        "url": inst.url, "web_workers": args.web_workers})
+                        "url": inst.url, "web_workers": args.web_workers,
+                        "scheduling": {"server": inst.scheduling, "visitors": sorted({h.scheduling for h in hs})}})
+        def said(line: str) -> str:
+            return line.removeprefix("real-time scheduling").lstrip(": ")
+
+        report.add(f"{label}: scheduling", inst.realtime_priority and f"SCHED_RR {inst.realtime_priority}" or
+                   "ordinary", "-", None, "",
+                   "the server's voice path ([realtime]): " + (", ".join(f"{k} {said(v)}"
+                                                                 for k, v in sorted(inst.scheduling.items()))
+                                                       or "nothing said (no [realtime] services)")
+                   + f"; the visitors: {', '.join(sorted({said(h.scheduling) for h in hs}))}")
         visitors: dict[int, dict[str, Any]] = {}
         done: list[Step] = []
         failed_in_a_row = 0
@@ -944,6 +974,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--width", type=int, default=640, help="the face size a visitor asks (video)")
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--client-procs", type=int, default=2, help="helper processes holding the visitors")
+    parser.add_argument("--ordinary-visitors", action="store_true",
+                        help="keep the visitors at the ordinary priority when the server's voice path runs real-time")
     parser.add_argument("--cycle-s", type=float, default=8.0, help="one user turn and one agent turn (s)")
     parser.add_argument("--agent-s", type=float, default=2.5, help="the agent's turn (s)")
     parser.add_argument("--agent-gap-s", type=float, default=1.2,

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 
 from eca.protocol.endpoints import BusConfigError, load_bus_config
 from eca.services.processes.heap import bound_heap, freeze_startup_objects
+from eca.services.processes.realtime import ask_for_realtime, realtime_settings
 from eca.services.processes.runtime import one_maths_thread, setup_logging
 from eca.services.processes.web.options import MAX_WORKERS, worker_of  # names only: no web stack
 
@@ -21,6 +23,9 @@ SERVICES: dict[str, str] = {
     "rig": "eca.services.processes.rig.service:RigService",
     "bml": "eca.services.processes.bml.service:BmlService",
 }
+
+
+KNOWN = ("broker", *SERVICES)  # what [realtime] services may name
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,9 +50,13 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.name)
     try:
         config = load_bus_config(args.config, args.instance)
+        realtime = realtime_settings(config, KNOWN)
     except BusConfigError as exc:
         print(f"[{args.name}] ERROR {exc}", file=sys.stderr)
         return 2
+    scheduling = ask_for_realtime(service_key, realtime)  # before the service makes a thread: they inherit it
+    if scheduling is not None:
+        logging.getLogger(args.name).info("%s", scheduling)
     if args.name == "broker":
         from eca.services.processes.broker import run_broker
 

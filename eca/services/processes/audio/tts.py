@@ -22,6 +22,8 @@ from typing import Any, Protocol
 import numpy as np
 import soundfile as sf
 
+from eca.services.processes.realtime import ordinary_children
+
 
 class SpeechSynthesisError(RuntimeError):
     """The text could not be spoken: the message names the engine and the cause."""
@@ -90,6 +92,7 @@ class _Engine:
         argv = self.argv()
         if shutil.which(argv[0]) is None:
             raise SpeechSynthesisError(f"{self.name}: the program {argv[0]!r} is not installed")
+        ordinary_children()  # an engine may take a core for a second: never at the voice's real-time priority
         try:
             done = subprocess.run(argv, input=text.encode("utf-8"), capture_output=True,
                                   timeout=self.settings.timeout_s)

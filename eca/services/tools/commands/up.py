@@ -6,7 +6,9 @@ import argparse
 import sys
 
 from eca.protocol.endpoints import BusConfig, BusConfigError, load_bus_config
+from eca.services.processes.realtime import realtime_settings
 from eca.services.processes.rig.options import add_arguments as add_rig_arguments
+from eca.services.processes.run import KNOWN
 from eca.services.processes.web.options import add_arguments as add_web_arguments
 from eca.services.processes.web.options import worker_of, worker_service_name
 from eca.services.tools import cli_args
@@ -92,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
     site_argv = web_args(args)
     try:
         config = load_bus_config(args.config, args.instance)
+        realtime_settings(config, KNOWN)  # bad ones fail here, not in each service as it starts
         services = choose_services(config, args.only, args.without)
         if site_argv and not args.web:
             raise ValueError(f"web options ({' '.join(site_argv)}) given without --web")
