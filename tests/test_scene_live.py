@@ -142,6 +142,35 @@ def test_voiced_at_says_whether_the_mouth_follows_an_utterance() -> None:
     assert sc.voiced_at(2 * S + 11 * MS) and not sc.voiced_at(2 * S + 20 * MS)
 
 
+def test_a_finished_utterance_stays_silent_until_a_new_anchor_moves_its_end() -> None:
+    # A scene skips an utterance it has found silent past its last anchor. The same inputs given to a fresh scene
+    # at each time (no history) must agree at every time, before and after an anchor that moves the end later.
+    inputs: list[tuple[str, tuple[object, ...]]] = [("add_mouth_keys", ("u1", 16_000, list(range(0, 32_000, 160)),
+                                                                     {"say_ah": [0.5] * 200}))]
+    inputs += [("add_clock_anchor", ("u1", k * 1600, 16_000, 2 * S + k * 100 * MS)) for k in range(5)]
+    inputs.append(("speech_ended", ("u1", 0.5, 3 * S)))  # 8000 samples: silent from 2.5 s
+
+    def fresh() -> LiveScene:
+        scene = LiveScene(seed=3)
+        for name, args in inputs:
+            getattr(scene, name)(*args)
+        return scene
+
+    kept = fresh()
+    times = [2 * S + k * 50 * MS for k in range(0, 30)] + [2 * S + 300 * MS, 4 * S]  # and back in time
+    for t in times:
+        assert kept.voiced_at(t) == fresh().voiced_at(t), t
+    assert kept.voiced_at(2 * S + 450 * MS) and not kept.voiced_at(2 * S + 600 * MS)
+    # the device ran late: sample 6400 reached the DAC at 2.9 s, so the voice plays on until 3.0 s
+    late = ("add_clock_anchor", ("u1", 6400, 16_000, 2 * S + 900 * MS))
+    kept.add_clock_anchor(*late[1])  # type: ignore[arg-type]
+    inputs.append(late)
+    for t in times:
+        assert kept.voiced_at(t) == fresh().voiced_at(t), t
+        assert (kept.mouth_row_at(t) is None) == (fresh().mouth_row_at(t) is None), t
+    assert kept.voiced_at(2 * S + 950 * MS) and not kept.voiced_at(3 * S + 50 * MS)
+
+
 def test_speech_started_times_the_utterance_until_anchors_arrive() -> None:
     sc = scene()
     sc.speech_started("u2", dac_time_ns=1 * S)  # heard of before its keys

@@ -76,6 +76,9 @@ class _Utterance:
     end_sample: float = math.inf  # nothing at or after this sample is heard (finished / interrupted)
     closed_from_ns: int = _NEVER  # a reset closes the mouth from this time on
     last_update_ns: int = 0
+    # Found silent from here on (past its end): every frame after that skips it at once, and a scene keeps a minute
+    # of utterances. Only a new anchor can move where it ends (a later end or a reset only make it silent sooner).
+    silent_from_ns: int = _NEVER
 
     def add_keys(self, positions: Sequence[int], rows: np.ndarray) -> None:
         for p, row in zip(positions, rows, strict=True):
@@ -96,10 +99,14 @@ class _Utterance:
 
     def playing_at(self, t_ns: int) -> float | None:
         """The sample heard at t_ns, or None when this utterance is silent then."""
-        if t_ns >= self.closed_from_ns:
+        if t_ns >= self.closed_from_ns or t_ns >= self.silent_from_ns:
             return None
         sample = self.sample_at(t_ns)
-        if sample is None or sample < 0 or sample >= self.end_sample:
+        if sample is None or sample < 0:
+            return None
+        if sample >= self.end_sample:
+            if t_ns >= self.anchors[-1][0]:  # on the last anchor's line, which only runs on: silent from here
+                self.silent_from_ns = t_ns
             return None
         return sample
 
@@ -269,6 +276,7 @@ class LiveScene:
             utt.anchors.clear()  # measured anchors replace the speech-started estimate
             utt.estimated_start = False
         bisect.insort(utt.anchors, anchor)
+        utt.silent_from_ns = _NEVER  # where it ends may have moved
         utt.last_update_ns = max(utt.last_update_ns, anchor[0])
 
     def add_mouth_keys(self, request_id: str, sample_rate: int, sample_index: Sequence[int],
