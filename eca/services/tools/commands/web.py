@@ -7,6 +7,7 @@ the rest): open the address it prints, see and hear the agent, speak to it.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 from eca.protocol.endpoints import BusConfigError, load_bus_config
@@ -26,12 +27,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from eca.services.processes.realtime import ask_for_realtime, realtime_settings
+    from eca.services.processes.run import KNOWN
     from eca.services.processes.web.options import WebOptionsError, options_from
     from eca.services.processes.web.service import WebService
 
     setup_logging("web")
     try:
         config = load_bus_config(args.config, args.instance)
+        realtime = realtime_settings(config, KNOWN)
         options = options_from(dict(config.raw.get("web", {})), args)
         if options.workers > 1:
             raise WebOptionsError(f"{options.workers} web workers are started by `eca up --web` (one process each); "
@@ -40,4 +44,9 @@ def run(args: argparse.Namespace) -> int:
     except (BusConfigError, WebOptionsError) as exc:
         print(f"eca web: {exc}", file=sys.stderr)
         return 2
+    # as `eca up`'s web service, once it can start (a start that fails says one line): every thread so far, and
+    # those it makes from now on
+    scheduling = ask_for_realtime("web", realtime)
+    if scheduling is not None:
+        logging.getLogger("web").info("%s", scheduling)
     return service.run()
