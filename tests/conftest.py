@@ -8,6 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
+import tests.support.bus
 from eca.protocol.endpoints import BusConfig
 from tests.support.bus import BrokerThread, private_bus_config
 from tests.support.netns import netns_available, only_own_networks, remove_stale_routers
@@ -17,6 +18,7 @@ _compiled = False
 
 def pytest_configure(config: pytest.Config) -> None:
     only_own_networks()
+    tests.support.bus.REALTIME = False  # the suite's instances at the ordinary priority (tests/support/bus.py)
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:

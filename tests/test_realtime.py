@@ -43,7 +43,7 @@ def policy_of(tid: int) -> tuple[int, int]:
 
 
 def test_the_settings_and_their_errors() -> None:
-    with private_bus_config() as config:
+    with private_bus_config(realtime=True) as config:  # as shipped (the suite's own instances run without it)
         shipped = realtime_settings(config, KNOWN)
         assert shipped == RealtimeSettings(DEFAULT_PRIORITY, DEFAULT_SERVICES)
         assert realtime_settings(dataclasses.replace(config, raw={}), KNOWN) == shipped  # no table: the defaults

@@ -27,10 +27,19 @@ from eca.services.tools.child_processes import LineReader, eca_command, subproce
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
+# Whether the instances made here run the voice's path at real-time priority as shipped ([realtime]). The benches
+# measure the product as shipped; the test suite (tests/conftest.py) turns it off: many instances run at once on two
+# cores, each test's timing its own, and a real-time service of one test would take the cores in bursts from the
+# ordinary processes of another (a test drawing video in-process, a script player). tests/test_realtime.py asks.
+REALTIME = True
+
+
 def write_test_config(directory: Path, services: list[str] | None = None, agents: list[str] | None = None,
-                      extra: str = "") -> Path:
+                      extra: str = "", realtime: bool | None = None) -> Path:
     """A copy of the default config with a private runtime directory under `directory`; tables in `extra`
-    replace the default tables of the same name."""
+    replace the default tables of the same name. `realtime` (default: REALTIME) False turns [realtime] off."""
+    if not (REALTIME if realtime is None else realtime) and not re.search(r"^\[realtime\]", extra, re.MULTILINE):
+        extra = f"{extra}\n[realtime]\npriority = 0\n"
     text = DEFAULT_CONFIG.read_text()
     text = text.replace('runtime_dir = ""', f'runtime_dir = "{directory / "run"}"', 1)
     if services is not None:
@@ -48,11 +57,11 @@ def write_test_config(directory: Path, services: list[str] | None = None, agents
 
 @contextmanager
 def private_bus_config(services: list[str] | None = None, agents: list[str] | None = None,
-                       extra: str = "") -> Iterator[BusConfig]:
+                       extra: str = "", realtime: bool | None = None) -> Iterator[BusConfig]:
     """A config for a fresh instance in a short private directory (ipc paths must stay short)."""
     directory = Path(tempfile.mkdtemp(prefix="eca-"))
     try:
-        path = write_test_config(directory, services, agents, extra)
+        path = write_test_config(directory, services, agents, extra, realtime)
         yield load_bus_config(path, instance=f"t{secrets.token_hex(4)}")
     finally:
         shutil.rmtree(directory, ignore_errors=True)
