@@ -676,11 +676,12 @@ def run_path(draw: str, steps: list[int], args: argparse.Namespace, report: Repo
         details.update({"max_conversations": inst.max_conversations, "max_viewers": inst.max_viewers,
                         "url": inst.url, "web_workers": args.web_workers,
                         "scheduling": {"server": inst.scheduling, "visitors": sorted({h.scheduling for h in hs})}})
+
         def said(line: str) -> str:
             return line.removeprefix("real-time scheduling").lstrip(": ")
 
-        report.add(f"{label}: scheduling", inst.realtime_priority and f"SCHED_RR {inst.realtime_priority}" or
-                   "ordinary", "-", None, "",
+        report.add(f"{label}: scheduling",
+                   f"SCHED_RR {inst.realtime_priority}" if inst.realtime_priority else "ordinary", "-", None, "",
                    "the server's voice path ([realtime]): " + (", ".join(f"{k} {said(v)}"
                                                                  for k, v in sorted(inst.scheduling.items()))
                                                        or "nothing said (no [realtime] services)")

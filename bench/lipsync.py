@@ -224,6 +224,7 @@ def main() -> int:
     samples, sr, source = speech_sample()
     figures: dict[str, object] = {"source": source, "blocks_per_run": int(len(samples) / (sr * BLOCK_S))}
     sliced_us: dict[int, float] = {}
+    slice_s = AudioConfig.load().prepare_slice_s  # what the audio player pushes at a time
     for rate in (sr, 48_000):
         x = samples if rate == sr else np.interp(np.arange(round(len(samples) * rate / sr)) * sr / rate,
                                                  np.arange(len(samples)), samples).astype(np.float32)
@@ -239,8 +240,7 @@ def main() -> int:
         figures[f"cost_p95_us_{rate}"] = round(statistics.median(p95s) * 1e6, 1)
         figures[f"core_fraction_{rate}"] = round(median / BLOCK_S, 5)  # baseline: 10 ms of real time
         figures[f"core_fraction_mean_{rate}"] = round(statistics.median(means) / BLOCK_S, 5)
-        sliced = statistics.median(slice_costs(x, rate, AudioConfig.load().prepare_slice_s)
-                                   for _ in range(args.repeats))
+        sliced = statistics.median(slice_costs(x, rate, slice_s) for _ in range(args.repeats))
         figures[f"cost_per_block_in_slices_us_{rate}"] = sliced_us[rate] = round(sliced * 1e6, 1)
 
     vowel = synthetic_vowel(750, 1200, 0.3, 22_050)
@@ -273,7 +273,7 @@ def main() -> int:
               f"{figures[f'cost_mean_us_{rate}']:.1f} mean (p95 {figures[f'cost_p95_us_{rate}']:.1f}) = "
               f"{100 * figures[f'core_fraction_{rate}']:.2f}% / {100 * figures[f'core_fraction_mean_{rate}']:.2f}% "
               f"of one core (baseline 10 ms real time; target <= 1%)")
-        print(f"  {rate:>6} Hz, pushed as the audio player pushes ({AudioConfig.load().prepare_slice_s:g} s slices, "
+        print(f"  {rate:>6} Hz, pushed as the audio player pushes ({slice_s:g} s slices, "
               f"their blocks analysed together): {sliced_us[rate]:.1f} us/block mean = {sliced_us[rate] / 100:.2f}% "
               f"of one core")
     print(f"  player (fake sink): mouth-open onset - audio onset at the DAC: median {figures['offset_median_ms']:+.2f} "

@@ -259,15 +259,12 @@ class FeatureExtractor:
         hist = self._history
         span = len(hist)
         signal = np.concatenate((hist, x))
-        first = np.asarray(starts, dtype=np.intp)
-        ends = np.empty(n_blocks, dtype=np.intp)
-        ends[:-1] = first[1:]
-        ends[-1] = len(x)
+        ends = [*starts[1:], len(x)]
         # each block's window: the span of samples ending at its end (one more for the pre-emphasis), which in
-        # `signal` (the history before x) starts at the block's end in x
-        windows = signal[None, -span:] if n_blocks == 1 else signal[ends[:, None] + self._span]
+        # `signal` (the history before x) starts at the block's end in x; a lone block's is the tail, sliced
+        windows = signal[None, -span:] if n_blocks == 1 else signal[np.array(ends)[:, None] + self._span]
         hist[:] = signal[-span:]
-        power = [float(np.dot(x[a:b], x[a:b])) / (b - a) for a, b in zip(starts, ends.tolist(), strict=True)]
+        power = [float(np.dot(x[a:b], x[a:b])) / (b - a) for a, b in zip(starts, ends, strict=True)]
 
         emphasised = windows[:, 1:] - self.preemphasis * windows[:, :-1]
         emphasised *= self.window
@@ -280,14 +277,13 @@ class FeatureExtractor:
         return [BlockFeatures(10.0 * math.log10(p + _EPS), high / (total + _EPS), raw_low / (raw_total + _EPS))
                 for p, (total, high, raw_low, raw_total) in zip(power, sums.tolist(), strict=True)]
 
-    def formants(self, j: int = -1) -> tuple[float, float]:
-        """F1 and F2 (Hz, NaN when absent) of block j of the last `blocks` call (the last block by default).
+    def formants(self, j: int) -> tuple[float, float]:
+        """F1 and F2 (Hz, NaN when absent) of block j of the last `blocks` call.
 
         Separate from `blocks` because it costs most of the time and only vowel-like and murmur-like
         blocks need it; computed at most once per block, one block at a time (a block's own matrix-vector
         products, so its formants do not depend on the blocks analysed with it).
         """
-        j %= len(self._psd)
         found = self._formants.get(j)
         if found is None:
             found = self._formants[j] = self._compute_formants(self._psd[j])
